@@ -1,0 +1,1 @@
+"""Typed message definitions, one module per domain (std, geometry, sensor, sonar, nav, control, can)."""

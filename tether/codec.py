@@ -1,0 +1,198 @@
+"""Typed msgpack codec: messages to ZeroMQ frames (arrays out of band) and to log records.
+
+An array field (annotated ``numpy.ndarray``) is a msgpack map. On the wire its buffer
+travels as a separate frame and the map says which one::
+
+    {"dtype": "<u1", "shape": [512, 2048], "frame": 0}     # frame 0 = first after the body
+
+In a log (and anywhere a single blob is needed) the buffer is inline::
+
+    {"dtype": "<u1", "shape": [512, 2048], "data": <bin>}
+
+So plain ``msgpack.unpackb`` reads every message. Encoding for the wire copies nothing
+(non-contiguous arrays are made contiguous first, one copy); decoding from the wire
+gives read-only arrays that view the received frames.
+"""
+from __future__ import annotations
+
+import functools
+from typing import Any, Sequence
+
+import msgspec
+import numpy as np
+
+from tether.errors import DecodeError
+from tether.message import Message
+
+_KINDS = set("biufcm" "M")  # bool, ints, float, complex, timedelta, datetime (no object/void/str)
+
+
+def _check_dtype(dtype: np.dtype) -> None:
+    if dtype.kind not in _KINDS or dtype.fields is not None:
+        raise TypeError(f"array dtype {dtype} cannot travel as a message field; "
+                        "use a numeric or bool dtype (split structured arrays into columns)")
+
+
+def _array_from(obj: Any, buffer: Any) -> np.ndarray:
+    try:
+        dtype = np.dtype(obj["dtype"])
+        shape = tuple(int(n) for n in obj["shape"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DecodeError(f"bad array header {obj!r:.80}: {exc}") from None
+    if dtype.kind not in _KINDS or dtype.fields is not None:
+        raise DecodeError(f"array dtype {dtype} is not allowed")
+    if any(n < 0 for n in shape):
+        raise DecodeError(f"negative array shape {shape}")
+    count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+    nbytes = len(memoryview(buffer).cast("B")) if not isinstance(buffer, (bytes, bytearray)) else len(buffer)
+    if count * dtype.itemsize != nbytes:
+        raise DecodeError(f"array of shape {shape} and dtype {dtype} needs {count * dtype.itemsize} bytes, got {nbytes}")
+    return np.frombuffer(buffer, dtype=dtype, count=count).reshape(shape)
+
+
+def _schema_hook(tp: type) -> dict[str, Any]:
+    if tp is np.ndarray:
+        return {"type": "object", "title": "Array",
+                "description": "n-d array: numpy dtype string, shape, and raw C-order bytes",
+                "properties": {"dtype": {"type": "string"},
+                               "shape": {"type": "array", "items": {"type": "integer"}},
+                               "data": {"type": "string", "contentEncoding": "base64"}},
+                "required": ["dtype", "shape", "data"]}
+    raise NotImplementedError(f"no schema for {tp}")
+
+
+class Codec:
+    """Encoder/decoder pair for one thread (it holds per-call state; do not share across threads)."""
+
+    def __init__(self) -> None:
+        self._buffers: list[Any] = []
+        self._frames: Sequence[Any] = ()
+        self._wire_encoder = msgspec.msgpack.Encoder(enc_hook=self._enc_wire)
+        self._inline_encoder = msgspec.msgpack.Encoder(enc_hook=self._enc_inline)
+        self._wire_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+        self._inline_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+
+    # -- encoding -------------------------------------------------------------------
+    def _enc_wire(self, obj: Any) -> Any:
+        if isinstance(obj, np.ndarray):
+            _check_dtype(obj.dtype)
+            arr = obj if obj.flags.c_contiguous else np.ascontiguousarray(obj)
+            self._buffers.append(arr.reshape(-1).view(np.uint8) if arr.ndim and arr.size else arr.tobytes())
+            return {"dtype": arr.dtype.str, "shape": list(arr.shape), "frame": len(self._buffers) - 1}
+        return _enc_common(obj)
+
+    def _enc_inline(self, obj: Any) -> Any:
+        if isinstance(obj, np.ndarray):
+            _check_dtype(obj.dtype)
+            arr = obj if obj.flags.c_contiguous else np.ascontiguousarray(obj)
+            data = memoryview(arr.reshape(-1).view(np.uint8)) if arr.ndim and arr.size else arr.tobytes()
+            return {"dtype": arr.dtype.str, "shape": list(arr.shape), "data": data}
+        return _enc_common(obj)
+
+    def encode(self, msg: Message) -> list[Any]:
+        """Frames for the wire: ``[body, *array_buffers]``; buffers are views, not copies."""
+        self._buffers = []
+        try:
+            body = self._wire_encoder.encode(msg)
+            return [body, *self._buffers]
+        finally:
+            self._buffers = []
+
+    def encode_inline(self, msg: Message) -> bytes:
+        """One msgpack blob with arrays inline (the log record form)."""
+        return self._inline_encoder.encode(msg)
+
+    # -- decoding -------------------------------------------------------------------
+    def _dec_wire(self, tp: type, obj: Any) -> Any:
+        if tp is np.ndarray:
+            if not isinstance(obj, dict):
+                raise DecodeError(f"expected an array map, got {type(obj).__name__}")
+            if "data" in obj:
+                return _array_from(obj, obj["data"])
+            index = obj.get("frame")
+            if not isinstance(index, int) or not 0 <= index < len(self._frames):
+                raise DecodeError(f"array refers to frame {index!r} but the message has {len(self._frames)} buffer frames")
+            frame = self._frames[index]
+            return _array_from(obj, getattr(frame, "buffer", frame))
+        return _dec_common(tp, obj)
+
+    def _dec_inline(self, tp: type, obj: Any) -> Any:
+        if tp is np.ndarray:
+            if not isinstance(obj, dict) or "data" not in obj:
+                raise DecodeError("expected an inline array map with 'data'")
+            return _array_from(obj, obj["data"])
+        return _dec_common(tp, obj)
+
+    def decode(self, tp: type[Message], frames: Sequence[Any]) -> Message:
+        """Decode ``[body, *buffers]`` (bytes or ``zmq.Frame``) as ``tp``; arrays view the frames."""
+        if not frames:
+            raise DecodeError("empty message")
+        dec = self._wire_decoders.get(tp)
+        if dec is None:
+            dec = self._wire_decoders[tp] = msgspec.msgpack.Decoder(tp, dec_hook=self._dec_wire)
+        body = frames[0]
+        self._frames = frames[1:]
+        try:
+            return dec.decode(getattr(body, "buffer", body))
+        except msgspec.DecodeError as exc:
+            raise DecodeError(f"cannot decode {tp.type_name()}: {exc}") from None
+        except (DecodeError, TypeError, ValueError) as exc:
+            raise DecodeError(f"cannot decode {tp.type_name()}: {exc}") from None
+        finally:
+            self._frames = ()
+
+    def decode_inline(self, tp: type[Message], data: bytes | memoryview) -> Message:
+        """Decode a log record (arrays inline)."""
+        dec = self._inline_decoders.get(tp)
+        if dec is None:
+            dec = self._inline_decoders[tp] = msgspec.msgpack.Decoder(tp, dec_hook=self._dec_inline)
+        try:
+            return dec.decode(data)
+        except (msgspec.DecodeError, DecodeError, TypeError, ValueError) as exc:
+            raise DecodeError(f"cannot decode {tp.type_name()}: {exc}") from None
+
+
+def _enc_common(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise NotImplementedError(f"cannot encode {type(obj).__name__}")
+
+
+def _dec_common(tp: type, obj: Any) -> Any:
+    raise NotImplementedError(f"cannot decode {tp}")
+
+
+def wire_to_inline(frames: Sequence[Any]) -> bytes:
+    """Re-encode wire frames as one inline blob without knowing the message type.
+
+    Used by the recorder: array maps ``{"frame": k}`` get their buffer as ``data``.
+    """
+    import msgpack
+
+    body = frames[0]
+    buffers = frames[1:]
+    doc = msgpack.unpackb(getattr(body, "buffer", body), raw=False, strict_map_key=False)
+
+    def fill(node: Any) -> Any:
+        if isinstance(node, dict):
+            if "frame" in node and "dtype" in node and "shape" in node and len(node) == 3:
+                index = node["frame"]
+                if not isinstance(index, int) or not 0 <= index < len(buffers):
+                    raise DecodeError(f"array refers to missing frame {index!r}")
+                buf = buffers[index]
+                return {"dtype": node["dtype"], "shape": node["shape"], "data": getattr(buf, "buffer", buf)}
+            return {k: fill(v) for k, v in node.items()}
+        if isinstance(node, list):
+            return [fill(v) for v in node]
+        return node
+
+    try:
+        return msgpack.packb(fill(doc), use_bin_type=True)
+    except (TypeError, ValueError) as exc:
+        raise DecodeError(f"cannot re-encode message: {exc}") from None
+
+
+@functools.cache
+def json_schema(tp: type[Message]) -> dict[str, Any]:
+    """The JSON schema of a message type (what logs carry)."""
+    return msgspec.json.schema(tp, schema_hook=_schema_hook)

@@ -1,0 +1,166 @@
+"""The node base class: declarations plus ``on_<input>`` handlers; the runtime does the rest.
+
+A node declares a ``Config`` (msgspec Struct, validated at launch), ``inputs`` (message
+type, or :class:`Input` with a queue policy), ``outputs`` and ``timers``. Handlers
+``on_<input>(msg)`` return outputs as ``{"name": msg}`` (or a list of ``(name, msg)``
+pairs, or ``None``). Source nodes (drivers, simulators) may instead override
+:meth:`Node.run`, a loop that calls :meth:`Node.publish` until :attr:`Node.stopping` is
+set. Node code never touches a socket or a clock other than :meth:`Node.now_ns`.
+
+The same class runs in a launched pipeline, alone (``tether run``), in
+:mod:`tether.testing` and under ``tether replay --into``.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar, Iterable, Mapping
+
+import msgspec
+
+from tether.errors import ConfigError
+from tether.message import Message
+
+
+class Tick(Message, tag="std.Tick"):
+    """What a timer input delivers: ``stamp_ns`` is the scheduled firing time."""
+
+    period_ns: int = 0
+
+
+class NoConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Config of a node that takes no parameters."""
+
+
+@dataclass(frozen=True)
+class Input:
+    """An input port: its message type and queue policy.
+
+    ``depth`` messages are kept (oldest dropped first, counted); ``latest=True`` keeps
+    only the newest, for sensor streams that a slow node should sample, not queue.
+    """
+
+    type: type[Message]
+    depth: int = 16
+    latest: bool = False
+
+    def __post_init__(self) -> None:
+        if self.depth < 1:
+            raise ValueError("Input depth must be >= 1")
+
+    @property
+    def maxlen(self) -> int:
+        return 1 if self.latest else self.depth
+
+
+@dataclass(frozen=True)
+class Ports:
+    """A node's resolved inputs, outputs and timers (timer name -> period in ns)."""
+
+    inputs: Mapping[str, Input]
+    outputs: Mapping[str, type[Message]]
+    timers: Mapping[str, int]
+
+
+class Context:
+    """What the runtime gives a node: how to publish and what time it is."""
+
+    def publish(self, node: "Node", output: str, msg: Message) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def now_ns(self) -> int:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class Node:
+    """Base of every node. Subclasses declare, the runtime runs."""
+
+    Config: ClassVar[type[msgspec.Struct]] = NoConfig
+    inputs: ClassVar[Mapping[str, type[Message] | Input]] = {}
+    outputs: ClassVar[Mapping[str, type[Message]]] = {}
+    #: timer input name -> rate in Hz, or the name of a Config field holding the rate in Hz
+    timers: ClassVar[Mapping[str, float | str]] = {}
+
+    def __init__(self, config: msgspec.Struct, *, node_id: str, context: Context) -> None:
+        self.config = config
+        self.id = node_id
+        self.log = logging.getLogger(f"tether.{node_id}")
+        self.stopping = threading.Event()
+        self._context = context
+        self.ports = type(self).resolve_ports(config)
+
+    # -- declarations ---------------------------------------------------------------
+    @classmethod
+    def ports_for(cls, config: msgspec.Struct) -> tuple[Mapping[str, Any], Mapping[str, type[Message]], Mapping[str, Any]]:
+        """Inputs, outputs and timers for this config. Override when they depend on it."""
+        return cls.inputs, cls.outputs, cls.timers
+
+    @classmethod
+    def resolve_ports(cls, config: msgspec.Struct) -> Ports:
+        raw_inputs, outputs, raw_timers = cls.ports_for(config)
+        inputs = {name: spec if isinstance(spec, Input) else Input(spec) for name, spec in raw_inputs.items()}
+        timers: dict[str, int] = {}
+        for name, rate in raw_timers.items():
+            rate_hz = getattr(config, rate) if isinstance(rate, str) else rate
+            if not rate_hz or rate_hz <= 0:
+                raise ConfigError(f"{cls.__name__}: timer {name!r} needs a positive rate, got {rate_hz!r}")
+            timers[name] = int(round(1e9 / float(rate_hz)))
+            inputs.setdefault(name, Input(Tick, depth=1, latest=True))
+        for name in inputs:
+            if not callable(getattr(cls, f"on_{name}", None)):
+                raise ConfigError(f"{cls.__name__}: input {name!r} has no handler on_{name}(msg)")
+        return Ports(inputs=inputs, outputs=dict(outputs), timers=timers)
+
+    @classmethod
+    def make_config(cls, params: Mapping[str, Any] | None = None) -> msgspec.Struct:
+        """Validate ``params`` against ``Config``; raise ``ConfigError`` naming the field."""
+        try:
+            return msgspec.convert(dict(params or {}), cls.Config, strict=False)
+        except msgspec.ValidationError as exc:
+            raise ConfigError(f"{cls.__module__}:{cls.__name__} params: {exc}") from None
+
+    @classmethod
+    def is_source(cls) -> bool:
+        """True when the node has its own loop (overrides :meth:`run`)."""
+        return cls.run is not Node.run
+
+    # -- lifecycle (override) -------------------------------------------------------
+    def setup(self) -> None:
+        """Called once before any input is handled."""
+
+    def teardown(self) -> None:
+        """Called once at shutdown, after the last handler (summaries, files, standby)."""
+
+    def run(self) -> None:
+        """A source node's loop: publish until ``self.stopping`` is set. Runs in its own thread."""
+
+    # -- services -------------------------------------------------------------------
+    def publish(self, output: str, msg: Message) -> None:
+        """Publish ``msg`` on ``output`` (seq is stamped per topic; a zero stamp gets now)."""
+        if output not in self.ports.outputs:
+            raise KeyError(f"{type(self).__name__} has no output {output!r} (declared: {sorted(self.ports.outputs)})")
+        self._context.publish(self, output, msg)
+
+    def now_ns(self) -> int:
+        """Current time on the runtime's clock (virtual under tether.testing and lockstep replay)."""
+        return self._context.now_ns()
+
+    def handler(self, input_name: str) -> Callable[[Message], Any]:
+        return getattr(self, f"on_{input_name}")
+
+    def dispatch(self, input_name: str, msg: Message) -> None:
+        """Call ``on_<input>`` and publish whatever it returns."""
+        for output, out in iter_outputs(self.handler(input_name)(msg)):
+            self.publish(output, out)
+
+
+def iter_outputs(result: Any) -> Iterable[tuple[str, Message]]:
+    """Normalise a handler's return value to ``(output, msg)`` pairs."""
+    if result is None:
+        return ()
+    if isinstance(result, Mapping):
+        return result.items()
+    if isinstance(result, (list, tuple)):
+        return result
+    raise TypeError(f"a handler returns a dict of outputs, a list of (output, msg) pairs or None, not {type(result).__name__}")
