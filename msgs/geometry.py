@@ -39,7 +39,7 @@ class Pose3D(Message, tag="geometry.Pose3D"):
         rot = np.array([[1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
                         [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
                         [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)]])
-        out = const(np.eye(4))
+        out = np.eye(4)
         out[:3, :3] = rot
         out[:3, 3] = (self.x_m, self.y_m, self.z_m)
         return out
