@@ -4,7 +4,7 @@ from __future__ import annotations
 from tether.message import Message
 from tether.node import Tick
 
-__all__ = ["Tick", "String", "Float64", "Int64", "Bool", "Empty", "InputStats", "NodeStats"]
+__all__ = ["Tick", "Bytes", "String", "Float64", "Int64", "Bool", "Empty", "InputStats", "NodeStats"]
 
 
 class String(Message, tag="std.String"):
@@ -53,3 +53,9 @@ class NodeStats(Message, tag="std.NodeStats"):
     published: dict[str, int] = {}
     subscribers: dict[str, int] = {}
     errors: int = 0
+
+
+class Bytes(Message, tag="std.Bytes"):
+    """An opaque payload."""
+
+    data: bytes = b""

@@ -1,0 +1,1 @@
+"""Runtime example and utility nodes (relays, counters, transport benchmark peers)."""

@@ -1,0 +1,123 @@
+"""Transport benchmark peers: round-trip pinger/echo and a 1 MiB image source/sink.
+
+Results are written as JSON to ``result_path`` when the node finishes its count
+(used by ``bench/transport.py``; the bench process waits for the file).
+"""
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+
+import msgspec
+import numpy as np
+
+from msgs.sensor import Image
+from msgs.std import Bytes
+from tether import Input, Node
+
+
+class PingConfig(msgspec.Struct, frozen=True, kw_only=True):
+    count: int = 2000
+    warmup: int = 200
+    payload_bytes: int = 64
+    result_path: str = ""
+
+
+class Pinger(Node):
+    """Publishes ``ping``, times each ``pong`` (round trip, ns), publishes the next ping."""
+
+    Config = PingConfig
+    inputs = {"pong": Bytes}
+    outputs = {"ping": Bytes}
+
+    def setup(self) -> None:
+        self._payload = os.urandom(self.config.payload_bytes)
+        self._rtts: list[int] = []
+        self._sent_ns = 0
+        self._done = threading.Event()
+
+    def _send(self) -> None:
+        self._sent_ns = time.perf_counter_ns()
+        self.publish("ping", Bytes(data=self._payload, stamp_ns=1))
+
+    def run(self) -> None:
+        self._send()
+        while not self.stopping.wait(1.0) and not self._done.is_set():
+            if time.perf_counter_ns() - self._sent_ns > 1e9:   # a lost ping: send another
+                self._send()
+
+    def on_pong(self, msg: Bytes) -> None:
+        self._rtts.append(time.perf_counter_ns() - self._sent_ns)
+        if len(self._rtts) >= self.config.count + self.config.warmup:
+            if not self._done.is_set():
+                self._done.set()
+                _write_result(self.config.result_path, {"rtt_ns": self._rtts[self.config.warmup:]})
+            return
+        self._send()
+
+
+class Echo(Node):
+    """Republishes every ``ping`` as ``pong``."""
+
+    inputs = {"ping": Bytes}
+    outputs = {"pong": Bytes}
+
+    def on_ping(self, msg: Bytes) -> dict[str, Bytes]:
+        return {"pong": msg}
+
+
+class BlobConfig(msgspec.Struct, frozen=True, kw_only=True):
+    count: int = 2000
+    rows: int = 512
+    cols: int = 2048
+    result_path: str = ""
+
+
+class BlobSource(Node):
+    """Publishes ``count`` rows x cols uint8 images as fast as the socket takes them."""
+
+    Config = BlobConfig
+    outputs = {"image": Image}
+
+    def run(self) -> None:
+        rng = np.random.default_rng(0)
+        image = rng.integers(0, 255, (self.config.rows, self.config.cols), dtype=np.uint8)
+        for i in range(self.config.count):
+            if self.stopping.is_set():
+                return
+            self.publish("image", Image(data=image, encoding="mono8", stamp_ns=i + 1))
+        self.stopping.wait(2.0)   # let the last frames leave before the socket closes
+
+
+class BlobSink(Node):
+    """Counts images and bytes; writes the receive rate once ``count`` arrived or input went quiet."""
+
+    Config = BlobConfig
+    inputs = {"image": Input(Image, depth=1000)}
+
+    def setup(self) -> None:
+        self._times: list[int] = []
+        self._checksum = 0
+
+    def on_image(self, msg: Image) -> None:
+        self._times.append(time.perf_counter_ns())
+        self._checksum += int(msg.data[0, 0]) + int(msg.data[-1, -1])
+        if len(self._times) == self.config.count:
+            self._flush()
+
+    def _flush(self) -> None:
+        _write_result(self.config.result_path, {"recv_ns": self._times, "checksum": self._checksum})
+
+    def teardown(self) -> None:
+        if len(self._times) < self.config.count:
+            self._flush()
+
+
+def _write_result(path: str, doc: dict) -> None:
+    if path:
+        tmp = path + ".tmp"
+        with open(tmp, "w") as fh:
+            json.dump(doc, fh)
+        os.replace(tmp, path)

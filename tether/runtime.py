@@ -1,0 +1,387 @@
+"""The live node runtime: one XPUB, SUB sockets, timers, queues and the handler loop.
+
+Receive, decode, handle and publish all happen on one thread, so a message crosses a
+node with no thread hand-off. Source nodes' :meth:`Node.run` loops get a thread of their
+own; publishing is serialised by a lock.
+"""
+from __future__ import annotations
+
+import collections
+import itertools
+import logging
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgspec
+import zmq
+
+from msgs.std import InputStats, NodeStats
+from tether.codec import Codec
+from tether.errors import DecodeError
+from tether.message import Message
+from tether.node import Context, Node, Tick
+from tether.transport import CurveKeys, connect_sub, make_pub, make_sub, start_authenticator
+
+log = logging.getLogger("tether.runtime")
+
+STATS_PERIOD_NS = 1_000_000_000
+ERROR_LOG_PERIOD_NS = 5_000_000_000
+
+
+@dataclass
+class Source:
+    """Where an input comes from: a topic at an endpoint, or a timer."""
+
+    topic: str = ""
+    endpoint: str = ""
+    timer_ns: int = 0
+
+
+@dataclass
+class RunSpec:
+    """Everything a node process needs to run one node in a graph (the launcher writes it)."""
+
+    graph: str
+    node_id: str
+    node: str
+    params: dict[str, Any] = field(default_factory=dict)
+    binds: list[str] = field(default_factory=list)
+    inputs: dict[str, Source] = field(default_factory=dict)
+    expect_subscribers: dict[str, int] = field(default_factory=dict)
+    wait_subscribers_s: float = 5.0
+    curve: dict[str, str] | None = None
+
+
+class _InputState:
+    __slots__ = ("name", "topic", "type", "queue", "maxlen", "last_seq", "stats", "handler_ns", "handler_max_ns",
+                 "last_error_log_ns", "suppressed")
+
+    def __init__(self, name: str, topic: str, tp: type[Message], maxlen: int) -> None:
+        self.name, self.topic, self.type, self.maxlen = name, topic, tp, maxlen
+        self.queue: collections.deque[tuple[int, Message]] = collections.deque()
+        self.last_seq = 0
+        self.stats = {"received": 0, "handled": 0, "dropped_seq_gap": 0, "dropped_queue": 0,
+                      "decode_errors": 0, "handler_errors": 0}
+        self.handler_ns = 0
+        self.handler_max_ns = 0
+        self.last_error_log_ns = -ERROR_LOG_PERIOD_NS
+        self.suppressed = 0
+
+
+class NodeRuntime(Context):
+    """Runs one node on real sockets until stopped; :meth:`serve` returns the exit code."""
+
+    def __init__(self, spec: RunSpec, node_cls: type[Node], ctx: zmq.Context | None = None) -> None:
+        self.spec = spec
+        self.ctx = ctx or zmq.Context.instance()
+        self.stop_event = threading.Event()
+        self.curve = CurveKeys.from_json(spec.curve) if spec.curve else None
+        self._auth = start_authenticator(self.ctx, self.curve) if self.curve and spec.binds else None
+        self._codec = Codec()
+        self._pub_lock = threading.Lock()
+        self._seq: dict[str, int] = {}
+        self._published: dict[str, int] = collections.Counter()
+        self._subscribers: dict[str, int] = collections.Counter()
+        self._started_ns = time.monotonic_ns()
+        config = node_cls.make_config(spec.params)
+        self.node = node_cls(config, node_id=spec.node_id, context=self)
+        self._topics = {name: f"{spec.node_id}/{name}".encode() for name in self.node.ports.outputs}
+        self._stats_topic = f"{spec.node_id}/_stats".encode()
+        self.pub = make_pub(self.ctx, spec.binds, self.curve) if spec.binds else None
+        self._build_inputs()
+
+    # -- wiring -----------------------------------------------------------------------
+    def _build_inputs(self) -> None:
+        ports = self.node.ports
+        self.inputs: dict[str, _InputState] = {}
+        self.routes: dict[bytes, list[_InputState]] = {}
+        self.timers: dict[str, int] = dict(ports.timers)
+        plain, secure = None, None
+        for name, port in ports.inputs.items():
+            src = self.spec.inputs.get(name)
+            if src is not None and src.timer_ns:
+                self.timers[name] = src.timer_ns
+            if name in self.timers:
+                self.inputs[name] = _InputState(name, f"timer/{name}", Tick, 1)
+                continue
+            if src is None or not src.topic:
+                continue  # unconnected input: it simply never fires
+            state = _InputState(name, src.topic, port.type, port.maxlen)
+            self.inputs[name] = state
+            self.routes.setdefault(src.topic.encode(), []).append(state)
+            needs_curve = self.curve is not None and src.endpoint.startswith("tcp://")
+            if needs_curve:
+                secure = secure or make_sub(self.ctx)
+                sock = secure
+            else:
+                plain = plain or make_sub(self.ctx)
+                sock = plain
+            connect_sub(sock, src.endpoint, self.curve if needs_curve else None)
+            sock.setsockopt(zmq.SUBSCRIBE, src.topic.encode())
+        self.subs = [s for s in (plain, secure) if s is not None]
+        self._rcvtimeo = -1
+
+    # -- Context ----------------------------------------------------------------------
+    def now_ns(self) -> int:
+        return time.time_ns()
+
+    def publish(self, node: Node, output: str, msg: Message) -> None:
+        expected = node.ports.outputs[output]
+        if not isinstance(msg, expected):
+            raise TypeError(f"{type(node).__name__} published {type(msg).__name__} on {output!r}, declared {expected.__name__}")
+        with self._pub_lock:
+            seq = self._seq.get(output, 0) + 1
+            self._seq[output] = seq
+            msg = msgspec.structs.replace(msg, seq=seq, stamp_ns=msg.stamp_ns or time.time_ns())
+            frames = self._codec.encode(msg)
+            if self.pub is not None:
+                _send(self.pub, self._topics[output], frames)
+            self._published[output] += 1
+
+    # -- receiving --------------------------------------------------------------------
+    def _recv(self, sock: zmq.Socket, flags: int) -> tuple[bytes, list[Any]]:
+        """One message: topic and body as bytes (small), array buffers as zero-copy frames."""
+        topic = sock.recv(flags)
+        frames: list[Any] = [sock.recv()] if sock.getsockopt(zmq.RCVMORE) else []
+        while sock.getsockopt(zmq.RCVMORE):
+            frames.append(sock.recv(copy=False))
+        return topic, frames
+
+    def _route(self, topic: bytes, frames: list[Any], order: itertools.count) -> None:
+        states = self.routes.get(topic)
+        if not states:
+            return  # a longer topic sharing our prefix: not ours
+        for state in states:
+            self._accept(state, frames, next(order))
+
+    def _drain(self, sock: zmq.Socket, order: itertools.count) -> None:
+        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            self._route(*self._recv(sock, zmq.NOBLOCK), order)
+
+    def _wait_and_drain(self, timeout_ms: int, poller: zmq.Poller, order: itertools.count) -> None:
+        if len(self.subs) == 1:
+            # One socket: a blocking recv with a timeout beats a Python-level poll per message.
+            sock = self.subs[0]
+            if timeout_ms != self._rcvtimeo:
+                sock.setsockopt(zmq.RCVTIMEO, timeout_ms)
+                self._rcvtimeo = timeout_ms
+            try:
+                self._route(*self._recv(sock, 0), order)
+            except zmq.Again:
+                return
+            self._drain(sock, order)
+            return
+        for sock, _ in poller.poll(timeout_ms):
+            self._drain(sock, order)
+
+    def _accept(self, state: _InputState, frames: list[Any], index: int) -> None:
+        state.stats["received"] += 1
+        try:
+            msg = self._codec.decode(state.type, frames)
+        except DecodeError as exc:
+            state.stats["decode_errors"] += 1
+            self._log_error(state, f"dropped undecodable message on {state.topic}: {exc}")
+            return
+        if msg.seq > state.last_seq + 1 and state.last_seq > 0:
+            state.stats["dropped_seq_gap"] += msg.seq - state.last_seq - 1
+        state.last_seq = msg.seq
+        if len(state.queue) >= state.maxlen:
+            state.queue.popleft()
+            state.stats["dropped_queue"] += 1
+        state.queue.append((index, msg))
+
+    def _log_error(self, state: _InputState, text: str) -> None:
+        now = time.monotonic_ns()
+        if now - state.last_error_log_ns >= ERROR_LOG_PERIOD_NS:
+            extra = f" (+{state.suppressed} similar since last report)" if state.suppressed else ""
+            self.node.log.error(text + extra)
+            state.last_error_log_ns = now
+            state.suppressed = 0
+        else:
+            state.suppressed += 1
+
+    # -- handling ---------------------------------------------------------------------
+    def _handle_pending(self) -> bool:
+        """Handle queued messages oldest-first across inputs; True if any was handled."""
+        handled = False
+        while True:
+            best: _InputState | None = None
+            for state in self.inputs.values():
+                if state.queue and (best is None or state.queue[0][0] < best.queue[0][0]):
+                    best = state
+            if best is None:
+                return handled
+            _, msg = best.queue.popleft()
+            self._call(best, msg)
+            handled = True
+            if self.stop_event.is_set():
+                return handled
+
+    def _call(self, state: _InputState, msg: Message) -> None:
+        t0 = time.perf_counter_ns()
+        try:
+            self.node.dispatch(state.name, msg)
+        except Exception as exc:  # noqa: BLE001 - a failing handler never kills the node
+            state.stats["handler_errors"] += 1
+            self._log_error(state, f"handler on_{state.name} failed on {state.topic} stamp_ns={msg.stamp_ns} "
+                                   f"seq={msg.seq}: {type(exc).__name__}: {exc}")
+            log.debug("handler traceback", exc_info=True)
+        dt = time.perf_counter_ns() - t0
+        state.stats["handled"] += 1
+        state.handler_ns += dt
+        state.handler_max_ns = max(state.handler_max_ns, dt)
+
+    # -- timers and stats -------------------------------------------------------------
+    def _fire_timers(self, due: dict[str, int], order: itertools.count) -> None:
+        now = time.monotonic_ns()
+        for name, when in due.items():
+            if when <= now:
+                period = self.timers[name]
+                state = self.inputs[name]
+                late = (now - when) // period
+                if late:
+                    state.stats["dropped_queue"] += late  # missed ticks of a slow node, counted
+                due[name] = when + (late + 1) * period
+                state.stats["received"] += 1
+                state.queue.append((next(order), Tick(stamp_ns=time.time_ns(), period_ns=period)))
+                if len(state.queue) > 1:
+                    state.queue.popleft()
+
+    def stats(self) -> NodeStats:
+        inputs = []
+        for state in self.inputs.values():
+            n = max(state.stats["handled"], 1)
+            inputs.append(InputStats(name=state.name, topic=state.topic, **state.stats,
+                                     handler_ms_mean=state.handler_ns / n / 1e6,
+                                     handler_ms_max=state.handler_max_ns / 1e6))
+        return NodeStats(node_id=self.spec.node_id, node_class=self.spec.node, pid=os.getpid(),
+                         uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9, inputs=inputs,
+                         published=dict(self._published), subscribers=dict(self._subscribers),
+                         errors=sum(s.stats["handler_errors"] + s.stats["decode_errors"] for s in self.inputs.values()),
+                         stamp_ns=time.time_ns())
+
+    def _publish_stats(self) -> None:
+        if self.pub is None:
+            return
+        self._read_subscriptions()
+        with self._pub_lock:
+            _send(self.pub, self._stats_topic, self._codec.encode(self.stats()))
+
+    def _read_subscriptions(self) -> None:
+        while True:
+            try:
+                event = self.pub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if event:
+                topic = event[1:].decode(errors="replace")
+                self._subscribers[topic] += 1 if event[0] == 1 else -1
+
+    def _wait_for_subscribers(self) -> None:
+        """Hold a node's first publication until its known subscribers have joined (bounded)."""
+        want = {t: n for t, n in self.spec.expect_subscribers.items() if n > 0}
+        if not want or self.pub is None:
+            return
+        deadline = time.monotonic() + self.spec.wait_subscribers_s
+        while not self.stop_event.is_set():
+            self._read_subscriptions()
+            if all(self._subscribers.get(t, 0) >= n for t, n in want.items()):
+                return
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                missing = {t: n - self._subscribers.get(t, 0) for t, n in want.items() if self._subscribers.get(t, 0) < n}
+                self.node.log.warning("starting without all subscribers after %.1f s (missing %s)",
+                                      self.spec.wait_subscribers_s, missing)
+                return
+            self.pub.poll(min(50, int(remaining * 1000) + 1), zmq.POLLIN)
+
+    # -- main loop --------------------------------------------------------------------
+    def serve(self) -> int:
+        """Run until :attr:`stop_event` is set (or a source finishes); return 0, or 1 if the node failed."""
+        node = self.node
+        failed = threading.Event()
+        try:
+            node.setup()
+        except Exception:
+            node.log.exception("setup failed")
+            self.close()
+            return 1
+        self._wait_for_subscribers()
+        thread = None
+        if type(node).is_source():
+            def loop() -> None:
+                try:
+                    node.run()
+                except Exception:
+                    node.log.exception("run() failed")
+                    failed.set()
+                finally:
+                    if not self.inputs:
+                        self.stop_event.set()
+            thread = threading.Thread(target=loop, name=f"{self.spec.node_id}.run", daemon=True)
+            thread.start()
+        order = itertools.count()
+        now = time.monotonic_ns()
+        due = {name: now for name in self.timers}
+        next_stats = now
+        poller = zmq.Poller()
+        for sock in self.subs:
+            poller.register(sock, zmq.POLLIN)
+        try:
+            while not self.stop_event.is_set() and not failed.is_set():
+                now = time.monotonic_ns()
+                if now >= next_stats:
+                    self._publish_stats()
+                    next_stats = now + STATS_PERIOD_NS
+                wake = min([next_stats, *due.values()])
+                timeout_ms = max(0, min(100, (wake - now) // 1_000_000 + (1 if wake > now else 0)))
+                if self.subs:
+                    self._wait_and_drain(timeout_ms, poller, order)
+                elif timeout_ms:
+                    self.stop_event.wait(timeout_ms / 1000)
+                if due:
+                    self._fire_timers(due, order)
+                self._handle_pending()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            node.stopping.set()
+            if thread is not None:
+                thread.join(timeout=5.0)
+                if thread.is_alive():
+                    node.log.error("run() did not stop within 5 s of shutdown")
+            try:
+                node.teardown()
+            except Exception:
+                node.log.exception("teardown failed")
+                failed.set()
+            self._publish_stats()
+            self.close()
+        return 1 if failed.is_set() else 0
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        self.node.stopping.set()
+
+    def close(self) -> None:
+        for sock in self.subs:
+            sock.close(linger=0)
+        self.subs = []
+        if self.pub is not None:
+            self.pub.close()
+            self.pub = None
+        if self._auth is not None:
+            self._auth.stop()
+            self._auth = None
+
+
+def _send(sock: zmq.Socket, topic: bytes, frames: list[Any]) -> None:
+    """Topic and body are copied (small); array buffers go zero-copy (ZeroMQ holds a reference)."""
+    sock.send(topic, zmq.SNDMORE)
+    last = len(frames) - 1
+    sock.send(frames[0], zmq.SNDMORE if last else 0)
+    for i in range(1, last + 1):
+        sock.send(frames[i], zmq.SNDMORE if i < last else 0, copy=False)

@@ -1,0 +1,120 @@
+"""ZeroMQ transport: endpoints, CurveZMQ keys, and the frame layout ``[topic, body, *buffers]``.
+
+Frame 0 is the exact topic ``<node-id>/<output>``. ZeroMQ subscriptions match by
+prefix, so receivers compare frame 0 for equality (``cam/image`` never delivers
+``cam/image_raw``).
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+#: Largest message a node accepts (bytes, all frames); larger ones are dropped by ZeroMQ.
+MAX_MESSAGE_BYTES = 1 << 30
+
+
+def runtime_dir() -> Path:
+    """Where ipc sockets and the registry of running graphs live (``$TETHER_RUNTIME_DIR`` overrides)."""
+    base = os.environ.get("TETHER_RUNTIME_DIR") or os.path.join(tempfile.gettempdir(), f"tether-{os.getuid()}")
+    path = Path(base)
+    path.mkdir(parents=True, exist_ok=True, mode=0o700)
+    return path
+
+
+def ipc_endpoint(graph: str, node_id: str, token: str) -> str:
+    """A same-host endpoint for ``node_id`` (unix socket paths must stay short: ~100 bytes)."""
+    folder = runtime_dir() / "s"
+    folder.mkdir(exist_ok=True)
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in f"{graph}.{node_id}")[:40]
+    return f"ipc://{folder}/{safe}.{token}"
+
+
+@dataclass(frozen=True)
+class CurveKeys:
+    """A graph's CurveZMQ keys: the server pair every publisher uses, the client pair every subscriber uses."""
+
+    server_public: bytes
+    server_secret: bytes
+    client_public: bytes
+    client_secret: bytes
+
+    @classmethod
+    def generate(cls) -> "CurveKeys":
+        spub, ssec = zmq.curve_keypair()
+        cpub, csec = zmq.curve_keypair()
+        return cls(spub, ssec, cpub, csec)
+
+    def to_json(self) -> dict[str, str]:
+        return {k: getattr(self, k).decode() for k in ("server_public", "server_secret", "client_public", "client_secret")}
+
+    @classmethod
+    def from_json(cls, doc: dict[str, str]) -> "CurveKeys":
+        return cls(**{k: v.encode() for k, v in doc.items()})
+
+    @classmethod
+    def load_or_create(cls, path: Path) -> "CurveKeys":
+        """Keys of one graph, kept in ``path`` (mode 0600) so every machine of the graph shares them."""
+        if path.exists():
+            return cls.from_json(json.loads(path.read_text()))
+        keys = cls.generate()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as fh:
+            json.dump(keys.to_json(), fh)
+        os.replace(tmp, path)
+        return keys
+
+
+def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq.Socket:
+    """The node's one publisher: an XPUB (so it can see subscriptions arrive) bound to ``binds``."""
+    sock = ctx.socket(zmq.XPUB)
+    sock.setsockopt(zmq.XPUB_VERBOSE, 1)       # every subscribe reaches us, not only the first per topic
+    sock.setsockopt(zmq.SNDHWM, 1000)
+    sock.setsockopt(zmq.LINGER, 500)
+    if curve is not None:
+        sock.curve_server = True
+        sock.curve_secretkey = curve.server_secret
+        sock.curve_publickey = curve.server_public
+    for endpoint in binds:
+        sock.bind(endpoint)
+    return sock
+
+
+def make_sub(ctx: zmq.Context) -> zmq.Socket:
+    sock = ctx.socket(zmq.SUB)
+    sock.setsockopt(zmq.RCVHWM, 1000)
+    sock.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
+    sock.setsockopt(zmq.LINGER, 0)
+    return sock
+
+
+def connect_sub(sock: zmq.Socket, endpoint: str, curve: CurveKeys | None) -> None:
+    """Connect ``sock`` to a publisher; tcp endpoints of a secured graph use Curve (set before connect)."""
+    if curve is not None and endpoint.startswith("tcp://"):
+        # Curve options apply to connections made after they are set; a socket that mixes
+        # secured tcp and plain ipc publishers gets a dedicated socket (see NodeRuntime).
+        sock.curve_serverkey = curve.server_public
+        sock.curve_publickey = curve.client_public
+        sock.curve_secretkey = curve.client_secret
+    sock.connect(endpoint)
+
+
+def start_authenticator(ctx: zmq.Context, curve: CurveKeys) -> Any:
+    """ZAP handler accepting only the graph's client key (authentication, not just encryption)."""
+    from zmq.auth.thread import ThreadAuthenticator
+
+    class _Keys:
+        def callback(self, domain: str, key: bytes) -> bool:
+            return key == zmq.utils.z85.decode(curve.client_public)
+
+    auth = ThreadAuthenticator(ctx)
+    auth.start()
+    auth.configure_curve_callback(domain="*", credentials_provider=_Keys())
+    return auth
