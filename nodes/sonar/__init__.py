@@ -1,0 +1,1 @@
+"""Sonar nodes: polar imager, highlight-extension point cloud, ICP localizer (seed 01)."""
