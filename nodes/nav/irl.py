@@ -1,0 +1,337 @@
+"""Inverse reinforcement learning of a grid cost C(s, a) = |a| (c0 + w . phi(s')): MAP-BIRL and MaxEnt.
+
+MDP (Kim & Pineau 2016, section 4): states are the cells of a local grid, actions the 8
+moves to a neighbour cell, and the cost of a move is its length (1 or sqrt 2 cells) times
+the cost of the cell it enters, ``c0 + w . phi(s')`` with ``phi`` the cell's binary
+features. A demonstration is a cell path; it ends at its last cell (the goal).
+
+Why undiscounted, goal-terminated, strictly positive costs (the paper writes a discounted
+MDP, eq. 1): with discounting and costs that can be zero or negative, the cheapest plan
+for an expert standing near a cheap cell is to circle in it forever — an infinite loop
+discounted to a finite total beats walking to the goal, so the learnt "optimal" policy
+never reaches it and demonstrations that do reach it look irrational. We instead
+terminate at the goal, do not discount, and keep every cost >= c0 > 0: the step cost c0
+(``step_cost``) is fixed and the feature weights are constrained to w >= 0 (features are
+>= 0). Then every loop costs something, cost-to-go is a shortest-path distance (Dijkstra,
+exact, no horizon to tune) and the planner (:mod:`nodes.nav.dijkstra`) optimises exactly
+the cost the learner fitted. Since the paper's features come in one-hot groups
+(high/medium/low), w >= 0 loses nothing: adding a constant to a group only adds a step
+cost, and the Laplace prior then pins each group's cheapest bin at 0.
+
+MaxEnt additionally needs the path partition function sum_paths exp(-cost) to converge,
+i.e. costs above the branching entropy: with 4 straight and 4 diagonal moves that holds
+for every cell when 4 exp(-c0) + 4 exp(-sqrt(2) c0) < 1 (c0 > 1.77); the default c0 = 2.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.sparse import csr_matrix, identity
+from scipy.sparse.linalg import spsolve
+from scipy.special import logsumexp
+
+from nodes.nav.dijkstra import MOVES, GridGraph, cost_to_go, path_cost, plan_dijkstra
+
+STEP_COST = 2.0
+_STEP = np.hypot(MOVES[:, 0], MOVES[:, 1])
+_MOVE_INDEX = np.array([0, 1, 2, 3, -1, 4, 5, 6, 7])   # (d_row + 1) * 3 + (d_col + 1) -> index in MOVES
+
+
+@dataclass(frozen=True)
+class Demo:
+    """One demonstration: a cell path over a feature grid.
+
+    ``features`` (rows, cols, K) >= 0 (binary in the paper); ``path`` (n, 2) int (row, col)
+    of successive 8-neighbour cells, the last one being the goal; ``blocked`` (rows, cols)
+    bool marks forbidden cells (static obstacles), or None.
+    """
+
+    features: np.ndarray
+    path: np.ndarray
+    blocked: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class IrlResult:
+    """Learnt weights (K,) for ``c0 + w . phi``, the objective reached and how."""
+
+    weights: np.ndarray
+    step_cost: float
+    method: str
+    objective: float
+    iterations: int
+    converged: bool
+    message: str = ""
+
+
+def check_demo(demo: Demo) -> Demo:
+    """Validate and normalise a demo (drops repeated cells); raise ``ValueError`` saying what is wrong."""
+    f = np.asarray(demo.features, dtype=np.float64)
+    if f.ndim != 3 or f.shape[0] < 1 or f.shape[1] < 1:
+        raise ValueError(f"demo features must be rows x cols x K, got shape {f.shape}")
+    if not np.isfinite(f).all() or (f < 0).any():
+        raise ValueError("demo features must be finite and >= 0 (binary feature bins)")
+    p = np.asarray(demo.path, dtype=np.int64).reshape(-1, 2)
+    if len(p) and ((p < 0).any() or (p[:, 0] >= f.shape[0]).any() or (p[:, 1] >= f.shape[1]).any()):
+        raise ValueError(f"demo path leaves the {f.shape[0]} x {f.shape[1]} grid; clip or split the path first")
+    if len(p) > 1:
+        keep = np.concatenate([[True], (np.diff(p, axis=0) != 0).any(axis=1)])
+        p = p[keep]
+    if len(p) > 1 and (np.abs(np.diff(p, axis=0)).max(axis=1) > 1).any():
+        raise ValueError("demo path cells must be 8-neighbours; resample the track at the grid resolution")
+    blocked = None if demo.blocked is None else np.asarray(demo.blocked, dtype=bool)
+    if blocked is not None:
+        if blocked.shape != f.shape[:2]:
+            raise ValueError(f"blocked mask shape {blocked.shape} != grid shape {f.shape[:2]}")
+        if len(p) and blocked[p[:, 0], p[:, 1]].any():
+            raise ValueError("demo path crosses a blocked cell; the map and the path disagree")
+    return Demo(f, p, blocked)
+
+
+def cell_costs(features: np.ndarray, weights: np.ndarray, *, step_cost: float = STEP_COST,
+               blocked: np.ndarray | None = None) -> np.ndarray:
+    """Per-cell cost ``step_cost + features @ weights`` (rows, cols); ``inf`` where blocked.
+
+    Strictly positive whenever ``step_cost > 0`` and weights, features >= 0.
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    f = np.asarray(features, dtype=np.float64)
+    if f.shape[-1] != w.size:
+        raise ValueError(f"{w.size} weights for {f.shape[-1]} features; the weights file does not match this grid")
+    cost = step_cost + f @ w
+    if blocked is not None:
+        cost = np.where(blocked, np.inf, cost)
+    return cost
+
+
+def _neighbours(shape: tuple[int, int], cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Target cells (m, 8, 2) of the 8 moves from ``cells`` (m, 2), and which are in the grid."""
+    t = cells[:, None, :] + MOVES[None, :, :]
+    ok = (t[..., 0] >= 0) & (t[..., 0] < shape[0]) & (t[..., 1] >= 0) & (t[..., 1] < shape[1])
+    return np.where(ok[..., None], t, 0), ok
+
+
+def _path_features(succ: np.ndarray, cost_feat: np.ndarray, step_of: np.ndarray, goal: int) -> np.ndarray:
+    """Feature sums along each cell's optimal path to the goal, by pointer doubling (N, K)."""
+    nxt = np.where(succ < 0, goal, succ)
+    acc = step_of[:, None] * cost_feat[nxt]
+    acc[nxt == np.arange(nxt.size)] = 0.0
+    acc[succ < 0] = 0.0
+    for _ in range(int(np.log2(max(nxt.size, 2))) + 2):   # a shortest-path tree is at most N deep
+        if (nxt == goal).all():
+            break
+        acc = acc + acc[nxt]
+        nxt = nxt[nxt]
+    return acc
+
+
+def _q_values(demo: Demo, w: np.ndarray, step_cost: float, graph: GridGraph
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Q (m, 8), dQ/dw (m, 8, K) for every move from each path cell, expert move index (m,)."""
+    f = demo.features
+    shape = f.shape[:2]
+    cost = cell_costs(f, w, step_cost=step_cost, blocked=demo.blocked)
+    goal = tuple(demo.path[-1])
+    value, succ = cost_to_go(cost, goal, graph=graph)
+    flat_f = f.reshape(-1, f.shape[2])
+    flat_succ = succ.reshape(-1)
+    d = np.stack(np.divmod(np.maximum(flat_succ, 0), shape[1]), axis=1) - np.stack(
+        np.divmod(np.arange(flat_succ.size), shape[1]), axis=1)
+    along = _path_features(flat_succ, flat_f, np.hypot(d[:, 0], d[:, 1]), goal[0] * shape[1] + goal[1])
+    cells = demo.path[:-1]
+    tgt, ok = _neighbours(shape, cells)
+    tflat = tgt[..., 0] * shape[1] + tgt[..., 1]
+    corner_a = cost[cells[:, None, 0], tgt[..., 1]]
+    corner_b = cost[tgt[..., 0], cells[:, None, 1]]
+    q = _STEP[None, :] * cost.reshape(-1)[tflat] + value.reshape(-1)[tflat]
+    q = np.where(ok & np.isfinite(corner_a) & np.isfinite(corner_b), q, np.inf)
+    dq = _STEP[None, :, None] * flat_f[tflat] + along[tflat]
+    move = demo.path[1:] - cells
+    expert = _MOVE_INDEX[(move[:, 0] + 1) * 3 + move[:, 1] + 1]
+    return q, dq, expert, value
+
+
+def _prior(w: np.ndarray, prior: str, lam: float, penalised: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """Negative log prior and its gradient (w >= 0 so |w| = w for the Laplace prior).
+
+    ``penalised`` (K,) bool leaves out weights with a flat prior (the learnt step cost).
+    """
+    m = np.ones_like(w) if penalised is None else np.asarray(penalised, dtype=float)
+    if prior == "laplace":
+        return lam * float(m @ w), lam * m
+    if prior == "gaussian":
+        return 0.5 * lam * float(m @ (w * w)), lam * m * w
+    raise ValueError(f"prior must be 'laplace' or 'gaussian', got {prior!r}")
+
+
+def birl_objective(w: np.ndarray, demos: list[Demo], *, beta: float = 1.0, step_cost: float = STEP_COST,
+                   prior: str = "laplace", lam: float = 0.1, penalised: np.ndarray | None = None,
+                   graphs: dict[tuple[int, int], GridGraph] | None = None) -> tuple[float, np.ndarray]:
+    """Negative log posterior of MAP-BIRL (Choi & Kim 2011) and its (sub)gradient.
+
+    Likelihood: Boltzmann-rational expert, P(a | s) = exp(-beta Q*(s, a)) / sum_b exp(-beta Q*(s, b)),
+    Q* from the exact cost-to-go. dQ*/dw = features of the move + feature sums along the
+    optimal path from its target (Q* is piecewise linear in w).
+    """
+    graphs = {} if graphs is None else graphs
+    nll, grad = _prior(w, prior, lam, penalised)
+    for demo in demos:
+        shape = demo.features.shape[:2]
+        graph = graphs.setdefault(shape, GridGraph.of(shape))
+        q, dq, expert, _ = _q_values(demo, w, step_cost, graph)
+        z = -beta * q
+        lse = logsumexp(z, axis=1, keepdims=True)
+        p = np.exp(z - lse)
+        rows = np.arange(len(expert))
+        nll -= float(np.sum(z[rows, expert] - lse[:, 0]))
+        grad = grad + beta * np.sum(dq[rows, expert] - np.einsum("ma,mak->mk", p, dq), axis=0)
+    return nll, grad
+
+
+def _maxent_demo(demo: Demo, w: np.ndarray, step_cost: float, g: GridGraph) -> tuple[float, np.ndarray]:
+    """MaxEnt negative log likelihood of one demo path and its gradient."""
+    f = demo.features
+    shape = f.shape[:2]
+    n = g.n_cells
+    start, goal = (int(c[0] * shape[1] + c[1]) for c in (demo.path[0], demo.path[-1]))
+    cost = cell_costs(f, w, step_cost=step_cost, blocked=demo.blocked)
+    weight = g.matrix(cost).data
+    # z(s) = sum over paths to the goal of exp(-cost) underflows for long or costly paths;
+    # solve for y(s) = z(s) exp(V(s)) instead, V the hard cost-to-go: the same linear system
+    # up to a diagonal scaling, with every coefficient exp(-(C + V(s') - V(s))) in [0, 1].
+    value = cost_to_go(cost, divmod(goal, shape[1]), graph=g)[0].reshape(-1)
+    ok = np.isfinite(value[g.src]) & np.isfinite(value[g.indices]) & np.isfinite(weight) & (g.src != goal)
+    coef = np.zeros_like(weight)
+    coef[ok] = np.exp(-(weight[ok] + value[g.indices[ok]] - value[g.src[ok]]))
+    a = csr_matrix((coef, g.indices, g.indptr), shape=(n, n))
+    eye = identity(n, format="csc")
+    y = spsolve((eye - a).tocsc(), np.eye(1, n, goal).ravel())
+    if not np.all(np.isfinite(y)) or y[start] <= 0:
+        raise ValueError("MaxEnt partition function diverged; raise step_cost (needs > 1.77)")
+    p_edge = np.where(ok, coef * y[g.indices] / np.where(y[g.src] > 0, y[g.src], 1.0), 0.0)
+    visits = spsolve((eye - csr_matrix((p_edge, (g.indices, g.src)), shape=(n, n))).tocsc(),
+                     np.eye(1, n, start).ravel())
+    flat_f = f.reshape(n, -1)
+    expected = (visits[g.src] * p_edge * g.step) @ flat_f[g.indices]
+    d = np.diff(demo.path, axis=0)
+    steps = np.hypot(d[:, 0], d[:, 1])
+    nxt = demo.path[1:, 0] * shape[1] + demo.path[1:, 1]
+    expert = steps @ flat_f[nxt]
+    nll = float(np.sum(steps * cost.reshape(-1)[nxt])) + float(np.log(y[start])) - float(value[start])
+    return nll, expert - expected
+
+
+def maxent_objective(w: np.ndarray, demos: list[Demo], *, step_cost: float = STEP_COST,
+                     prior: str = "gaussian", lam: float = 0.1, penalised: np.ndarray | None = None,
+                     graphs: dict[tuple[int, int], GridGraph] | None = None) -> tuple[float, np.ndarray]:
+    """Negative log likelihood of MaxEnt IRL (Ziebart 2008), P(path) ∝ exp(-cost), plus a prior.
+
+    Goal-terminated and undiscounted: z = A z + e_goal with A[s, s'] = exp(-C(s, s')), solved
+    directly (sparse LU); the state visitation from the start solves the transposed system.
+    """
+    graphs = {} if graphs is None else graphs
+    nll, grad = _prior(w, prior, lam, penalised)
+    for demo in demos:
+        shape = demo.features.shape[:2]
+        part, part_grad = _maxent_demo(demo, w, step_cost, graphs.setdefault(shape, GridGraph.of(shape)))
+        nll += part
+        grad = grad + part_grad
+    return nll, grad
+
+
+def learn(demos: list[Demo], *, method: str = "birl", prior: str = "laplace", lam: float = 0.1,
+          beta: float = 1.0, step_cost: float = STEP_COST, learn_step_cost: bool = True,
+          w_max: float = 50.0, max_iter: int = 200) -> IrlResult:
+    """Learn feature weights from demonstrations by MAP-BIRL (``"birl"``) or MaxEnt (``"maxent"``).
+
+    Parameters
+    ----------
+    demos : list of Demo
+        Paths with at least one move (single-cell demos are skipped); all with K features.
+    prior, lam : 'laplace' (L1, drives useless features to exactly 0) or 'gaussian' (L2), and its strength.
+    beta : Boltzmann rationality of the expert (BIRL only).
+    step_cost : floor c0 > 0 of the cost per cell length; must exceed 1.77 for MaxEnt.
+    learn_step_cost : also learn an extra, unpenalised step cost b >= 0 (returned in
+        ``IrlResult.step_cost = c0 + b``). Without it a one-hot group whose bins all get the
+        same weight would stand in for a step cost, and the prior could not zero it.
+    w_max : upper bound on each weight (keeps a never-varying or never-visited feature finite).
+
+    Returns
+    -------
+    IrlResult with weights (K,) >= 0 and the total step cost.
+    """
+    if step_cost <= 0:
+        raise ValueError(f"step_cost must be > 0 (got {step_cost}); zero costs let the expert loop for free")
+    if method == "maxent" and 4 * np.exp(-step_cost) + 4 * np.exp(-np.sqrt(2) * step_cost) >= 1:
+        raise ValueError(f"MaxEnt needs step_cost > 1.77 for its path sum to converge, got {step_cost}")
+    if method not in ("birl", "maxent"):
+        raise ValueError(f"method must be 'birl' or 'maxent', got {method!r}")
+    _prior(np.zeros(1), prior, lam)
+    checked = [d for d in (check_demo(d) for d in demos) if len(d.path) >= 2]
+    if not checked:
+        raise ValueError("no demonstration has a move; give paths of at least two distinct cells")
+    ks = {d.features.shape[2] for d in checked}
+    if len(ks) != 1:
+        raise ValueError(f"demos disagree on the number of features: {sorted(ks)}")
+    k = ks.pop()
+    penalised = np.ones(k, dtype=bool)
+    if learn_step_cost:
+        checked = [Demo(np.concatenate([d.features, np.ones(d.features.shape[:2] + (1,))], axis=2), d.path, d.blocked)
+                   for d in checked]
+        penalised = np.append(penalised, False)
+    graphs: dict[tuple[int, int], GridGraph] = {}
+    objective = birl_objective if method == "birl" else maxent_objective
+    extra = {"beta": beta} if method == "birl" else {}
+
+    def fun(w: np.ndarray) -> tuple[float, np.ndarray]:
+        return objective(w, checked, step_cost=step_cost, prior=prior, lam=lam, penalised=penalised,
+                         graphs=graphs, **extra)
+
+    res = minimize(fun, np.full(penalised.size, 0.1), jac=True, method="L-BFGS-B",
+                   bounds=[(0.0, w_max)] * penalised.size, options={"maxiter": max_iter})
+    w = np.clip(res.x, 0.0, w_max)
+    w[w < 1e-6] = 0.0
+    total_step = step_cost + (float(w[k]) if learn_step_cost else 0.0)
+    return IrlResult(w[:k].copy(), total_step, method, float(res.fun), int(res.nit), bool(res.success), str(res.message))
+
+
+def action_agreement(demos: list[Demo], weights: np.ndarray, *, step_cost: float = STEP_COST) -> float:
+    """Fraction of expert moves that are optimal under ``weights`` (ties count as agreement)."""
+    hits = total = 0
+    graphs: dict[tuple[int, int], GridGraph] = {}
+    for demo in (check_demo(d) for d in demos):
+        if len(demo.path) < 2:
+            continue
+        shape = demo.features.shape[:2]
+        q, _, expert, _ = _q_values(demo, np.asarray(weights, float), step_cost,
+                                    graphs.setdefault(shape, GridGraph.of(shape)))
+        best = q.min(axis=1)
+        hits += int(np.sum(q[np.arange(len(expert)), expert] <= best + 1e-9 * np.maximum(1.0, best)))
+        total += len(expert)
+    if total == 0:
+        raise ValueError("no demonstration has a move to compare")
+    return hits / total
+
+
+def expected_value_difference(demos: list[Demo], weights: np.ndarray, true_weights: np.ndarray, *,
+                              step_cost: float = STEP_COST, true_step_cost: float = STEP_COST) -> float:
+    """Mean extra true cost of planning with ``weights`` instead of ``true_weights`` (>= 0, 0 = as good).
+
+    For each demo: true cost of the path planned from its start to its goal under the
+    learnt cost, minus the true optimal cost; averaged over demos.
+    """
+    out = []
+    for demo in (check_demo(d) for d in demos):
+        if len(demo.path) < 2:
+            continue
+        start, goal = tuple(demo.path[0]), tuple(demo.path[-1])
+        true_cost = cell_costs(demo.features, true_weights, step_cost=true_step_cost, blocked=demo.blocked)
+        learnt = cell_costs(demo.features, weights, step_cost=step_cost, blocked=demo.blocked)
+        planned = plan_dijkstra(learnt, start, goal)
+        optimal = plan_dijkstra(true_cost, start, goal)
+        out.append(path_cost(true_cost, planned.cells) - optimal.cost)
+    if not out:
+        raise ValueError("no demonstration has a move to compare")
+    return float(np.mean(out))
