@@ -28,6 +28,10 @@ class SonarPing(Message, tag="sonar.SonarPing"):
     vertical_aperture_rad: float = 0.0
     horizontal_aperture_rad: float = 0.0
     device_stamp_ns: int = 0      # the sonar's own ping time, if it reports one
+    # appended (issue 3): per-row gain as sent by the device (empty when absent), device facts
+    row_gains: np.ndarray = const(np.zeros(0, np.float32))
+    master_mode: int = 0          # Oculus: 1 low frequency (wide), 2 high frequency (narrow)
+    device_id: int = 0            # the sonar's serial number (srcDeviceId)
 
 
 class FanImage(Message, tag="sonar.FanImage"):
