@@ -4,7 +4,7 @@
 
 * ViewPoint v1 ("RmLog", magic 0x11223344): a 48 B file header, then items of a 40 B header and a
   payload; type-10 items hold one SimplePingResult (``compression`` 1 = Qt ``qCompress``: a 4-byte
-  big-endian length and a zlib stream). Stamps are the item times (seconds since the epoch).
+  big-endian length and a zlib stream). Stamps are the item times (seconds since the epoch, to the microsecond).
 * Anything else is read as a raw back-to-back message stream (what TCP 52100 carries, like the
   shared liboculus samples), resynchronising on the 0x4F53 magic. Raw streams carry no host time:
   V2 pings are stamped with ``pingStartTime`` (device seconds), V1 pings ``start_ns + k * period_s``.
@@ -104,7 +104,7 @@ def _iter_rmlog(f: BinaryIO, **kw) -> Iterator[SonarPing]:
                 return
             if item[2] != RT_OCULUS_SONAR or Header.unpack(payload).msg_id != MSG_PING:
                 continue
-            yield _to_ping(payload, int(round(item[4] * 1e9)), index=index, **kw)
+            yield _to_ping(payload, int(round(item[4] * 1e6)) * 1000, index=index, **kw)   # f64 s: keep µs
             index += 1
         except (ProtocolError, zlib.error, struct.error) as exc:
             log.warning("skipping bad oculus log item %d: %s", index, exc)
