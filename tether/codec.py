@@ -195,4 +195,39 @@ def wire_to_inline(frames: Sequence[Any]) -> bytes:
 @functools.cache
 def json_schema(tp: type[Message]) -> dict[str, Any]:
     """The JSON schema of a message type (what logs carry)."""
-    return msgspec.json.schema(tp, schema_hook=_schema_hook)
+    return msgspec.json.schema(_shadow(tp), schema_hook=_schema_hook)
+
+
+@functools.cache
+def _shadow(tp: Any) -> Any:
+    """``tp`` with array defaults turned into factories (schemas list only static defaults)."""
+    if isinstance(tp, type) and issubclass(tp, msgspec.Struct):
+        fields = []
+        for f in msgspec.structs.fields(tp):
+            ftype = _shadow_type(f.type)
+            if isinstance(f.default, np.ndarray):
+                fields.append((f.name, ftype, msgspec.field(default_factory=f.default.copy)))
+            elif f.default is not msgspec.NODEFAULT:
+                fields.append((f.name, ftype, f.default))
+            elif f.default_factory is not msgspec.NODEFAULT:
+                fields.append((f.name, ftype, msgspec.field(default_factory=f.default_factory)))
+            else:
+                fields.append((f.name, ftype))
+        cfg = tp.__struct_config__
+        return msgspec.defstruct(tp.__name__, fields, kw_only=True, frozen=True, tag=cfg.tag,
+                                 tag_field=cfg.tag_field, module=tp.__module__)
+    return tp
+
+
+def _shadow_type(tp: Any) -> Any:
+    import typing
+
+    args = typing.get_args(tp)
+    origin = typing.get_origin(tp)
+    if origin is not None and args:
+        mapped = tuple(_shadow_type(a) for a in args)
+        try:
+            return origin[mapped] if origin not in (typing.Union,) else typing.Union[mapped]
+        except TypeError:
+            return tp
+    return _shadow(tp)

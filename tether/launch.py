@@ -1,0 +1,304 @@
+"""Launch files: parse, validate before anything starts, and plan each node's sockets.
+
+::
+
+    name: sonar-localize
+    machines:                       # optional; without it everything is local (ipc)
+      boat:  {host: 127.0.0.1, port_base: 47100}
+    nodes:
+      - id: sonar
+        node: sim.fls:FlsSonar
+        params: {range_m: 20}
+        restart: on-failure         # or never (default)
+        machine: boat
+      - id: imager
+        node: nodes.sonar.polar_imager:PolarImager
+        inputs: {ping: sonar/ping, tick: timer/hz/10}
+
+Validation raises :class:`ConfigError` with one line naming the file, node and field.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from tether.errors import ConfigError
+from tether.node import Node, Ports, Tick
+from tether.runner import load_node_class
+from tether.runtime import RunSpec, Source
+from tether.transport import ipc_endpoint
+
+ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
+TIMER_RE = re.compile(r"^timer/(hz|ms)/([0-9]*\.?[0-9]+)$")
+RESTART_POLICIES = ("never", "on-failure")
+NODE_KEYS = {"id", "node", "params", "inputs", "restart", "max_restarts", "machine", "env"}
+TOP_KEYS = {"name", "nodes", "machines", "description"}
+
+
+@dataclass
+class NodeEntry:
+    """One node of a launch file, validated."""
+
+    id: str
+    node: str
+    params: dict[str, Any]
+    inputs: dict[str, str]
+    restart: str = "never"
+    max_restarts: int = 3
+    machine: str = ""
+    env: dict[str, str] = field(default_factory=dict)
+    cls: type[Node] | None = None
+    ports: Ports | None = None
+
+
+@dataclass
+class Machine:
+    name: str
+    host: str = "127.0.0.1"
+    port_base: int = 47000
+
+
+@dataclass
+class LaunchFile:
+    """A validated pipeline."""
+
+    path: Path
+    name: str
+    nodes: list[NodeEntry]
+    machines: dict[str, Machine]
+
+    def node(self, node_id: str) -> NodeEntry:
+        for entry in self.nodes:
+            if entry.id == node_id:
+                return entry
+        raise KeyError(node_id)
+
+    def topics(self) -> dict[str, str]:
+        """Every output topic -> message type name."""
+        return {f"{n.id}/{out}": tp.type_name() for n in self.nodes for out, tp in n.ports.outputs.items()}
+
+    def edges(self) -> list[tuple[str, str, str]]:
+        """(source topic or timer, destination node id, destination input)."""
+        return [(src, n.id, name) for n in self.nodes for name, src in n.inputs.items()]
+
+
+def parse_value(text: str) -> Any:
+    """A ``--param`` value: YAML scalar/list/map syntax (``20``, ``true``, ``[1, 2]``, ``bilinear``)."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def parse_overrides(items: list[str] | None) -> dict[str, dict[str, Any]]:
+    """``NODE.KEY=VALUE`` strings -> {node: {key: value}}."""
+    out: dict[str, dict[str, Any]] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        node_id, dot, param = key.partition(".")
+        if not sep or not dot or not node_id or not param:
+            raise ConfigError(f"--param {item!r}: expected NODE.KEY=VALUE")
+        out.setdefault(node_id, {})[param] = parse_value(value)
+    return out
+
+
+def load_launch(path: str | Path, overrides: Mapping[str, Mapping[str, Any]] | None = None) -> LaunchFile:
+    """Read and validate a launch file; ``overrides`` are {node: {param: value}}."""
+    path = Path(path)
+    where = str(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{where}: no such launch file") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{where}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{where}: a launch file is a mapping with 'name' and 'nodes'")
+    unknown = set(doc) - TOP_KEYS
+    if unknown:
+        raise ConfigError(f"{where}: unknown top-level key(s) {sorted(unknown)} (allowed: {sorted(TOP_KEYS)})")
+    name = str(doc.get("name") or path.stem)
+    if not ID_RE.match(name):
+        raise ConfigError(f"{where}: name {name!r} must be letters, digits, '-' or '_'")
+    machines = _machines(where, doc.get("machines") or {})
+    raw_nodes = doc.get("nodes")
+    if not isinstance(raw_nodes, list) or not raw_nodes:
+        raise ConfigError(f"{where}: 'nodes' must be a non-empty list")
+    overrides = dict(overrides or {})
+    nodes = [_node_entry(where, i, raw, machines, overrides) for i, raw in enumerate(raw_nodes)]
+    seen: set[str] = set()
+    for entry in nodes:
+        if entry.id in seen:
+            raise ConfigError(f"{where}: node id {entry.id!r} is used twice")
+        seen.add(entry.id)
+    for node_id in overrides:
+        if node_id not in seen:
+            raise ConfigError(f"{where}: --param for unknown node {node_id!r} (nodes: {sorted(seen)})")
+    launch = LaunchFile(path=path, name=name, nodes=nodes, machines=machines)
+    _check_wiring(where, launch)
+    return launch
+
+
+def _machines(where: str, raw: Any) -> dict[str, Machine]:
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}: 'machines' must map a name to {{host, port_base}}")
+    out = {}
+    for name, spec in raw.items():
+        spec = spec or {}
+        if not isinstance(spec, dict) or set(spec) - {"host", "port_base"}:
+            raise ConfigError(f"{where}: machine {name!r}: expected keys host, port_base")
+        out[str(name)] = Machine(str(name), str(spec.get("host", "127.0.0.1")), int(spec.get("port_base", 47000)))
+    return out
+
+
+def _node_entry(where: str, index: int, raw: Any, machines: dict[str, Machine],
+                overrides: dict[str, dict[str, Any]]) -> NodeEntry:
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}: nodes[{index}] must be a mapping with id and node")
+    node_id = raw.get("id")
+    if not isinstance(node_id, str) or not ID_RE.match(node_id):
+        raise ConfigError(f"{where}: nodes[{index}]: id {node_id!r} must start with a letter "
+                          "and use letters, digits, '-' or '_'")
+    at = f"{where}: node {node_id!r}"
+    unknown = set(raw) - NODE_KEYS
+    if unknown:
+        raise ConfigError(f"{at}: unknown key(s) {sorted(unknown)} (allowed: {sorted(NODE_KEYS)})")
+    if not isinstance(raw.get("node"), str):
+        raise ConfigError(f"{at}: 'node' must be 'module.path:ClassName'")
+    try:
+        cls = load_node_class(raw["node"])
+    except ConfigError as exc:
+        raise ConfigError(f"{at}: {exc}") from None
+    params = dict(raw.get("params") or {})
+    params.update(overrides.get(node_id, {}))
+    try:
+        config = cls.make_config(params)
+        ports = cls.resolve_ports(config)
+    except ConfigError as exc:
+        raise ConfigError(f"{at}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a Config.__post_init__ saying what is wrong
+        raise ConfigError(f"{at}: params: {type(exc).__name__}: {exc}") from None
+    inputs = raw.get("inputs") or {}
+    if not isinstance(inputs, dict):
+        raise ConfigError(f"{at}: 'inputs' must map input names to 'node/output'")
+    restart = raw.get("restart", "never")
+    if restart not in RESTART_POLICIES:
+        raise ConfigError(f"{at}: restart {restart!r} must be one of {RESTART_POLICIES}")
+    machine = str(raw.get("machine") or "")
+    if machine and machine not in machines:
+        raise ConfigError(f"{at}: machine {machine!r} is not declared under 'machines'")
+    if machines and not machine:
+        raise ConfigError(f"{at}: the file declares machines, so every node names its 'machine'")
+    return NodeEntry(id=node_id, node=raw["node"], params=params, inputs={str(k): str(v) for k, v in inputs.items()},
+                     restart=restart, max_restarts=int(raw.get("max_restarts", 3)), machine=machine,
+                     env={str(k): str(v) for k, v in (raw.get("env") or {}).items()}, cls=cls, ports=ports)
+
+
+def _check_wiring(where: str, launch: LaunchFile) -> None:
+    by_id = {n.id: n for n in launch.nodes}
+    for entry in launch.nodes:
+        at = f"{where}: node {entry.id!r}"
+        for name, src in entry.inputs.items():
+            port = entry.ports.inputs.get(name)
+            if port is None:
+                raise ConfigError(f"{at}: unknown input {name!r} (inputs: {sorted(entry.ports.inputs) or 'none'})")
+            if TIMER_RE.match(src):
+                if port.type is not Tick:
+                    raise ConfigError(f"{at}: input {name!r} takes {port.type.type_name()}, not a timer")
+                continue
+            src_id, slash, output = src.partition("/")
+            if not slash or src_id not in by_id:
+                raise ConfigError(f"{at}: input {name!r} comes from {src!r}: no node {src_id!r} "
+                                  f"(expected 'node/output' or 'timer/hz/N')")
+            out_type = by_id[src_id].ports.outputs.get(output)
+            if out_type is None:
+                raise ConfigError(f"{at}: input {name!r}: node {src_id!r} has no output {output!r} "
+                                  f"(outputs: {sorted(by_id[src_id].ports.outputs) or 'none'})")
+            if out_type is not port.type:
+                raise ConfigError(f"{at}: input {name!r} takes {port.type.type_name()} but {src} "
+                                  f"publishes {out_type.type_name()}")
+
+
+def timer_period_ns(src: str) -> int:
+    kind, value = TIMER_RE.match(src).groups()  # type: ignore[union-attr]
+    value_f = float(value)
+    if value_f <= 0:
+        raise ConfigError(f"timer {src!r} needs a positive value")
+    return int(round(1e9 / value_f)) if kind == "hz" else int(round(value_f * 1e6))
+
+
+def plan(launch: LaunchFile, *, token: str, curve: dict[str, str] | None = None) -> dict[str, RunSpec]:
+    """A RunSpec per node: where it binds, where each input connects, who will subscribe."""
+    local_ep = {n.id: ipc_endpoint(launch.name, n.id, token) for n in launch.nodes}
+    tcp_ep: dict[str, str] = {}
+    port_next = {m: launch.machines[m].port_base for m in launch.machines}
+    for n in launch.nodes:
+        remote_subs = any(_source_node(src) == n.id and other.machine != n.machine
+                          for other in launch.nodes for src in other.inputs.values())
+        if launch.machines and remote_subs:
+            machine = launch.machines[n.machine]
+            tcp_ep[n.id] = f"tcp://{machine.host}:{port_next[n.machine]}"
+            port_next[n.machine] += 1
+    subscribers: dict[str, int] = {}
+    for n in launch.nodes:
+        for src in n.inputs.values():
+            if not TIMER_RE.match(src):
+                subscribers[src] = subscribers.get(src, 0) + 1
+    specs = {}
+    for n in launch.nodes:
+        binds = [local_ep[n.id]] if n.ports.outputs else []
+        if n.id in tcp_ep:
+            binds.append(tcp_ep[n.id].replace(f"//{launch.machines[n.machine].host}:", "//*:")
+                         if launch.machines[n.machine].host in ("0.0.0.0", "*") else tcp_ep[n.id])
+        inputs = {}
+        for name, src in n.inputs.items():
+            if TIMER_RE.match(src):
+                inputs[name] = Source(timer_ns=timer_period_ns(src))
+                continue
+            src_node = launch.node(_source_node(src))
+            same = not launch.machines or src_node.machine == n.machine
+            inputs[name] = Source(topic=src, endpoint=local_ep[src_node.id] if same else tcp_ep[src_node.id])
+        expect = {f"{n.id}/{out}": subscribers.get(f"{n.id}/{out}", 0) for out in n.ports.outputs}
+        uses_tcp = n.id in tcp_ep or any(s.endpoint.startswith("tcp://") for s in inputs.values())
+        specs[n.id] = RunSpec(graph=launch.name, node_id=n.id, node=n.node, params=n.params, binds=binds,
+                              inputs=inputs, expect_subscribers=expect, curve=curve if uses_tcp else None)
+    return specs
+
+
+def _source_node(src: str) -> str:
+    return "" if TIMER_RE.match(src) else src.partition("/")[0]
+
+
+def to_dot(launch: LaunchFile) -> str:
+    """Graphviz DOT of the pipeline: nodes, and an edge per connected input labelled with its topic."""
+    lines = [f'digraph "{launch.name}" {{', "  rankdir=LR;", "  node [shape=box, fontname=Helvetica];"]
+    for n in launch.nodes:
+        label = f"{n.id}\\n{n.node.split(':')[-1]}" + (f"\\n@{n.machine}" if n.machine else "")
+        lines.append(f'  "{n.id}" [label="{label}"];')
+    for src, dst, name in launch.edges():
+        if TIMER_RE.match(src):
+            timer = src.replace("/", "_")
+            lines.append(f'  "{timer}" [shape=ellipse, label="{src}"];')
+            lines.append(f'  "{timer}" -> "{dst}" [label="{name}"];')
+        else:
+            src_id, _, out = src.partition("/")
+            lines.append(f'  "{src_id}" -> "{dst}" [label="{out} -> {name}"];')
+    lines.append("}")
+    return "\n".join(lines)
+
+
+def to_text(launch: LaunchFile) -> str:
+    """A readable listing: each node, its class, its inputs with their sources and its outputs with types."""
+    out = [f"{launch.name}  ({launch.path})"]
+    for n in launch.nodes:
+        out.append(f"  {n.id}  [{n.node}]" + (f"  @{n.machine}" if n.machine else ""))
+        for name, port in n.ports.inputs.items():
+            src = n.inputs.get(name) or ("(timer)" if name in n.ports.timers else "(unconnected)")
+            out.append(f"    <- {name:14s} {port.type.type_name():24s} {src}")
+        for name, tp in n.ports.outputs.items():
+            out.append(f"    -> {name:14s} {tp.type_name():24s} {n.id}/{name}")
+    return "\n".join(out)

@@ -1,0 +1,230 @@
+"""MCAP logs: msgpack-encoded channels with JSON schemas, zstd chunks, indexed.
+
+A log written by :class:`LogWriter` is an ordinary MCAP file: any MCAP reader lists its
+topics, and any msgpack reader decodes its messages (arrays are maps with inline
+``data``). Chunks are finalised at least every ``flush_period_s``, so a recorder killed
+mid-recording leaves every message up to the last completed chunk readable;
+:class:`LogReader` recovers such a file by streaming it (it has no summary to seek by).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, Iterable, Iterator
+
+import msgpack
+from mcap.reader import make_reader
+from mcap.records import Channel, Message as McapMessage, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from tether.codec import Codec, json_schema
+from tether.errors import DecodeError
+from tether.message import Message, message_type
+
+log = logging.getLogger("tether.log")
+
+MESSAGE_ENCODING = "msgpack"
+SCHEMA_ENCODING = "jsonschema"
+
+
+@dataclass(frozen=True)
+class LogRecord:
+    """One message of a log, still encoded: decode with :meth:`LogReader.decode`."""
+
+    topic: str
+    type_name: str
+    log_time_ns: int
+    publish_time_ns: int
+    data: bytes
+    sequence: int = 0
+
+
+class LogWriter:
+    """Write tether messages (or already-encoded records) to an MCAP file.
+
+    >>> with LogWriter("run.mcap") as log:
+    ...     log.write("sonar/ping", ping)
+    """
+
+    def __init__(self, path: str | Path, *, chunk_size: int = 1 << 20, flush_period_s: float = 1.0,
+                 compression: str = "zstd", metadata: dict[str, str] | None = None) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh: IO[bytes] = open(self.path, "wb")
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
+        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=comp)
+        self._writer.start(profile="tether", library="tether")
+        if metadata:
+            self._writer.add_metadata("tether", {k: str(v) for k, v in metadata.items()})
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[tuple[str, str], int] = {}
+        self._codec = Codec()
+        self._flush_period_ns = int(flush_period_s * 1e9)
+        self._last_flush = time.monotonic_ns()
+        self.count = 0
+        self._closed = False
+
+    def _schema_id(self, type_name: str) -> int:
+        sid = self._schemas.get(type_name)
+        if sid is None:
+            try:
+                schema = json.dumps(json_schema(message_type(type_name))).encode()
+            except KeyError:
+                schema = b"{}"   # a type this process cannot import: the record still round-trips as msgpack
+            sid = self._schemas[type_name] = self._writer.register_schema(type_name, SCHEMA_ENCODING, schema)
+        return sid
+
+    def _channel_id(self, topic: str, type_name: str) -> int:
+        key = (topic, type_name)
+        cid = self._channels.get(key)
+        if cid is None:
+            cid = self._channels[key] = self._writer.register_channel(
+                topic, MESSAGE_ENCODING, self._schema_id(type_name), metadata={"tether_type": type_name})
+        return cid
+
+    def write(self, topic: str, msg: Message, *, log_time_ns: int | None = None) -> None:
+        """Append a typed message (log time defaults to now; publish time is its stamp)."""
+        self.write_encoded(topic, msg.type_name(), self._codec.encode_inline(msg),
+                           log_time_ns=log_time_ns, publish_time_ns=msg.stamp_ns, sequence=msg.seq)
+
+    def write_encoded(self, topic: str, type_name: str, data: bytes, *, log_time_ns: int | None = None,
+                      publish_time_ns: int = 0, sequence: int = 0) -> None:
+        """Append an already-encoded (inline msgpack) message."""
+        now = time.time_ns() if log_time_ns is None else log_time_ns
+        self._writer.add_message(self._channel_id(topic, type_name), log_time=now, data=data,
+                                 publish_time=publish_time_ns or now, sequence=sequence & 0xFFFFFFFF)
+        self.count += 1
+        self.maybe_flush()
+
+    def maybe_flush(self) -> None:
+        """Finalise the open chunk if ``flush_period_s`` has passed (crash tolerance for slow streams)."""
+        if time.monotonic_ns() - self._last_flush >= self._flush_period_ns:
+            self.flush()
+
+    def flush(self) -> None:
+        self._writer.flush()
+        self._last_flush = time.monotonic_ns()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._writer.finish()
+            self._fh.close()
+
+    def __enter__(self) -> "LogWriter":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+@dataclass
+class LogInfo:
+    """What a log holds."""
+
+    path: str
+    topics: dict[str, str] = field(default_factory=dict)        # topic -> type
+    counts: dict[str, int] = field(default_factory=dict)
+    start_ns: int = 0
+    end_ns: int = 0
+    recovered: bool = False                                     # read by streaming an unfinished file
+
+    @property
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) / 1e9 if self.end_ns else 0.0
+
+
+class LogReader:
+    """Read a tether MCAP log, indexed when it is complete, by streaming when it is not."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileNotFoundError(f"no log at {self.path}")
+        self._codec = Codec()
+        self.recovered = False
+        self._summary = None
+        with open(self.path, "rb") as fh:
+            try:
+                self._summary = make_reader(fh).get_summary()
+            except Exception:  # noqa: BLE001 - no footer / truncated: fall back to streaming
+                self._summary = None
+        if self._summary is None:
+            self.recovered = True
+
+    def info(self) -> LogInfo:
+        info = LogInfo(path=str(self.path), recovered=self.recovered)
+        if self._summary is not None and self._summary.statistics is not None:
+            stats = self._summary.statistics
+            for cid, ch in self._summary.channels.items():
+                info.topics[ch.topic] = ch.metadata.get("tether_type") or self._summary.schemas[ch.schema_id].name
+                info.counts[ch.topic] = info.counts.get(ch.topic, 0) + stats.channel_message_counts.get(cid, 0)
+            info.start_ns, info.end_ns = stats.message_start_time, stats.message_end_time
+            return info
+        for rec in self.messages():
+            info.topics.setdefault(rec.topic, rec.type_name)
+            info.counts[rec.topic] = info.counts.get(rec.topic, 0) + 1
+            info.start_ns = rec.log_time_ns if not info.start_ns else min(info.start_ns, rec.log_time_ns)
+            info.end_ns = max(info.end_ns, rec.log_time_ns)
+        return info
+
+    def messages(self, topics: Iterable[str] | None = None, *, start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[LogRecord]:
+        """Records in log-time order; ``start_ns``/``end_ns`` are absolute log times (end exclusive)."""
+        wanted = set(topics) if topics is not None else None
+        if self._summary is not None:
+            with open(self.path, "rb") as fh:
+                reader = make_reader(fh)
+                for schema, channel, message in reader.iter_messages(
+                        topics=list(wanted) if wanted is not None else None, start_time=start_ns, end_time=end_ns):
+                    yield self._record(schema, channel, message)
+            return
+        yield from self._stream(wanted, start_ns, end_ns)
+
+    def _stream(self, wanted: set[str] | None, start_ns: int | None, end_ns: int | None) -> Iterator[LogRecord]:
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        pending: list[LogRecord] = []
+        with open(self.path, "rb") as fh:
+            try:
+                for record in StreamReader(fh, skip_magic=False, emit_chunks=False).records:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        channels[record.id] = record
+                    elif isinstance(record, McapMessage):
+                        channel = channels.get(record.channel_id)
+                        if channel is None or (wanted is not None and channel.topic not in wanted):
+                            continue
+                        if (start_ns is not None and record.log_time < start_ns) or \
+                                (end_ns is not None and record.log_time >= end_ns):
+                            continue
+                        pending.append(self._record(schemas.get(channel.schema_id), channel, record))
+            except Exception as exc:  # noqa: BLE001 - the file ends mid-record: keep what was complete
+                log.warning("%s: log ends early (%s: %s); read %d complete messages",
+                            self.path, type(exc).__name__, exc, len(pending))
+        pending.sort(key=lambda r: r.log_time_ns)
+        yield from pending
+
+    @staticmethod
+    def _record(schema: Schema | None, channel: Channel, message: McapMessage) -> LogRecord:
+        type_name = channel.metadata.get("tether_type") or (schema.name if schema else "")
+        return LogRecord(channel.topic, type_name, message.log_time, message.publish_time, message.data,
+                         message.sequence)
+
+    def decode(self, record: LogRecord) -> Message:
+        """The typed message of a record (``DecodeError`` if its type is unknown here or it is malformed)."""
+        try:
+            tp = message_type(record.type_name)
+        except KeyError as exc:
+            raise DecodeError(str(exc)) from None
+        return self._codec.decode_inline(tp, record.data)
+
+    @staticmethod
+    def decode_plain(record: LogRecord) -> Any:
+        """The record as plain msgpack (dicts, lists, bytes): no type needed."""
+        return msgpack.unpackb(record.data, raw=False, strict_map_key=False)

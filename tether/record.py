@@ -1,0 +1,117 @@
+"""Recorder: subscribe to topics and write every message to an MCAP log, as received.
+
+Messages are not decoded to their types: array buffers are folded back into the body
+(:func:`tether.codec.wire_to_inline`), so recording costs one copy per message.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from pathlib import Path
+from typing import Callable, Mapping
+
+import msgpack
+import zmq
+
+from tether.codec import wire_to_inline
+from tether.errors import DecodeError
+from tether.log import LogWriter
+from tether.transport import CurveKeys, connect_sub, make_sub
+
+log = logging.getLogger("tether.record")
+
+
+class Recorder:
+    """Record ``topics`` ({topic: endpoint}) into ``path`` until :meth:`stop`."""
+
+    def __init__(self, path: str | Path, topics: Mapping[str, str], *, curve: CurveKeys | None = None,
+                 ctx: zmq.Context | None = None, metadata: dict[str, str] | None = None) -> None:
+        self.path = Path(path)
+        self.topics = dict(topics)
+        self.curve = curve
+        self.ctx = ctx or zmq.Context.instance()
+        self.metadata = metadata or {}
+        self.count = 0
+        self.bytes = 0
+        self.errors = 0
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> "Recorder":
+        self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
+        self._thread.start()
+        self._ready.wait(5.0)
+        return self
+
+    def _sockets(self) -> list[zmq.Socket]:
+        plain, secure = None, None
+        connected: set[tuple[str, bool]] = set()
+        for topic, endpoint in self.topics.items():
+            use_curve = self.curve is not None and endpoint.startswith("tcp://")
+            if use_curve:
+                secure = secure or make_sub(self.ctx)
+                sock = secure
+            else:
+                plain = plain or make_sub(self.ctx)
+                sock = plain
+            if (endpoint, use_curve) not in connected:
+                connect_sub(sock, endpoint, self.curve if use_curve else None)
+                connected.add((endpoint, use_curve))
+            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        return [s for s in (plain, secure) if s is not None]
+
+    def _run(self) -> None:
+        socks = self._sockets()
+        poller = zmq.Poller()
+        for s in socks:
+            s.setsockopt(zmq.RCVHWM, 100_000)
+            poller.register(s, zmq.POLLIN)
+        wanted = {t.encode() for t in self.topics}
+        with LogWriter(self.path, metadata=self.metadata) as writer:
+            self._ready.set()
+            while not self._stop.is_set():
+                for sock, _ in poller.poll(100):
+                    while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+                        frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                        if frames[0].bytes in wanted:
+                            self._write(writer, frames)
+                writer.maybe_flush()
+            for s in socks:
+                s.close(linger=0)
+
+    def _write(self, writer: LogWriter, frames: list) -> None:
+        now = time.time_ns()
+        try:
+            blob = wire_to_inline(frames[1:])
+            head = msgpack.unpackb(frames[1].bytes, raw=False, strict_map_key=False)
+            writer.write_encoded(frames[0].bytes.decode(), str(head.get("type", "")), blob, log_time_ns=now,
+                                 publish_time_ns=int(head.get("stamp_ns") or now), sequence=int(head.get("seq") or 0))
+        except (DecodeError, ValueError, TypeError, msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as exc:
+            self.errors += 1
+            log.error("recorder dropped a malformed message on %s: %s", frames[0].bytes[:80], exc)
+            return
+        self.count += 1
+        self.bytes += sum(len(f.buffer) for f in frames)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(10.0)
+
+    def run_until(self, stop: threading.Event, duration_s: float | None = None,
+                  progress: Callable[[str], None] | None = None) -> None:
+        """Block until ``stop`` is set or ``duration_s`` passes, reporting progress each second."""
+        t0 = time.monotonic()
+        last_count, last_t = 0, t0
+        while not stop.wait(1.0):
+            now = time.monotonic()
+            if progress is not None:
+                rate = (self.count - last_count) / max(now - last_t, 1e-9)
+                progress(f"recording {self.path.name}: {self.count} msgs, {self.bytes / 1e6:.1f} MB, "
+                         f"{rate:.0f} msg/s, {now - t0:.0f} s")
+            last_count, last_t = self.count, now
+            if duration_s is not None and now - t0 >= duration_s:
+                break
+        self.stop()

@@ -1,0 +1,87 @@
+"""Registry of running graphs: one JSON file per launcher, so CLI tools can find topics.
+
+Each entry lists the graph's topics with their type and endpoint, and its nodes with
+their pids. Entries of dead launchers are ignored and removed.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tether.errors import TetherError
+from tether.transport import runtime_dir
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    topic: str
+    type_name: str
+    endpoint: str
+    graph: str
+    curve: dict[str, str] | None = None
+
+
+def _dir() -> Path:
+    path = runtime_dir() / "graphs"
+    path.mkdir(exist_ok=True)
+    return path
+
+
+def register(entry: dict[str, Any]) -> Path:
+    """Write (or rewrite) this process's entry; returns its path."""
+    path = _dir() / f"{entry['name']}.{entry.get('machine') or 'local'}.{os.getpid()}.json"
+    tmp = path.with_suffix(".tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)   # may hold curve keys
+    with os.fdopen(fd, "w") as fh:
+        json.dump({**entry, "pid": os.getpid()}, fh)
+    os.replace(tmp, path)
+    return path
+
+
+def unregister(path: Path) -> None:
+    path.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def running() -> list[dict[str, Any]]:
+    """Entries of live graphs (stale files are removed)."""
+    out = []
+    for path in sorted(_dir().glob("*.json")):
+        try:
+            entry = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if not _alive(int(entry.get("pid", 0))):
+            path.unlink(missing_ok=True)
+            continue
+        out.append(entry)
+    return out
+
+
+def topics() -> dict[str, TopicInfo]:
+    """Every topic published by a running graph."""
+    out: dict[str, TopicInfo] = {}
+    for entry in running():
+        for topic, info in entry.get("topics", {}).items():
+            out[topic] = TopicInfo(topic, info["type"], info["endpoint"], entry["name"], entry.get("curve"))
+    return out
+
+
+def find_topic(topic: str) -> TopicInfo:
+    found = topics()
+    if topic not in found:
+        hint = f" (running: {', '.join(sorted(found)[:12])})" if found else " (no graph is running)"
+        raise TetherError(f"no running graph publishes {topic!r}{hint}")
+    return found[topic]
