@@ -41,7 +41,8 @@ class EchoFilterBus(can.BusABC):
         self._inner = inner
         self._tag = f"tether-{os.getpid()}-{uuid.uuid4().hex[:8]}" if tag_channel else None
         self._window_s = echo_window_s
-        self._sent: collections.deque[tuple[float, int, bytes]] = collections.deque()
+        self._sent: dict[tuple[int, bytes], collections.deque[float]] = {}   # frame -> send times
+        self._sends = 0
         self._lock = threading.Lock()
         self.tx_listeners: list[Callable[[can.Message], None]] = []
         self.echoes_dropped = 0
@@ -61,8 +62,14 @@ class EchoFilterBus(can.BusABC):
                               is_error_frame=msg.is_error_frame, dlc=msg.dlc, data=msg.data,
                               is_fd=msg.is_fd, channel=self._tag, is_rx=False)
         else:
+            key = (msg.arbitration_id, bytes(msg.data))
+            now = time.monotonic()
             with self._lock:
-                self._sent.append((time.monotonic(), msg.arbitration_id, bytes(msg.data)))
+                self._sent.setdefault(key, collections.deque()).append(now)
+                self._sends += 1
+                if self._sends % 1024 == 0:        # forget frames whose echo never came
+                    for k in [k for k, q in self._sent.items() if now - q[-1] > self._window_s]:
+                        del self._sent[k]
         self._inner.send(msg, timeout)
         for listener in self.tx_listeners:
             try:
@@ -76,12 +83,12 @@ class EchoFilterBus(can.BusABC):
         key = (msg.arbitration_id, bytes(msg.data))
         now = time.monotonic()
         with self._lock:
-            while self._sent and now - self._sent[0][0] > self._window_s:
-                self._sent.popleft()
-            for i, (_, arb, data) in enumerate(self._sent):
-                if (arb, data) == key:
-                    del self._sent[i]
-                    return True
+            times = self._sent.get(key)
+            while times and now - times[0] > self._window_s:
+                times.popleft()
+            if times:
+                times.popleft()
+                return True
         return False
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:

@@ -14,6 +14,8 @@ class CanFrame(Message, tag="can.CanFrame"):
     is_error_frame: bool = False
     is_rx: bool = True
     channel: str = ""
+    is_fd: bool = False           # appended: CAN FD frame (data up to 64 bytes)
+    dlc: int = 0                  # appended: data length code; what a remote frame requests
 
 
 class DriveState(Message, tag="can.DriveState"):
@@ -29,3 +31,10 @@ class DriveState(Message, tag="can.DriveState"):
     heartbeat_ok: bool = True
     emcy_code: int = 0
     fault: str = ""
+    # appended fields
+    role: str = ""                # 'wheel' or 'steer'
+    nmt_state: str = ""           # 'OPERATIONAL', 'PRE-OPERATIONAL', 'STOPPED', ...
+    position_unit: float = 0.0    # position in the drive's unit (m of wheel travel, rad of steer)
+    velocity_unit: float = 0.0    # velocity in unit/s
+    target_unit: float = 0.0      # last commanded set-point (unit/s for wheels, unit for steering)
+    quick_stop: bool = False      # the driver holds this drive in quick stop (watchdog, fault elsewhere)
