@@ -1,0 +1,155 @@
+"""Highlight cloud node: sonar pings + sonar pose -> accumulated world-frame 3D point cloud (seed 01, eq. 7-17).
+
+Conventions: the world is z-up; ``pose`` is the sonar's pose in it (body frame FLU by default:
+x along the boresight, y port, z up; ``body_frame="frd"`` for x, starboard, down). Tilt, roll and
+altitude come from the pose (altitude = z - ``seafloor_z_m``) unless given as parameters.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Literal
+
+import msgspec
+import numpy as np
+
+from msgs.geometry import Pose3D
+from msgs.sensor import PointCloud
+from msgs.sonar import SonarPing
+from nodes.sonar.highlight import down_from_tilt, extract_line_scan
+from tether import Input, Node
+
+_FLIP = np.diag([1.0, -1.0, -1.0])      # FLU <-> FRD (its own inverse)
+
+
+class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    spread_rad: float = math.radians(20.0)   # vertical aperture s, used when the ping does not carry one
+    tilt_rad: float = math.radians(15.0)     # used with attitude="param" (pose gives heading only)
+    attitude: Literal["pose", "param"] = "pose"
+    altitude_m: float = 0.0                  # > 0: fixed altitude h; 0: pose z - seafloor_z_m
+    seafloor_z_m: float = 0.0
+    body_frame: Literal["flu", "frd"] = "flu"
+    model: Literal["beam", "paper"] = "beam"
+    sigma_px: float = 1.5                    # Gaussian blur along range (cells)
+    sigma_beam_px: float = -1.0              # across beams; < 0: same as sigma_px
+    threshold: float = 0.12                  # front-end rise, fraction of full scale
+    guard_px: float = -1.0                   # rows kept clear before M_emin; < 0: 2 sigma + 2
+    include_seafloor: bool = True            # m(j) = M_emin points where no highlight (the paper)
+    max_points: int = 200_000                # accumulated cloud keeps the newest points
+    publish_every: int = 1                   # publish the accumulated cloud every n-th ping
+    publish_scan: bool = False               # also publish each ping's line scan (sonar frame)
+    max_pose_age_s: float = 0.5              # pose further than this from the ping's stamp: drop the ping
+    world_frame: str = "world"
+
+    def __post_init__(self) -> None:
+        if not (0 < self.spread_rad < math.pi) or self.max_points < 1 or self.publish_every < 1:
+            raise ValueError("need 0 < spread_rad < pi, max_points >= 1 and publish_every >= 1")
+        if self.sigma_px < 0 or not (0 < self.threshold < 1) or self.altitude_m < 0:
+            raise ValueError("need sigma_px >= 0, 0 < threshold < 1 (fraction of full scale), altitude_m >= 0")
+
+
+class HighlightCloud(Node):
+    """Inputs ``ping`` and ``pose`` (latest only); outputs ``points`` (world) and ``scan`` (sonar frame)."""
+
+    Config = Config
+    inputs = {"ping": SonarPing, "pose": Input(Pose3D, latest=True)}
+    outputs = {"points": PointCloud, "scan": PointCloud}
+
+    def setup(self) -> None:
+        self._poses: deque[tuple[int, np.ndarray]] = deque(maxlen=64)
+        self._xyz = np.zeros((self.config.max_points, 3), np.float32)
+        self._strength = np.zeros(self.config.max_points, np.float32)
+        self._count = 0
+        self._head = 0
+        self.pings = 0
+        self.dropped: dict[str, int] = {}
+
+    def on_pose(self, pose: Pose3D) -> None:
+        transform = pose.matrix()
+        if not np.all(np.isfinite(transform)) or abs(np.linalg.det(transform[:3, :3]) - 1) > 1e-3:
+            self._drop("bad pose (non-finite or zero quaternion)")
+            return None
+        self._poses.append((pose.stamp_ns, transform))
+        return None
+
+    def on_ping(self, ping: SonarPing) -> list[tuple[str, PointCloud]] | None:
+        pose = self._pose_at(ping.stamp_ns)
+        if pose is None:
+            return None
+        rot, origin, down, tilt = self._sonar_in_world(pose)
+        altitude = self.config.altitude_m or float(origin[2] - self.config.seafloor_z_m)
+        cfg = self.config
+        resolution = ping.range_resolution_m
+        if not resolution > 0 and ping.range_m > 0 and ping.intensities.shape[0] > 0:
+            resolution = ping.range_m / ping.intensities.shape[0]
+        spread = ping.vertical_aperture_rad if 0 < ping.vertical_aperture_rad < math.pi else cfg.spread_rad
+        try:
+            scan = extract_line_scan(np.asarray(ping.intensities), np.asarray(ping.bearings_rad), resolution,
+                                     altitude_m=altitude, tilt_rad=tilt, spread_rad=spread, down_frd=down,
+                                     model=cfg.model, sigma_px=cfg.sigma_px,
+                                     sigma_beam_px=None if cfg.sigma_beam_px < 0 else cfg.sigma_beam_px,
+                                     threshold=cfg.threshold, guard_px=None if cfg.guard_px < 0 else cfg.guard_px,
+                                     include_seafloor=cfg.include_seafloor)
+        except ValueError as exc:
+            self._drop(str(exc).split(",")[0], ping.ping_id)
+            return None
+        self.pings += 1
+        world = scan.points_m @ rot.T + origin
+        self._append(world, scan.strength)
+        out: list[tuple[str, PointCloud]] = []
+        if cfg.publish_scan:
+            body = scan.points_m if cfg.body_frame == "frd" else scan.points_m @ _FLIP
+            out.append(("scan", PointCloud(stamp_ns=ping.stamp_ns, frame_id=ping.frame_id or "sonar",
+                                           points_m=body.astype(np.float32), intensity=scan.strength)))
+        if self.pings % cfg.publish_every == 0:
+            out.append(("points", self.cloud(ping.stamp_ns)))
+        return out
+
+    def cloud(self, stamp_ns: int = 0) -> PointCloud:
+        """The accumulated cloud, oldest point first."""
+        n, cap = self._count, self.config.max_points
+        order = np.arange(n) if n < cap else (np.arange(cap) + self._head) % cap
+        return PointCloud(stamp_ns=stamp_ns, frame_id=self.config.world_frame, points_m=self._xyz[order],
+                          intensity=self._strength[order])
+
+    def teardown(self) -> None:
+        self.log.info("highlight cloud: %d pings, %d points accumulated, dropped %s", self.pings,
+                      min(self._count, self.config.max_points), self.dropped or "none")
+
+    # -- helpers ------------------------------------------------------------------------
+    def _pose_at(self, stamp_ns: int) -> np.ndarray | None:
+        if not self._poses:
+            self._drop("no sonar pose received yet")
+            return None
+        t, transform = min(reversed(self._poses), key=lambda p: abs(p[0] - stamp_ns))   # newest wins ties
+        if abs(t - stamp_ns) > self.config.max_pose_age_s * 1e9:
+            self._drop("no sonar pose close enough in time to the ping")
+            return None
+        return transform
+
+    def _sonar_in_world(self, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Rotation world<-sonar FRD, sonar origin, gravity in sonar FRD, boresight depression (rad)."""
+        rot = transform[:3, :3] if self.config.body_frame == "frd" else transform[:3, :3] @ _FLIP
+        if self.config.attitude == "param":
+            yaw = math.atan2(rot[1, 0], rot[0, 0])
+            c, s, ct, st = math.cos(yaw), math.sin(yaw), math.cos(self.config.tilt_rad), math.sin(self.config.tilt_rad)
+            flu = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]) @ np.array([[ct, 0, st], [0, 1.0, 0], [-st, 0, ct]])
+            rot = flu @ _FLIP
+            return rot, transform[:3, 3], down_from_tilt(self.config.tilt_rad), self.config.tilt_rad
+        down = rot.T @ np.array([0.0, 0.0, -1.0])
+        return rot, transform[:3, 3], down, float(math.asin(np.clip(down[0], -1.0, 1.0)))
+
+    def _append(self, points: np.ndarray, strength: np.ndarray) -> None:
+        cap = self.config.max_points
+        points, strength = points[-cap:], strength[-cap:]
+        idx = (self._head + np.arange(len(points))) % cap
+        self._xyz[idx] = points
+        self._strength[idx] = strength
+        self._head = (self._head + len(points)) % cap
+        self._count += len(points)
+
+    def _drop(self, reason: str, ping_id: int | None = None) -> None:
+        first = reason not in self.dropped
+        self.dropped[reason] = self.dropped.get(reason, 0) + 1
+        if first:
+            self.log.error("dropping %s: %s", f"ping {ping_id}" if ping_id is not None else "input", reason)
