@@ -1,0 +1,110 @@
+"""Crowd world and CrowdSim node: unicycle limits, watchdog, walls, contacts, outputs through the harness."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from msgs.geometry import Twist2D
+from sim.crowd import CrowdSim, CrowdWorld, RobotLimits, add_depth_noise, unicycle_step
+from sim.crowd_render import CameraModel
+from tether.testing import Harness
+
+SMALL = CameraModel(width_px=80, height_px=60, fx_px=65.6, fy_px=65.6, cx_px=39.5, cy_px=29.5)
+SMALL_PARAMS = {"width_px": 80, "height_px": 60, "fx_px": 65.6, "fy_px": 65.6}
+
+
+def room(**kw):
+    data = {"name": "room", "bounds_m": [-5, -5, 5, 5], "robot": {"x_m": 0, "y_m": 0, "yaw_rad": 0},
+            "goal": {"x_m": 3, "y_m": 0, "tolerance_m": 0.3},
+            "walls": [{"points": [[-5, -5], [5, -5], [5, 5], [-5, 5], [-5, -5]], "height_m": 2.5}]}
+    data.update(kw)
+    return data
+
+
+def test_unicycle_respects_acceleration_and_speed_limits_and_integrates_arcs_exactly():
+    lim = RobotLimits(max_speed_mps=1.0, max_accel_mps2=0.8, max_yaw_rate_radps=1.0, max_yaw_accel_radps2=100.0)
+    pose, twist = (0.0, 0.0, 0.0), (0.0, 0.0)
+    pose, twist = unicycle_step(pose, twist, (5.0, 0.0), 0.5, lim)
+    assert twist[0] == pytest.approx(0.4)                          # 0.8 m/s^2 * 0.5 s, not 5 m/s
+    for _ in range(10):
+        pose, twist = unicycle_step(pose, twist, (5.0, 0.0), 0.5, lim)
+    assert twist[0] == pytest.approx(1.0)                          # clipped to max speed
+    # a full circle at v = 1, w = 1 comes back to the start (exact arc integration)
+    pose, twist = (0.0, 0.0, 0.0), (1.0, 1.0)
+    for _ in range(100):
+        pose, twist = unicycle_step(pose, twist, (1.0, 1.0), 2 * np.pi / 100, lim)
+    np.testing.assert_allclose(pose[:2], (0.0, 0.0), atol=1e-6)
+
+
+def test_world_drives_to_the_goal_and_reports_it():
+    world = CrowdWorld(room(), camera=SMALL)
+    for _ in range(100):
+        world.step(0.6, 0.0, 0.1)
+        if world.goal_reached:
+            break
+    assert world.goal_reached and abs(world.pose[0] - 3.0) <= 0.3 and world.collisions == 0
+
+
+def test_robot_is_stopped_by_a_wall_not_pushed_through_it():
+    world = CrowdWorld(room(), camera=SMALL)
+    for _ in range(200):
+        world.step(1.0, 0.0, 0.05)
+    assert world.pose[0] <= 5.0 - world.limits.radius_m + 1e-9
+    assert world.pose[0] > 4.0 and world.blocked_steps > 0 and world.twist == (0.0, 0.0)
+
+
+def test_standing_pedestrian_on_the_path_is_one_collision_however_long_the_contact():
+    world = CrowdWorld(room(pedestrians=[{"id": 5, "waypoints": [[1.5, 0.0]], "speed_mps": 0}]), camera=SMALL)
+    for _ in range(60):
+        world.step(0.5, 0.0, 0.1)
+    assert world.collisions == 1
+    assert world.min_clearance_m < 0.65
+    np.testing.assert_array_equal(world.pedestrians().xy_m, [[1.5, 0.0]])    # it never moved
+    rgb, depth = world.render()
+    assert rgb.shape == (60, 80, 3) and np.all(np.isfinite(depth))
+
+
+def test_non_finite_command_is_refused():
+    world = CrowdWorld(room(), camera=SMALL)
+    with pytest.raises(ValueError, match="finite"):
+        world.step(float("nan"), 0.0, 0.1)
+
+
+def test_depth_noise_and_dropout():
+    rng = np.random.default_rng(3)
+    depth = np.full((100, 100), 4.0, np.float32)
+    noisy = add_depth_noise(depth, rng, noise_per_m2=0.002, dropout=0.1)
+    assert noisy.dtype == np.float32
+    assert 0.07 < np.mean(noisy == 0) < 0.13
+    kept = noisy[noisy > 0]
+    assert kept.std() == pytest.approx(0.002 * 16, rel=0.15)
+
+
+def test_node_publishes_map_goal_odom_pedestrians_and_frames_with_consistent_stamps():
+    with Harness(CrowdSim, params={"scene": "crossing", "rate_hz": 20, "camera_hz": 10, **SMALL_PARAMS}) as h:
+        h.feed([(0.05 * i, "cmd", Twist2D(vx_mps=0.5)) for i in range(20)], until_s=1.0)
+        assert len(h.of("map")) == 1 and len(h.of("goal")) == 1
+        grid = h.of("map")[0]
+        assert grid.data.shape == (100, 160) and grid.data.max() == 1.0 and grid.frame_id == "world"
+        assert (h.of("goal")[0].x_m, h.of("goal")[0].y_m) == (10.0, 0.0)
+        frames = h.of("rgbd")
+        assert len(frames) == 11 and frames[0].rgb.shape == (60, 80, 3) and frames[0].info.cx_px == 39.5
+        odom_stamps = {o.stamp_ns for o in h.of("odom")}
+        assert all(f.stamp_ns in odom_stamps for f in frames)             # a pose exactly at every frame
+        odom = h.of("odom")[-1]
+        assert odom.twist.vx_mps == pytest.approx(0.5) and odom.pose.x_m > 0.2
+        peds = h.of("pedestrians")[-1]
+        assert list(peds.ids) == [1] and peds.positions_m.shape == (1, 2)      # the crosser appears at t = 1 s
+        h.advance_to(2.5)
+        assert len(h.of("map")) == 2                                     # re-published every map_period_s
+
+
+def test_node_watchdog_brakes_when_commands_stop_and_drops_non_finite_commands():
+    with Harness(CrowdSim, params={"scene": "toward", "rate_hz": 20, "camera_hz": 1, "watchdog_s": 0.5,
+                                   **SMALL_PARAMS}) as h:
+        h.feed([(0.05 * i, "cmd", Twist2D(vx_mps=0.8)) for i in range(40)])
+        h.feed([(2.0, "cmd", Twist2D(vx_mps=float("nan")))])
+        speed_at_2s = h.of("odom")[-1].twist.vx_mps
+        h.advance_to(4.0)
+        assert speed_at_2s > 0.7
+        assert h.of("odom")[-1].twist.vx_mps == 0.0
