@@ -105,6 +105,8 @@ class Codec:
     # -- decoding -------------------------------------------------------------------
     def _dec_wire(self, tp: type, obj: Any) -> Any:
         if tp is np.ndarray:
+            if isinstance(obj, (bool, int, float)):
+                return np.asarray(obj)   # a numpy scalar given for an array field encodes as a number
             if not isinstance(obj, dict):
                 raise DecodeError(f"expected an array map, got {type(obj).__name__}")
             if "data" in obj:
@@ -118,6 +120,8 @@ class Codec:
 
     def _dec_inline(self, tp: type, obj: Any) -> Any:
         if tp is np.ndarray:
+            if isinstance(obj, (bool, int, float)):
+                return np.asarray(obj)
             if not isinstance(obj, dict) or "data" not in obj:
                 raise DecodeError("expected an inline array map with 'data'")
             return _array_from(obj, obj["data"])

@@ -261,9 +261,10 @@ def plan(launch: LaunchFile, *, token: str, curve: dict[str, str] | None = None)
                 continue
             src_node = launch.node(_source_node(src))
             same = not launch.machines or src_node.machine == n.machine
-            inputs[name] = Source(topic=src, endpoint=local_ep[src_node.id] if same else tcp_ep[src_node.id])
+            inputs[name] = Source(topic=src, endpoint=local_ep[src_node.id] if same else tcp_ep[src_node.id],
+                                  secure=src_node.id in tcp_ep)
         expect = {f"{n.id}/{out}": subscribers.get(f"{n.id}/{out}", 0) for out in n.ports.outputs}
-        uses_tcp = n.id in tcp_ep or any(s.endpoint.startswith("tcp://") for s in inputs.values())
+        uses_tcp = n.id in tcp_ep or any(s.secure for s in inputs.values())
         specs[n.id] = RunSpec(graph=launch.name, node_id=n.id, node=n.node, params=n.params, binds=binds,
                               inputs=inputs, expect_subscribers=expect, curve=curve if uses_tcp else None)
     return specs

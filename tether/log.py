@@ -180,7 +180,7 @@ class LogReader:
             with open(self.path, "rb") as fh:
                 reader = make_reader(fh)
                 for schema, channel, message in reader.iter_messages(
-                        topics=list(wanted) if wanted is not None else None, start_time=start_ns, end_time=end_ns):
+                        topics=list(wanted) if wanted is not None else None, starting_at=start_ns, ending_before=end_ns):
                     yield self._record(schema, channel, message)
             return
         yield from self._stream(wanted, start_ns, end_ns)

@@ -26,10 +26,12 @@ class Recorder:
     """Record ``topics`` ({topic: endpoint}) into ``path`` until :meth:`stop`."""
 
     def __init__(self, path: str | Path, topics: Mapping[str, str], *, curve: CurveKeys | None = None,
+                 secure: set[str] | None = None,
                  ctx: zmq.Context | None = None, metadata: dict[str, str] | None = None) -> None:
         self.path = Path(path)
         self.topics = dict(topics)
         self.curve = curve
+        self.secure = set(secure or ())     # topics whose publisher is a Curve server
         self.ctx = ctx or zmq.Context.instance()
         self.metadata = metadata or {}
         self.count = 0
@@ -49,7 +51,7 @@ class Recorder:
         plain, secure = None, None
         connected: set[tuple[str, bool]] = set()
         for topic, endpoint in self.topics.items():
-            use_curve = self.curve is not None and endpoint.startswith("tcp://")
+            use_curve = self.curve is not None and topic in self.secure
             if use_curve:
                 secure = secure or make_sub(self.ctx)
                 sock = secure

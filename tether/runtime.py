@@ -38,6 +38,7 @@ class Source:
     topic: str = ""
     endpoint: str = ""
     timer_ns: int = 0
+    secure: bool = False      # the publisher is a CurveZMQ server (it has a tcp endpoint)
 
 
 @dataclass
@@ -79,7 +80,8 @@ class NodeRuntime(Context):
         self.ctx = ctx or zmq.Context.instance()
         self.stop_event = threading.Event()
         self.curve = CurveKeys.from_json(spec.curve) if spec.curve else None
-        self._auth = start_authenticator(self.ctx, self.curve) if self.curve and spec.binds else None
+        secure_pub = self.curve is not None and any(b.startswith("tcp://") for b in spec.binds)
+        self._auth = start_authenticator(self.ctx, self.curve) if secure_pub else None
         self._codec = Codec()
         self._pub_lock = threading.Lock()
         self._seq: dict[str, int] = {}
@@ -90,7 +92,7 @@ class NodeRuntime(Context):
         self.node = node_cls(config, node_id=spec.node_id, context=self)
         self._topics = {name: f"{spec.node_id}/{name}".encode() for name in self.node.ports.outputs}
         self._stats_topic = f"{spec.node_id}/_stats".encode()
-        self.pub = make_pub(self.ctx, spec.binds, self.curve) if spec.binds else None
+        self.pub = make_pub(self.ctx, spec.binds, self.curve if secure_pub else None) if spec.binds else None
         self._build_inputs()
 
     # -- wiring -----------------------------------------------------------------------
@@ -112,7 +114,7 @@ class NodeRuntime(Context):
             state = _InputState(name, src.topic, port.type, port.maxlen)
             self.inputs[name] = state
             self.routes.setdefault(src.topic.encode(), []).append(state)
-            needs_curve = self.curve is not None and src.endpoint.startswith("tcp://")
+            needs_curve = self.curve is not None and src.secure
             if needs_curve:
                 secure = secure or make_sub(self.ctx)
                 sock = secure

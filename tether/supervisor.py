@@ -135,7 +135,8 @@ class Supervisor:
                           for out in self.launch.node(nid).ports.outputs}
                 if self.launch.machines:
                     topics = {t: ep for t, ep in topics.items() if self._local(t.split("/")[0])}
-                self.recorder = Recorder(self.record_path, topics, curve=self.curve,
+                secure = {t for t in topics if any(b.startswith("tcp://") for b in self.all_specs[t.split("/")[0]].binds)}
+                self.recorder = Recorder(self.record_path, topics, curve=self.curve, secure=secure,
                                          metadata={"launch": str(self.launch.path), "graph": self.launch.name}).start()
             for child in self.children:
                 self._start(child)

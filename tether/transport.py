@@ -64,12 +64,17 @@ class CurveKeys:
             return cls.from_json(json.loads(path.read_text()))
         keys = cls.generate()
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
         with os.fdopen(fd, "w") as fh:
             json.dump(keys.to_json(), fh)
-        os.replace(tmp, path)
-        return keys
+        try:
+            os.link(tmp, path)      # atomic and exclusive: two launchers starting together agree on one key set
+        except FileExistsError:
+            pass
+        finally:
+            os.unlink(tmp)
+        return cls.from_json(json.loads(path.read_text()))
 
 
 def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq.Socket:
@@ -96,8 +101,8 @@ def make_sub(ctx: zmq.Context) -> zmq.Socket:
 
 
 def connect_sub(sock: zmq.Socket, endpoint: str, curve: CurveKeys | None) -> None:
-    """Connect ``sock`` to a publisher; tcp endpoints of a secured graph use Curve (set before connect)."""
-    if curve is not None and endpoint.startswith("tcp://"):
+    """Connect ``sock`` to a publisher; a Curve-server publisher needs ``curve`` (set before connect)."""
+    if curve is not None:
         # Curve options apply to connections made after they are set; a socket that mixes
         # secured tcp and plain ipc publishers gets a dedicated socket (see NodeRuntime).
         sock.curve_serverkey = curve.server_public
@@ -112,7 +117,7 @@ def start_authenticator(ctx: zmq.Context, curve: CurveKeys) -> Any:
 
     class _Keys:
         def callback(self, domain: str, key: bytes) -> bool:
-            return key == zmq.utils.z85.decode(curve.client_public)
+            return key == curve.client_public      # pyzmq hands the client key z85-encoded
 
     auth = ThreadAuthenticator(ctx)
     auth.start()

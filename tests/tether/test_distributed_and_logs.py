@@ -1,0 +1,220 @@
+"""Two launchers over CurveZMQ tcp; crash-safe recording; schema evolution; CLI attach; hz honesty."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import REPO, tether
+from tether.log import LogReader, LogWriter
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_two_machines_talk_over_curve_tcp(tmp_path: Path, runtime_env: dict) -> None:
+    base = _free_port()
+    path = tmp_path / "two.yaml"
+    path.write_text(textwrap.dedent(f"""
+        name: twomachines
+        machines:
+          boat:  {{host: 127.0.0.1, port_base: {base}}}
+          shore: {{host: 127.0.0.1, port_base: {base + 10}}}
+        nodes:
+          - {{id: counter, node: nodes.std.demo:Counter, params: {{rate_hz: 20}}, machine: boat}}
+          - {{id: scale, node: nodes.std.demo:Scale, inputs: {{value: counter/value}}, machine: shore}}
+    """))
+    log = tmp_path / "shore.mcap"
+    cmd = [sys.executable, "-m", "tether.cli", "launch", str(path), "--duration", "4"]
+    boat = subprocess.Popen([*cmd, "--machine", "boat"], cwd=REPO, env=runtime_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    shore = subprocess.run([*cmd, "--machine", "shore", "--record", str(log)], cwd=REPO, env=runtime_env,
+                           capture_output=True, text=True, timeout=60)
+    boat_out = boat.communicate(timeout=60)[0]
+    assert shore.returncode == 0 and boat.returncode == 0, shore.stderr + boat_out
+    values = [LogReader(log).decode(r).data for r in LogReader(log).messages(["scale/value"])]
+    assert len(values) >= 20 and all(v % 2 == 0 for v in values)   # counter values crossed tcp and were doubled
+    keys = json.loads((Path(runtime_env["TETHER_KEYS_DIR"]) / "twomachines.json").read_text())
+    assert set(keys) == {"server_public", "server_secret", "client_public", "client_secret"}
+    assert oct(os.stat(Path(runtime_env["TETHER_KEYS_DIR"]) / "twomachines.json").st_mode & 0o777) == "0o600"
+
+
+def test_curve_rejects_a_subscriber_without_the_graph_keys(runtime_env: dict) -> None:
+    import threading
+
+    import zmq
+
+    from msgs.std import Float64
+    from nodes.std.demo import Counter
+    from tether.runtime import NodeRuntime, RunSpec
+    from tether.transport import CurveKeys
+
+    port = _free_port()
+    keys = CurveKeys.generate()
+    spec = RunSpec(graph="c", node_id="counter", node="nodes.std.demo:Counter", params={"rate_hz": 50},
+                   binds=[f"tcp://127.0.0.1:{port}"], curve=keys.to_json())
+    ctx = zmq.Context()
+    runtime = NodeRuntime(spec, Counter, ctx)
+    thread = threading.Thread(target=runtime.serve, daemon=True)
+    thread.start()
+    try:
+        intruder = ctx.socket(zmq.SUB)
+        stranger = CurveKeys.generate()          # encrypts, knows the server key, but is not the graph's client
+        intruder.curve_serverkey, intruder.curve_publickey, intruder.curve_secretkey = (
+            keys.server_public, stranger.client_public, stranger.client_secret)
+        intruder.connect(f"tcp://127.0.0.1:{port}")
+        intruder.subscribe(b"counter/value")
+        plain = ctx.socket(zmq.SUB)              # no encryption at all
+        plain.connect(f"tcp://127.0.0.1:{port}")
+        plain.subscribe(b"counter/value")
+        friend = ctx.socket(zmq.SUB)
+        friend.curve_serverkey, friend.curve_publickey, friend.curve_secretkey = (
+            keys.server_public, keys.client_public, keys.client_secret)
+        friend.connect(f"tcp://127.0.0.1:{port}")
+        friend.subscribe(b"counter/value")
+        assert friend.poll(5000)                 # the graph's own client gets data ...
+        assert not intruder.poll(500) and not plain.poll(100)   # ... the others get nothing
+    finally:
+        runtime.stop()
+        thread.join(5)
+        ctx.destroy(linger=0)
+
+
+def test_recorder_killed_with_sigkill_leaves_a_readable_log(tmp_path: Path, runtime_env: dict) -> None:
+    log = tmp_path / "killed.mcap"
+    launch = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", "launch/counter.yaml",
+                               "--param", "counter.rate_hz=50"], cwd=REPO, env=runtime_env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        rec = None
+        while time.monotonic() < deadline:
+            listed = tether("topic", "list", env=runtime_env, timeout=30).stdout
+            if "scale/value" in listed:
+                rec = subprocess.Popen([sys.executable, "-m", "tether.cli", "record", "-o", str(log)], cwd=REPO,
+                                       env=runtime_env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                break
+        assert rec is not None, "the graph never registered its topics"
+        time.sleep(3.5)                          # > 3 flush periods of recording at 50 Hz
+        rec.send_signal(signal.SIGKILL)
+        rec.wait(10)
+    finally:
+        launch.send_signal(signal.SIGINT)
+        launch.wait(30)
+    reader = LogReader(log)
+    assert reader.recovered                      # no footer: read by streaming
+    msgs = [reader.decode(r) for r in reader.messages(["counter/value"])]
+    assert len(msgs) >= 50                       # at least the chunks flushed each second
+    seqs = [m.seq for m in msgs]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))   # complete chunks hold contiguous messages
+
+
+def test_old_log_still_decodes_after_a_field_is_appended(tmp_path: Path) -> None:
+    log = tmp_path / "old.mcap"
+    old = textwrap.dedent(f"""
+        from tether.message import Message
+        from tether.log import LogWriter
+        class Reading(Message, tag="evolve.Reading"):
+            value: float = 0.0
+        with LogWriter({str(log)!r}) as w:
+            w.write("s/r", Reading(value=1.5, stamp_ns=7))
+    """)
+    new = textwrap.dedent(f"""
+        from tether.message import Message
+        from tether.log import LogReader
+        class Reading(Message, tag="evolve.Reading"):
+            value: float = 0.0
+            unit: str = "m"          # appended with a default, per the schema policy
+        import tether.message as tm
+        r = LogReader({str(log)!r})
+        m = r._codec.decode_inline(Reading, next(r.messages()).data)
+        assert (m.value, m.unit, m.stamp_ns) == (1.5, "m", 7), m
+        print("ok")
+    """)
+    for code in (old, new):
+        res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "ok"
+    schema = json.loads(LogReader(log)._summary.schemas[1].data)   # the log carries its schema
+    assert schema["$defs"]["Reading"]["properties"]["value"]["type"] == "number"
+
+
+def test_log_is_readable_with_the_mcap_package_and_plain_msgpack(tmp_path: Path) -> None:
+    import msgpack
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from msgs.sensor import Image
+    log = tmp_path / "a.mcap"
+    with LogWriter(log) as w:
+        w.write("cam/image", Image(data=np.arange(6, dtype=np.uint8).reshape(2, 3)), log_time_ns=5)
+    with open(log, "rb") as fh:
+        reader = make_reader(fh)
+        schema, channel, message = next(reader.iter_messages())
+        assert channel.message_encoding == "msgpack" and schema.encoding == "jsonschema"
+        assert reader.get_summary().chunk_indexes[0].compression == "zstd"
+        doc = msgpack.unpackb(message.data)
+    assert doc["data"]["shape"] == [2, 3] and doc["data"]["data"] == bytes(range(6))
+
+
+def test_foxglove_export_writes_json_channels(tmp_path: Path, runtime_env: dict) -> None:
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from msgs.sensor import Image
+    log, out = tmp_path / "a.mcap", tmp_path / "fox.mcap"
+    with LogWriter(log) as w:
+        w.write("cam/image", Image(data=np.zeros((2, 2), np.uint8)), log_time_ns=5)
+    res = tether("export", "foxglove", str(log), "-o", str(out), env=runtime_env)
+    assert res.returncode == 0, res.stderr
+    with open(out, "rb") as fh:
+        _, channel, message = next(make_reader(fh).iter_messages())
+    assert channel.message_encoding == "json"
+    assert json.loads(message.data)["data"]["data"] == "AAAAAA=="
+
+
+def test_cli_attaches_echo_hz_and_node_info_to_a_running_graph(runtime_env: dict) -> None:
+    launch = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", "launch/counter.yaml",
+                               "--param", "counter.rate_hz=40"], cwd=REPO, env=runtime_env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while "scale/value" not in tether("topic", "list", env=runtime_env).stdout:
+            assert time.monotonic() < deadline
+        echo = tether("topic", "echo", "scale/value", "-n", "2", env=runtime_env)
+        assert echo.returncode == 0 and echo.stdout.count("Float64") == 2
+        hz = tether("topic", "hz", "counter/value", "--duration", "3", env=runtime_env)
+        rates = [float(line.split()[1]) for line in hz.stdout.splitlines() if line.startswith("rate")]
+        assert rates and abs(rates[-1] - 40.0) < 4.0
+        info = tether("node", "info", "scale", env=runtime_env)
+        assert info.returncode == 0 and "<- value" in info.stdout and "-> value" in info.stdout
+        nodes = tether("node", "list", env=runtime_env).stdout
+        assert "scale" in nodes and "nodes.std.demo:Scale" in nodes
+        missing = tether("topic", "echo", "nobody/here", "-n", "1", env=runtime_env)
+        assert missing.returncode == 2 and "no running graph publishes 'nobody/here'" in missing.stderr
+        assert "Traceback" not in missing.stderr
+    finally:
+        launch.send_signal(signal.SIGINT)
+        assert launch.wait(30) == 0
+
+
+def test_hz_is_computed_from_publisher_seq_and_stamps_not_from_what_arrived() -> None:
+    from tether.cli import _rate_line
+
+    # 1000 Hz publisher, but the slow terminal only saw every 10th message.
+    samples = [(i * 0.01, i * 10 * 1_000_000, 1 + i * 10, 1 << 20) for i in range(100)]
+    line = _rate_line("hz", samples)
+    assert "1000.00 Hz" in line and "not seen here" in line
+    bw = _rate_line("bw", samples)
+    assert f"{1000 * (1 << 20) / 1e6:9.2f} MB/s" in bw
