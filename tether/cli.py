@@ -126,8 +126,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 # -- record / replay ------------------------------------------------------------------------
 def cmd_record(args: argparse.Namespace) -> int:
+    import json
+
     from tether import registry
     from tether.record import Recorder
+    from tether.transport import CurveKeys
 
     available = registry.topics()
     wanted = args.topics or [t for t in available if not t.endswith("/_stats")]
@@ -137,7 +140,12 @@ def cmd_record(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    rec = Recorder(args.output, {t: available[t].endpoint for t in wanted}).start()
+    curves = {json.dumps(available[t].curve, sort_keys=True) for t in wanted if available[t].curve}
+    if len(curves) > 1:
+        raise TetherError("the topics belong to graphs with different CurveZMQ keys: record them separately")
+    curve = CurveKeys.from_json(json.loads(curves.pop())) if curves else None
+    rec = Recorder(args.output, {t: available[t].endpoint for t in wanted}, curve=curve,
+                   secure={t for t in wanted if available[t].curve}).start()
     progress = _Progress()
     rec.run_until(stop, args.duration, lambda text: progress(text, force=True))
     progress.done()
@@ -206,10 +214,12 @@ def _subscribe(topic: str) -> Any:
     from tether import registry
     from tether.transport import make_sub
 
+    from tether.transport import CurveKeys, connect_sub
+
     info = registry.find_topic(topic)
     sock = make_sub(zmq.Context.instance())
     sock.rcvhwm = 100000
-    sock.connect(info.endpoint)
+    connect_sub(sock, info.endpoint, CurveKeys.from_json(info.curve) if info.curve else None)
     sock.subscribe(topic.encode())
     return info, sock
 

@@ -75,7 +75,8 @@ def topics() -> dict[str, TopicInfo]:
     out: dict[str, TopicInfo] = {}
     for entry in running():
         for topic, info in entry.get("topics", {}).items():
-            out[topic] = TopicInfo(topic, info["type"], info["endpoint"], entry["name"], entry.get("curve"))
+            curve = entry.get("curve") if info.get("secure") else None
+            out[topic] = TopicInfo(topic, info["type"], info["endpoint"], entry["name"], curve)
     return out
 
 

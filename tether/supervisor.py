@@ -98,14 +98,15 @@ class Supervisor:
             if not spec.binds:
                 continue
             entry = self.launch.node(child.id)
-            for out, tp in entry.ports.outputs.items():
-                topics[f"{child.id}/{out}"] = {"type": tp.type_name(), "endpoint": spec.binds[0]}
-            topics[f"{child.id}/_stats"] = {"type": "std.NodeStats", "endpoint": spec.binds[0]}
+            secure = any(b.startswith("tcp://") for b in spec.binds) and self.curve is not None
+            for out, tp in [*entry.ports.outputs.items(), ("_stats", None)]:
+                topics[f"{child.id}/{out}"] = {"type": tp.type_name() if tp else "std.NodeStats",
+                                               "endpoint": spec.binds[0], "secure": secure}
         nodes = {c.id: {"class": c.spec.node, "pid": c.proc.pid if c.proc else 0, "restarts": c.restarts}
                  for c in self.children}
         self._registry_path = registry.register({"name": self.launch.name, "machine": self.machine,
                                                  "launch": str(self.launch.path), "topics": topics,
-                                                 "nodes": nodes, "curve": None})
+                                                 "nodes": nodes, "curve": self.curve.to_json() if self.curve else None})
 
     def _terminate_all(self) -> None:
         live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
