@@ -90,7 +90,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     steer_speed_radps: float = 4.0
     steer_accel_radps2: float = 40.0
     steer_quick_stop_radps2: float = 80.0
-    steer_limit_rad: float = math.pi / 2 + 0.1
+    steer_limit_rad: float = 2.5             # fold commands beyond this (turn the wheel half a turn, reverse)
     publish_frames: bool = True
 
 
@@ -321,6 +321,7 @@ class Cia402Master:
             log.warning("%s: %s (statusword 0x%04X); will reset it", d.name, d.fault, d.statusword)
         self.network.send_message(p.NMT, bytes([p.NMT_START, n]))
         d.nmt_state = "OPERATIONAL"
+        d.last_hb = d.last_hb or time.monotonic()      # the heartbeat clock starts now at the latest
         d.configured = True
         log.info("%s (node %d) up: statusword 0x%04X %s", d.name, n, d.statusword, d.state)
 
@@ -362,7 +363,8 @@ class Cia402Master:
             if d.configured and d.last_hb is not None and time.monotonic() - d.last_hb > lost_after:
                 d.nmt_state = "LOST"
                 self.trip(f"heartbeat of {d.name} lost")
-        run = setpoints is not None and not self.latched and self.ready()
+        faulted = any(d.state in (p.FAULT, p.FAULT_REACTION_ACTIVE) for d in self.drives.values())
+        run = setpoints is not None and not self.latched and self.ready() and not faulted
         for d in self.drives.values():
             if d.configured:
                 self._command(d, setpoints if run else None)

@@ -45,6 +45,7 @@ class DriveFaults:
     mute: bool = False                      # transmits nothing (heartbeat loss)
     deaf: bool = False                      # receives nothing (cable cut with mute)
     position_offset: int = 0                # initial position actual, e.g. near 2**31 for wrap tests
+    sticky_fault: bool = False              # fault reset does not clear the fault
 
 
 @dataclass
@@ -141,7 +142,7 @@ class SimDrive:
             sw |= 0x0010                                                          # voltage enabled
         if self.state in (p.READY_TO_SWITCH_ON, p.SWITCHED_ON, p.OPERATION_ENABLED):
             sw |= 0x0020                                                          # quick stop (active low)
-        if self._target_reached():
+        if self.state not in (p.FAULT, p.FAULT_REACTION_ACTIVE) and self._target_reached():
             sw |= 0x0400
         if self.mode == p.MODE_PP and self._setpoint_ack:
             sw |= 0x1000
@@ -182,7 +183,7 @@ class SimDrive:
         prev, self._cw = self._cw, cw
         s = self.state
         if s == p.FAULT:
-            if cw & 0x80 and not prev & 0x80:
+            if cw & 0x80 and not prev & 0x80 and not self.faults.sticky_fault:
                 self._set(p.ERROR_CODE, 0)
                 self._set(0x1001, 0)
                 self._emcy(0x0000, 0)
@@ -391,11 +392,10 @@ class SimDrive:
         alpha = 1.0 - math.exp(-dt / self.tau)
         self.velocity += alpha * (self._demand_v - self.velocity)
         self.position += self.velocity * dt
-        if s == p.FAULT_REACTION_ACTIVE and abs(self.velocity) < 1.0 and self._demand_v == 0.0:
-            self.velocity = 0.0
-            self.state = p.FAULT
-        elif s not in (p.OPERATION_ENABLED,) and self._demand_v == 0.0 and abs(self.velocity) < 1e-3:
-            self.velocity = 0.0
+        if s != p.OPERATION_ENABLED and self._demand_v == 0.0 and abs(self.velocity) < 0.5:
+            self.velocity = 0.0                       # at rest (below half a count per second)
+            if s == p.FAULT_REACTION_ACTIVE:
+                self.state = p.FAULT
 
     def _flush(self) -> list[Frame]:
         out, self._out = self._out, []
