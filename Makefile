@@ -17,7 +17,7 @@ $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
-	$(BIN)/tether launch launch/demo.yaml --duration 20
+	$(BIN)/tether launch launch/sonar_localize.yaml --duration 20
 
 test: $(VENV)/.installed-dev
 	$(BIN)/python -m pytest tests
