@@ -38,9 +38,9 @@ class DwaParams:
     n_w: int = 21
     robot_radius_m: float = 0.4
     clearance_cap_m: float = 1.0
-    alpha: float = 0.8
-    beta: float = 0.2
-    gamma: float = 0.2
+    alpha: float = 0.6
+    beta: float = 0.4
+    gamma: float = 0.5
 
     def __post_init__(self) -> None:
         if self.v_max_mps <= self.v_min_mps or self.w_max_radps <= 0 or self.acc_v_mps2 <= 0 or self.acc_w_radps2 <= 0:
@@ -75,7 +75,7 @@ def rollout(pose: np.ndarray, v: np.ndarray, w: np.ndarray, horizon_s: float, st
 
 
 def plan_dwa(pose: np.ndarray, velocity: tuple[float, float], goal: np.ndarray, obstacles: np.ndarray,
-             params: DwaParams = DwaParams()) -> DwaResult:
+             params: DwaParams = DwaParams(), *, v_limit_mps: float | None = None) -> DwaResult:
     """One DWA step.
 
     Parameters
@@ -85,6 +85,7 @@ def plan_dwa(pose: np.ndarray, velocity: tuple[float, float], goal: np.ndarray, 
     goal : (2,) x_m, y_m, same frame as ``pose``.
     obstacles : (N, 2) obstacle points (m), same frame; N may be 0. Non-finite rows are ignored.
     params : DwaParams.
+    v_limit_mps : optional extra speed cap (e.g. to stop on a final goal).
 
     Returns
     -------
@@ -98,7 +99,8 @@ def plan_dwa(pose: np.ndarray, velocity: tuple[float, float], goal: np.ndarray, 
     obstacles = obstacles[np.isfinite(obstacles).all(axis=1)]
     p = params
     v0, w0 = float(velocity[0]), float(velocity[1])
-    vs = np.linspace(max(p.v_min_mps, v0 - p.acc_v_mps2 * p.dt_s), min(p.v_max_mps, v0 + p.acc_v_mps2 * p.dt_s), p.n_v)
+    v_hi = min(p.v_max_mps, v0 + p.acc_v_mps2 * p.dt_s, np.inf if v_limit_mps is None else max(v_limit_mps, p.v_min_mps))
+    vs = np.linspace(max(p.v_min_mps, min(v0 - p.acc_v_mps2 * p.dt_s, v_hi)), v_hi, p.n_v)
     ws = np.linspace(max(-p.w_max_radps, w0 - p.acc_w_radps2 * p.dt_s), min(p.w_max_radps, w0 + p.acc_w_radps2 * p.dt_s), p.n_w)
     vv, ww = (a.ravel() for a in np.meshgrid(vs, ws, indexing="ij"))
     arcs = rollout(pose, vv, ww, p.horizon_s, p.sim_step_s)
@@ -127,3 +129,32 @@ def plan_dwa(pose: np.ndarray, velocity: tuple[float, float], goal: np.ndarray, 
     score = np.where(ok, score, -np.inf)
     best = int(np.argmax(score))
     return DwaResult(float(vv[best]), float(ww[best]), arcs[best], float(score[best]), int(ok.sum()))
+
+
+def depth_to_robot(depth_m: np.ndarray, fx: float, fy: float, cx: float, cy: float, *,
+                   mount_xyz_m: tuple[float, float, float], stride: int = 4) -> tuple[np.ndarray, float]:
+    """Valid depth pixels (every ``stride``-th) as robot-frame points (N, 3), and the valid fraction.
+
+    Camera frame: x right, y down, z forward (optical axis level with the floor), mounted
+    at ``mount_xyz_m`` (ahead, left, up) from the robot centre. Zero, negative and
+    non-finite depths are holes.
+    """
+    d = np.asarray(depth_m, dtype=np.float32)[::stride, ::stride]
+    if d.size == 0:
+        return np.zeros((0, 3)), 0.0
+    v, u = np.mgrid[0:depth_m.shape[0]:stride, 0:depth_m.shape[1]:stride]
+    ok = np.isfinite(d) & (d > 0)
+    z = d[ok].astype(np.float64)
+    x_cam = (u[ok] - cx) * z / fx
+    y_cam = (v[ok] - cy) * z / fy
+    pts = np.stack([mount_xyz_m[0] + z, mount_xyz_m[1] - x_cam, mount_xyz_m[2] - y_cam], axis=1)
+    return pts, float(ok.mean())
+
+
+def thin_points(xy: np.ndarray, cell_m: float = 0.1) -> np.ndarray:
+    """One point per ``cell_m`` square (the first seen), to keep the obstacle tree small: (M, 2)."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    if len(xy) == 0:
+        return xy
+    _, keep = np.unique(np.floor(xy / cell_m).astype(np.int64), axis=0, return_index=True)
+    return xy[np.sort(keep)]

@@ -24,6 +24,7 @@ for every cell when 4 exp(-c0) + 4 exp(-sqrt(2) c0) < 1 (c0 > 1.77); the default
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -335,3 +336,52 @@ def expected_value_difference(demos: list[Demo], weights: np.ndarray, true_weigh
     if not out:
         raise ValueError("no demonstration has a move to compare")
     return float(np.mean(out))
+
+
+@dataclass(frozen=True)
+class CostWeights:
+    """What the learner writes and the cost node reads: named weights and the step cost.
+
+    The JSON form is ``{"names": [...], "weights": [...], "step_cost": c0, ...extra}``
+    (``extra`` keeps provenance and held-out metrics). Never pickled.
+    """
+
+    names: tuple[str, ...]
+    weights: np.ndarray
+    step_cost: float = STEP_COST
+    extra: dict | None = None
+
+    def __post_init__(self) -> None:
+        w = np.asarray(self.weights, dtype=np.float64).reshape(-1)
+        if len(self.names) != w.size:
+            raise ValueError(f"{w.size} weights for {len(self.names)} names; the weights file is inconsistent")
+        if not np.isfinite(w).all() or (w < 0).any() or not self.step_cost > 0:
+            raise ValueError("weights must be finite and >= 0 and step_cost > 0 (costs must stay strictly positive)")
+        object.__setattr__(self, "weights", w)
+
+    def to_json(self) -> str:
+        body = {"names": list(self.names), "weights": [round(float(v), 6) for v in self.weights],
+                "step_cost": round(float(self.step_cost), 6)}
+        body.update(self.extra or {})
+        return json.dumps(body, indent=2)
+
+    @classmethod
+    def from_json(cls, text: str) -> "CostWeights":
+        body = json.loads(text)
+        if not isinstance(body, dict) or "weights" not in body or "names" not in body:
+            raise ValueError("a weights file is a JSON object with 'names', 'weights' and 'step_cost'")
+        extra = {k: v for k, v in body.items() if k not in ("names", "weights", "step_cost")}
+        return cls(tuple(str(n) for n in body["names"]), np.asarray(body["weights"], float),
+                   float(body.get("step_cost", STEP_COST)), extra)
+
+    def vector_for(self, names: list[str] | tuple[str, ...], k: int) -> np.ndarray:
+        """Weights ordered like a grid's ``names`` (K = ``k``); by position when the grid has no names."""
+        if not names:
+            if k != len(self.weights):
+                raise ValueError(f"grid has {k} unnamed features, weights have {len(self.weights)}")
+            return self.weights
+        index = {n: i for i, n in enumerate(self.names)}
+        missing = [n for n in names if n not in index]
+        if missing:
+            raise ValueError(f"no weight for features {missing}; relearn the weights for this feature layout")
+        return self.weights[[index[n] for n in names]]

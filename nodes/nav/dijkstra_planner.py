@@ -1,0 +1,317 @@
+"""Three-layer social planner (Kim & Pineau 2016, Algorithm 2): global path on the map, local Dijkstra on the IRL cost.
+
+Layer 1, global: Dijkstra over the known occupancy map (inflated by the robot radius),
+re-planned when the goal or map changes or the robot strays from the path. Layer 2,
+local (Algorithm 2, run on every cost grid): once the robot is inside the safe zone
+(``safe_zone_m``, 0.25 m) of its current waypoint it decides again — if no cell within
+``obstacle_radius_m`` (4 m) has high crowd density it follows the global path; otherwise it
+runs Dijkstra over the learnt cost grid from its cell to a sub-goal (the farthest global
+path point within reach) and extracts the next waypoint ``waypoint_m`` along that path.
+Outside the safe zone it keeps its waypoint, except on re-plan events: the waypoint's cell
+turned high-density (a pedestrian stepped onto it), the waypoint fell behind the robot,
+or it has been held longer than ``waypoint_timeout_s``. Layer 3, the collision guard, is a
+separate node (:mod:`nodes.nav.collision_guard`) between this node's ``cmd`` and the robot.
+
+:class:`SocialPlanner` is the pure state machine (arrays in, decisions out); the node
+:class:`DijkstraPlanner` converts messages.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import msgspec
+import numpy as np
+
+from msgs.geometry import Odometry2D, Path2D, Twist2D
+from msgs.nav import CostGrid, FeatureGrid, Goal2D, PlanStatus
+from msgs.sensor import Grid
+from nodes.nav.dijkstra import (GridFrame, GridGraph, densify, extract_waypoint, smooth_path, inflate, pick_subgoal, plan_dijkstra,
+                                plan_on_map, steer, to_robot, to_world)
+from tether import Node
+
+
+@dataclass(frozen=True)
+class PlannerParams:
+    """Algorithm 2 settings (metres, seconds, SI velocities)."""
+
+    safe_zone_m: float = 0.25
+    obstacle_radius_m: float = 4.0
+    subgoal_m: float = 4.0
+    waypoint_m: float = 1.0
+    waypoint_timeout_s: float = 3.0
+    stray_m: float = 1.5
+    robot_radius_m: float = 0.35
+    inflate_margin_m: float = 0.1
+    v_max_mps: float = 1.0
+    w_max_radps: float = 1.2
+
+
+@dataclass
+class Decision:
+    """What the planner decided on a cost grid: mode, the event that caused it, the waypoint (world, m)."""
+
+    mode: str                      # idle | global | local | hold | reached | unreachable
+    event: str = ""                # new_goal | safe_zone | waypoint_blocked | waypoint_behind | timeout | ...
+    waypoint: np.ndarray | None = None
+    path_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    plan_ms: float = 0.0
+    reason: str = ""
+
+
+class SocialPlanner:
+    """Pure Algorithm 2 state machine; see the module docstring."""
+
+    def __init__(self, params: PlannerParams = PlannerParams()) -> None:
+        self.p = params
+        self.goal: np.ndarray | None = None
+        self.goal_tol_m = 0.3
+        self.occupied: np.ndarray | None = None
+        self.map_frame: GridFrame | None = None
+        self.global_path: np.ndarray | None = None
+        self.mode = "idle"
+        self.waypoint: np.ndarray | None = None
+        self.waypoint_t_s = 0.0
+        self._graphs: dict[tuple[int, int], GridGraph] = {}
+        self._event = "new_goal"
+
+    # -- inputs -----------------------------------------------------------------------------------
+    def set_goal(self, xy: tuple[float, float], tolerance_m: float = 0.3) -> None:
+        self.goal = np.asarray(xy, float).reshape(2)
+        self.goal_tol_m = float(tolerance_m)
+        self.global_path, self.waypoint, self._event = None, None, "new_goal"
+
+    def set_map(self, occupancy: np.ndarray, frame: GridFrame) -> None:
+        """Occupancy (rows = y, cols = x; > 0.5 occupied) of the known world map."""
+        radius = (self.p.robot_radius_m + self.p.inflate_margin_m) / frame.resolution_m
+        self.occupied = inflate(np.asarray(occupancy) > 0.5, radius)
+        self.map_frame = frame
+        self.global_path, self._event = None, "new_map"
+
+    def _graph(self, shape: tuple[int, int]) -> GridGraph:
+        if shape not in self._graphs:
+            self._graphs[shape] = GridGraph.of(shape)
+        return self._graphs[shape]
+
+    # -- layer 1 ----------------------------------------------------------------------------------
+    def _global(self, pose: tuple[float, float, float]) -> str:
+        """(Re)plan the global path when needed; returns an error reason or ''."""
+        assert self.goal is not None
+        if self.global_path is not None:
+            if np.hypot(*(self.global_path - pose[:2]).T).min() <= self.p.stray_m:
+                return ""
+            self._event = "strayed"
+        if self.occupied is None or self.map_frame is None:
+            self.global_path = densify(np.stack([np.asarray(pose[:2]), self.goal]), 0.1)
+            return ""
+        path, result = plan_on_map(self.occupied, self.map_frame, pose[:2], tuple(self.goal),
+                                   graph=self._graph(self.occupied.shape))
+        self.global_path = path if result.reachable else None
+        return "" if result.reachable else f"global goal: {result.reason}"
+
+    def carrot(self, pose: tuple[float, float, float]) -> np.ndarray:
+        """The global-path point ``waypoint_m`` ahead of the path point closest to the robot."""
+        assert self.global_path is not None
+        i = int(np.argmin(np.hypot(*(self.global_path - pose[:2]).T)))
+        return extract_waypoint(self.global_path[i:], self.p.waypoint_m)
+
+    # -- layer 2 ----------------------------------------------------------------------------------
+    def update(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame,
+               high_density: np.ndarray, t_s: float) -> Decision:
+        """Algorithm 2 on one cost grid (robot frame, ``frame``) with its high-density mask."""
+        if self.goal is None:
+            return Decision("idle", reason="no goal yet")
+        if np.hypot(*(self.goal - pose[:2])) <= self.goal_tol_m:
+            self.mode, self.waypoint = "reached", None
+            return Decision("reached", "goal", self.goal)
+        reason = self._global(pose)
+        if reason:
+            self.mode, self.waypoint = "unreachable", None
+            return Decision("unreachable", reason=reason)
+        event = self._replan_event(pose, frame, high_density, t_s)
+        if not event:
+            return Decision(self.mode, "", self.waypoint)
+        if not self._obstacle_near(frame, high_density):
+            self.mode, self.waypoint = "global", None
+            return Decision("global", event, self.carrot(pose), self.global_path)
+        t0 = time.perf_counter()
+        decision = self._local(pose, cost, frame, event)
+        decision.plan_ms = (time.perf_counter() - t0) * 1e3
+        self.mode, self.waypoint, self.waypoint_t_s = decision.mode, decision.waypoint, t_s
+        return decision
+
+    def _replan_event(self, pose: tuple[float, float, float], frame: GridFrame, high: np.ndarray, t_s: float) -> str:
+        if self._event:
+            event, self._event = self._event, ""
+            return event
+        if self.mode != "local" or self.waypoint is None:
+            return "global_path" if self.mode == "global" else "hold_retry"
+        rel = to_robot(pose, self.waypoint)[0]
+        if np.hypot(*rel) <= self.p.safe_zone_m:
+            return "safe_zone"
+        cell = frame.cell_of(rel)
+        if frame.inside(cell)[0] and high[cell[0, 0], cell[0, 1]]:
+            return "waypoint_blocked"
+        if rel[0] < 0:
+            return "waypoint_behind"
+        return "timeout" if t_s - self.waypoint_t_s > self.p.waypoint_timeout_s else ""
+
+    def _obstacle_near(self, frame: GridFrame, high: np.ndarray) -> bool:
+        cells = np.argwhere(high)
+        if len(cells) == 0:
+            return False
+        return bool((np.hypot(*frame.xy_of(cells).T) <= self.p.obstacle_radius_m).any())
+
+    def _static_mask(self, pose: tuple[float, float, float], frame: GridFrame) -> np.ndarray:
+        """Local cells (robot frame) that fall on inflated static obstacles of the map."""
+        if self.occupied is None or self.map_frame is None:
+            return np.zeros(frame.shape, bool)
+        rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
+        world = to_world(pose, frame.xy_of(np.stack([rr.ravel(), cc.ravel()], axis=1)))
+        cells = self.map_frame.cell_of(world)
+        inside = self.map_frame.inside(cells)
+        cells = self.map_frame.clamp(cells)
+        return (inside & self.occupied[cells[:, 0], cells[:, 1]]).reshape(frame.shape)
+
+    def _local(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame, event: str) -> Decision:
+        assert self.global_path is not None
+        cost = np.where(self._static_mask(pose, frame), np.inf, cost)
+        start = tuple(frame.clamp(frame.cell_of(np.zeros(2)))[0])
+        sub = pick_subgoal(self.global_path, np.asarray(pose[:2]), self.p.subgoal_m)
+        rel = to_robot(pose, self.global_path[:sub + 1])
+        cells = frame.cell_of(rel)
+        ok = frame.inside(cells)
+        ok[ok] = np.isfinite(cost[cells[ok, 0], cells[ok, 1]])
+        if not ok.any():    # the global path does not cross the local grid (e.g. it is behind): follow it
+            return Decision("global", event, self.carrot(pose), self.global_path)
+        goal = tuple(cells[np.flatnonzero(ok)[-1]])
+        plan = plan_dijkstra(cost, start, goal, graph=self._graph(cost.shape))
+        if not plan.reachable:
+            return Decision("hold", event, None, reason=f"local plan: {plan.reason}")
+        corners = smooth_path(cost, plan.cells)
+        path_xy = to_world(pose, np.vstack([np.zeros((1, 2)), frame.xy_of(corners[1:])]))
+        return Decision("local", event, extract_waypoint(path_xy, self.p.waypoint_m), path_xy)
+
+    # -- command ----------------------------------------------------------------------------------
+    def command(self, pose: tuple[float, float, float]) -> tuple[float, float]:
+        """(v_mps, w_radps) toward the current waypoint (global mode: the carrot); 0 when idle/held."""
+        if self.goal is None or self.mode in ("idle", "hold", "reached", "unreachable"):
+            return 0.0, 0.0
+        if np.hypot(*(self.goal - pose[:2])) <= self.goal_tol_m:
+            return 0.0, 0.0
+        target = self.carrot(pose) if self.mode == "global" or self.waypoint is None else self.waypoint
+        final = bool(np.allclose(target, self.goal))
+        return steer(pose, target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps,
+                     stop_at_m=self.goal_tol_m if final else None)
+
+
+class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    safe_zone_m: float = 0.25
+    obstacle_radius_m: float = 4.0
+    subgoal_m: float = 4.0
+    waypoint_m: float = 1.0
+    waypoint_timeout_s: float = 3.0
+    stray_m: float = 1.5
+    robot_radius_m: float = 0.35
+    inflate_margin_m: float = 0.1
+    v_max_mps: float = 1.0
+    w_max_radps: float = 1.2
+    density_feature: str = "density_high"   # the FeatureGrid feature that flags an obstacle (Algorithm 2)
+    density_index: int = 0                  # used when the grid carries no feature names
+
+
+def high_density_mask(grid: FeatureGrid, name: str, index: int) -> np.ndarray:
+    """(rows, cols) bool: cells whose ``name`` feature (or column ``index`` if unnamed) is set."""
+    f = np.asarray(grid.features)
+    if f.ndim != 3 or f.shape[2] == 0:
+        return np.zeros(f.shape[:2] if f.ndim >= 2 else (0, 0), bool)
+    k = list(grid.names).index(name) if name in grid.names else index
+    if not 0 <= k < f.shape[2]:
+        raise ValueError(f"feature {name!r} / index {index} not in a grid of {f.shape[2]} features {list(grid.names)}")
+    return f[..., k] > 0
+
+
+class DijkstraPlanner(Node):
+    """Inputs ``odom``, ``goal``, ``map`` (occupancy, world), ``features`` and ``costs`` (robot frame).
+
+    Outputs ``cmd`` (velocity toward the waypoint, on every odom), ``path`` (the path being
+    followed, world frame) and ``status`` (mode, re-plan event, plan time) on every cost grid.
+    """
+
+    Config = Config
+    inputs = {"odom": Odometry2D, "goal": Goal2D, "map": Grid, "features": FeatureGrid, "costs": CostGrid}
+    outputs = {"cmd": Twist2D, "path": Path2D, "status": PlanStatus}
+
+    def setup(self) -> None:
+        c = self.config
+        self.planner = SocialPlanner(PlannerParams(
+            safe_zone_m=c.safe_zone_m, obstacle_radius_m=c.obstacle_radius_m, subgoal_m=c.subgoal_m,
+            waypoint_m=c.waypoint_m, waypoint_timeout_s=c.waypoint_timeout_s, stray_m=c.stray_m,
+            robot_radius_m=c.robot_radius_m, inflate_margin_m=c.inflate_margin_m, v_max_mps=c.v_max_mps,
+            w_max_radps=c.w_max_radps))
+        self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
+        self._high: np.ndarray | None = None
+        self._map: np.ndarray | None = None
+        self.bad_inputs = 0
+
+    def _pose_at(self, stamp_ns: int) -> tuple[float, float, float] | None:
+        if not self._poses:
+            return None
+        return min(self._poses, key=lambda sp: abs(sp[0] - stamp_ns))[1]
+
+    def on_odom(self, msg: Odometry2D) -> dict[str, Twist2D] | None:
+        pose = (msg.pose.x_m, msg.pose.y_m, msg.pose.yaw_rad)
+        if not np.all(np.isfinite(pose)):
+            self.bad_inputs += 1
+            self.log.error("odometry with a non-finite pose dropped (%d so far)", self.bad_inputs)
+            return None
+        self._poses.append((msg.stamp_ns, pose))
+        v, w = self.planner.command(pose)
+        return {"cmd": Twist2D(stamp_ns=msg.stamp_ns, frame_id="base", vx_mps=v, wz_radps=w)}
+
+    def on_goal(self, msg: Goal2D) -> None:
+        self.planner.set_goal((msg.x_m, msg.y_m), msg.tolerance_m)
+
+    def on_map(self, msg: Grid) -> None:
+        if abs(msg.origin_yaw_rad) > 1e-9:
+            self.log.error("map with a rotated origin is not supported; ignored")
+            return
+        data = np.asarray(msg.data)
+        if data.ndim != 2 or data.size == 0 or not msg.resolution_m > 0:
+            self.log.error("empty or malformed map ignored (shape %s)", data.shape)
+            return
+        frame = GridFrame(data.shape, msg.resolution_m, msg.origin_x_m, msg.origin_y_m)
+        if self.planner.map_frame != frame or not np.array_equal(self._map, data):   # maps are re-sent periodically
+            self._map = data.copy()
+            self.planner.set_map(data, frame)
+
+    def on_features(self, msg: FeatureGrid) -> None:
+        self._high = high_density_mask(msg, self.config.density_feature, self.config.density_index)
+
+    def on_costs(self, msg: CostGrid) -> list[tuple[str, object]] | None:
+        pose = self._pose_at(msg.stamp_ns)
+        cost = np.asarray(msg.cost, dtype=np.float64)
+        if pose is None or cost.ndim != 2 or cost.size == 0:
+            return None
+        if np.isnan(cost).any() or (cost <= 0).any():
+            self.bad_inputs += 1
+            self.log.error("cost grid with NaN or non-positive cells dropped (%d so far)", self.bad_inputs)
+            return None
+        frame = GridFrame(cost.shape, msg.resolution_m, msg.origin_x_m, msg.origin_y_m)
+        high = self._high if self._high is not None and self._high.shape == cost.shape else np.zeros(cost.shape, bool)
+        d = self.planner.update(pose, cost, frame, high, msg.stamp_ns * 1e-9)
+        status = PlanStatus(stamp_ns=msg.stamp_ns, state=_STATE[d.mode] if d.event or d.mode != "local" else "following",
+                            reason="/".join(x for x in (d.mode, d.event, d.reason) if x), plan_ms=d.plan_ms)
+        out: list[tuple[str, object]] = [("status", status)]
+        if len(d.path_xy) >= 2:
+            step = np.diff(d.path_xy, axis=0)
+            yaw = np.arctan2(step[:, 1], step[:, 0])
+            poses = np.column_stack([d.path_xy, np.append(yaw, yaw[-1])])
+            out.append(("path", Path2D(stamp_ns=msg.stamp_ns, frame_id="world", poses=poses)))
+        return out
+
+
+#: planner mode -> PlanStatus.state
+_STATE = {"idle": "planning", "global": "following", "local": "replanned", "hold": "stopped",
+          "reached": "reached", "unreachable": "unreachable"}

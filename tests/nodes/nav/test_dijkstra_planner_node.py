@@ -1,0 +1,96 @@
+"""Three-layer planner (Algorithm 2) through the harness: global following, local detours, re-plan events."""
+from __future__ import annotations
+
+import numpy as np
+
+from msgs.geometry import Odometry2D, Pose2D, Twist2D
+from msgs.nav import CostGrid, FeatureGrid, Goal2D
+from msgs.sensor import Grid
+from nodes.nav.dijkstra_planner import DijkstraPlanner, PlannerParams, SocialPlanner
+from nodes.nav.dijkstra import GridFrame
+from tether.testing import Harness
+
+RES, ROWS, COLS = 0.25, 21, 21
+ORIGIN_X, ORIGIN_Y = 0.25, -2.5
+NAMES = ["density_high", "density_medium", "density_low"]
+
+
+def odom(x=0.0, y=0.0, yaw=0.0, stamp_ns=0) -> Odometry2D:
+    return Odometry2D(stamp_ns=stamp_ns, pose=Pose2D(x_m=x, y_m=y, yaw_rad=yaw), twist=Twist2D())
+
+
+def crowd(blob_xy=None, radius_m=0.6, origin_x=ORIGIN_X) -> tuple[FeatureGrid, CostGrid]:
+    """Density features and costs with a high-density blob (a standing pedestrian) at ``blob_xy`` (robot frame)."""
+    f = np.zeros((ROWS, COLS, 3), np.uint8)
+    f[..., 2] = 1
+    if blob_xy is not None:
+        rr, cc = np.mgrid[:ROWS, :COLS]
+        x, y = origin_x + cc * RES, ORIGIN_Y + rr * RES
+        near = np.hypot(x - blob_xy[0], y - blob_xy[1]) < radius_m
+        f[near] = (1, 0, 0)
+    cost = (2.0 + 8.0 * f[..., 0]).astype(np.float32)
+    kw = dict(resolution_m=RES, origin_x_m=origin_x, origin_y_m=ORIGIN_Y, frame_id="base")
+    return FeatureGrid(features=f, names=NAMES, **kw), CostGrid(cost=cost, **kw)
+
+
+def run(features, costs, goal=(8.0, 0.0), pose=(0.0, 0.0, 0.0), map_msg=None):
+    h = Harness(DijkstraPlanner)
+    events = [(0.0, "goal", Goal2D(x_m=goal[0], y_m=goal[1]))]
+    if map_msg is not None:
+        events.append((0.0, "map", map_msg))
+    events += [(0.01, "odom", odom(*pose, stamp_ns=10_000_000)), (0.02, "features", features),
+               (0.03, "costs", costs), (0.04, "odom", odom(*pose, stamp_ns=40_000_000))]
+    h.feed(events)
+    return h
+
+
+def test_no_crowd_follows_the_global_path_straight_to_the_goal():
+    h = run(*crowd(None))
+    status = h.of("status")[-1]
+    assert status.state == "following" and status.reason.startswith("global")
+    cmd = h.of("cmd")[-1]
+    assert cmd.vx_mps > 0.5 and abs(cmd.wz_radps) < 1e-6
+
+
+def test_standing_pedestrian_on_the_path_triggers_a_local_detour():
+    h = run(*crowd((2.0, 0.0)))
+    status = h.of("status")[-1]
+    assert status.state == "replanned" and "local" in status.reason and status.plan_ms > 0
+    path = h.of("path")[-1].poses[:, :2]
+    assert np.min(np.hypot(path[:, 0] - 2.0, path[:, 1])) >= 0.6     # goes around the person
+    assert abs(h.of("cmd")[-1].wz_radps) > 0.05                          # and starts turning to do so
+
+
+def test_robot_behind_the_grid_border_still_plans():
+    h = run(*crowd((2.5, 0.0), origin_x=1.0))       # the grid starts 1 m ahead: the robot's cell is clamped
+    assert h.of("status")[-1].state == "replanned" and len(h.of("path")[-1].poses) > 2
+
+
+def test_goal_walled_off_on_the_map_is_reported_unreachable():
+    occ = np.zeros((60, 120), np.float32)
+    occ[10:50, 90] = occ[10:50, 110] = occ[10, 90:111] = occ[49, 90:111] = 1.0     # a closed room around the goal
+    grid = Grid(data=occ, resolution_m=0.1, origin_x_m=-1.0, origin_y_m=-3.0)
+    h = run(*crowd(None), goal=(9.0, 0.0), map_msg=grid)
+    status = h.of("status")[-1]
+    assert status.state == "unreachable" and "global" in status.reason
+    assert h.of("cmd")[-1].vx_mps == 0.0
+
+
+def test_safe_zone_keeps_the_waypoint_until_reached_then_replans():
+    planner = SocialPlanner(PlannerParams())
+    planner.set_goal((8.0, 0.0))
+    frame = GridFrame((ROWS, COLS), RES, ORIGIN_X, ORIGIN_Y)
+    f, c = crowd((2.0, 0.0))
+    high = f.features[..., 0] > 0
+    first = planner.update((0.0, 0.0, 0.0), c.cost, frame, high, 0.0)
+    assert first.mode == "local" and first.event == "new_goal"
+    held = planner.update((0.1, 0.0, 0.0), c.cost, frame, high, 0.1)
+    assert held.event == "" and np.allclose(held.waypoint, first.waypoint)
+    wp = first.waypoint
+    again = planner.update((wp[0] - 0.1, wp[1], 0.0), c.cost, frame, np.zeros_like(high), 0.2)
+    assert again.event == "safe_zone" and again.mode == "global"      # crowd gone: back to the global path
+
+
+def test_goal_reached_stops():
+    h = run(*crowd(None), goal=(0.1, 0.0))
+    assert h.of("status")[-1].state == "reached" and h.of("cmd")[-1].vx_mps == 0.0
