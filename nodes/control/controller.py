@@ -107,7 +107,8 @@ class DoubleAckermannController(Node):
             return {"cmd": self._msg(self.ctrl.stop(wheels, "stale"), now)}
         self._was_stale = False
         st = self._state[1]
-        cmd = self.ctrl.step(self._ref_at(now), (st.x_m, st.y_m, st.theta_rad), wheels, dt)
+        age = min(max((now - st.stamp_ns) * 1e-9, 0.0), self.config.stale_s)    # dead-reckoned by the law
+        cmd = self.ctrl.step(self._ref_at(now), (st.x_m, st.y_m, st.theta_rad), wheels, dt, state_age_s=age)
         if self.ctrl.status != "ok":
             self.singular_ticks += 1
         return {"cmd": self._msg(cmd, now)}

@@ -32,8 +32,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple, Sequence
 
-from nodes.control.kinematics import (Limits, Wheels, predict_pose, s_from_wheels, shape_command, wheel_rates,
-                                      world_from_s, wrap_angle)
+from nodes.control.kinematics import (Limits, Wheels, predict_pose, s_from_wheels, shape_command, steer_targets,
+                                      wheel_rates, world_from_s, wrap_angle)
 
 Vec3 = Sequence[float]
 
@@ -159,11 +159,12 @@ class Controller:
             raise ValueError("steer_limit_rad must be >= pi/2, or some wheel directions are unreachable")
         self.wheelbase_m, self.limits, self.k_p, self.k_s, self.lead_s = wheelbase_m, limits, k_p, k_s, lead_s
         self.prev: Wheels | None = None
+        self._aim: tuple[float, float] | None = None     # last steer targets (branch hysteresis)
         self.status = "idle"
         self.u: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
 
     def reset(self) -> None:
-        self.prev, self.status = None, "idle"
+        self.prev, self._aim, self.status = None, None, "idle"
 
     def lead(self, dt: float) -> float:
         """Lead time T: half a zero-order-hold period plus the modelled lag and latency."""
@@ -178,7 +179,10 @@ class Controller:
         desired = self.desired(ref, pose, wheels, dt)
         if desired is None or not _finite(*desired):
             return self.stop(wheels, "singular")
-        cmd = shape_command(desired[0], desired[1], self.prev, self.limits, dt)
+        prev = self.prev if self.prev is not None else Wheels(0.0, 0.0, 0.0, 0.0)
+        aim = self._aim if self._aim is not None else (prev.delta_front, prev.delta_rear)
+        self._aim = steer_targets(desired[0], desired[1], aim, self.limits)
+        cmd = shape_command(desired[0], desired[1], self.prev, self.limits, dt, aim=self._aim)
         if not _finite(cmd):
             return self.stop(wheels, "non-finite output")
         self.prev, self.status = cmd, "ok"
@@ -189,7 +193,7 @@ class Controller:
         hold = self.prev if self.prev is not None else wheels
         df = hold.delta_front if hold is not None and math.isfinite(hold.delta_front) else 0.0
         db = hold.delta_rear if hold is not None and math.isfinite(hold.delta_rear) else 0.0
-        self.prev, self.status = Wheels(0.0, df, 0.0, db), why
+        self.prev, self._aim, self.status = Wheels(0.0, df, 0.0, db), (df, db), why
         return self.prev
 
     def desired(self, ref: RefPoint, pose: Vec3, wheels: Wheels, dt: float):

@@ -168,8 +168,21 @@ def _interval(lo: float, hi: float, n: float) -> tuple[float, float]:
     return -math.inf, math.inf       # this wheel's speed is pinned near 0 by the constraint itself
 
 
+def steer_targets(s_cmd: tuple[float, float, float], s_hint: tuple[float, float, float],
+                  aim: tuple[float, float], limits: Limits) -> tuple[float, float]:
+    """Wanted (front, rear) steer angles before rate limiting: the branch nearest ``aim`` (rad).
+
+    Aiming at the previous *targets* rather than the previous (slewed) angles adds
+    hysteresis: a wheel turning from 0 toward a sideways direction whose forward component
+    flickers in sign keeps turning the same way instead of hunting between +-pi/2.
+    """
+    return (_axle_angle(s_cmd[0], s_cmd[1], s_hint[0], s_hint[1], aim[0], limits),
+            _axle_angle(s_cmd[0], s_cmd[2], s_hint[0], s_hint[2], aim[1], limits))
+
+
 def shape_command(s_cmd: tuple[float, float, float], s_hint: tuple[float, float, float],
-                  prev: Wheels | None, limits: Limits, dt: float) -> Wheels:
+                  prev: Wheels | None, limits: Limits, dt: float, *,
+                  aim: tuple[float, float] | None = None) -> Wheels:
     """Turn desired body velocities into feasible per-axle commands that satisfy the constraint.
 
     Parameters
@@ -183,6 +196,9 @@ def shape_command(s_cmd: tuple[float, float, float], s_hint: tuple[float, float,
     limits : Limits
     dt : float, s
         Time since ``prev``.
+    aim : (2,), rad, optional
+        Angles the steer branches are chosen nearest to (see :func:`steer_targets`);
+        default the previous command's.
 
     Returns
     -------
@@ -195,8 +211,7 @@ def shape_command(s_cmd: tuple[float, float, float], s_hint: tuple[float, float,
     v_tan, lat_f, lat_b = s_cmd
     pf = prev.delta_front if prev is not None else 0.0
     pb = prev.delta_rear if prev is not None else 0.0
-    df = _axle_angle(v_tan, lat_f, s_hint[0], s_hint[1], pf, limits)
-    db = _axle_angle(v_tan, lat_b, s_hint[0], s_hint[2], pb, limits)
+    df, db = steer_targets(s_cmd, s_hint, aim if aim is not None else (pf, pb), limits)
     vmax = limits.wheel_speed_mps
     if prev is not None and dt > 0.0:
         step = limits.steer_rate_radps * dt

@@ -1,20 +1,21 @@
 """Model-predictive alternative to the seed's controller: CasADi ``sqpmethod`` + ``qrqp``, warm-started.
 
-Model (the seed's final, singularity-free state): ``z = (x, y, theta, v_tan, v_lat_f, v_lat_b)``
-with ``p_dot = A(theta) s`` (1/L fix, see kinematics) and ``s_dot = a``; the decision inputs
-``a`` are body-velocity accelerations, which map to the seed's ``u`` through ``S(X)^-1``.
-Multiple shooting, one RK4 step per interval of ``step_s``, ``horizon`` intervals.  Cost:
-squared pose error (heading error taken against a reference unwrapped around the current
-heading, so +-pi is not a jump), body-velocity error against ``A^-1 p_dot_ref``, input and
-input-rate effort.  Bounds: |a| <= wheel_accel, |s| <= wheel_speed.  Steer rates are
-nonlinear in s and left to the command shaping that every controller shares.
+Model: pose ``p = (x, y, theta)`` driven by the seed's singularity-free body velocities
+``s = (v_tan, v_lat_f, v_lat_b)`` through ``p_dot = A(theta) s`` (1/L fix, see kinematics).
+The drives take setpoints held over a control period, so the decision variables are the
+setpoints themselves, piecewise constant over ``horizon`` intervals of ``step_s`` (one RK4
+step each); the seed's inputs ``u`` are their rates, bounded as
+``|s_k - s_{k-1}| <= wheel_accel * step_s`` (linear constraints, relative to the setpoint
+already sent for k = 0), with ``|s| <= wheel_speed``.  Cost: squared pose error (heading
+against a reference unwrapped around the current heading, so +-pi is no jump), setpoint
+error against ``A^-1 p_dot_ref`` and setpoint-rate effort.  Steer rates are nonlinear in s
+and left to the command shaping every controller shares.
 
 The reference preview comes from a callable (the benchmark passes the exact trajectory);
 without one it is extrapolated from the current point at constant acceleration.
 """
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import casadi as ca
@@ -27,47 +28,48 @@ Preview = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 def _dynamics(wheelbase_m: float) -> ca.Function:
-    z, a = ca.SX.sym("z", 6), ca.SX.sym("a", 3)
-    th, vt, lf, lb = z[2], z[3], z[4], z[5]
+    p, s = ca.SX.sym("p", 3), ca.SX.sym("s", 3)
+    th, vt, lf, lb = p[2], s[0], s[1], s[2]
     vy = 0.5 * (lf + lb)
-    zdot = ca.vertcat(ca.cos(th) * vt - ca.sin(th) * vy, ca.sin(th) * vt + ca.cos(th) * vy,
-                      (lf - lb) / wheelbase_m, a)
-    return ca.Function("f", [z, a], [zdot])
+    pdot = ca.vertcat(ca.cos(th) * vt - ca.sin(th) * vy, ca.sin(th) * vt + ca.cos(th) * vy, (lf - lb) / wheelbase_m)
+    return ca.Function("f", [p, s], [pdot])
 
 
 def build_solver(*, horizon: int, step_s: float, wheelbase_m: float, accel_max: float, speed_max: float,
-                 q_pos: float = 1e4, q_theta: float = 1e3, q_s: float = 10.0, r_a: float = 1e-2,
-                 r_da: float = 1e-1, max_iter: int = 3) -> tuple[ca.Function, dict]:
-    """The NLP solver and its bounds. Parameters: z0 (6), p_ref (3, N+1), s_ref (3, N+1), a_prev (3)."""
+                 q_pos: float = 1e4, q_theta: float = 1e3, q_s: float = 1.0, r_ds: float = 1.0,
+                 max_iter: int = 3) -> tuple[ca.Function, dict]:
+    """The NLP solver and its bounds. Parameters: p0 (3), s_prev (3), p_ref (3, N+1), s_ref (3, N)."""
     if horizon < 1 or step_s <= 0:
         raise ValueError("MPC needs horizon >= 1 and step_s > 0")
     f = _dynamics(wheelbase_m)
     N, h = horizon, step_s
-    z, a = ca.SX.sym("z", 6), ca.SX.sym("a", 3)
-    k1 = f(z, a)
-    k2 = f(z + h / 2 * k1, a)
-    k3 = f(z + h / 2 * k2, a)
-    k4 = f(z + h * k3, a)
-    F = ca.Function("F", [z, a], [z + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
-    Z, U = ca.SX.sym("Z", 6, N + 1), ca.SX.sym("U", 3, N)
-    z0, pref, sref, aprev = ca.SX.sym("z0", 6), ca.SX.sym("pr", 3, N + 1), ca.SX.sym("sr", 3, N + 1), ca.SX.sym("ap", 3)
-    cost, g = 0, [Z[:, 0] - z0]
+    p, s = ca.SX.sym("p", 3), ca.SX.sym("s", 3)
+    k1 = f(p, s)
+    k2 = f(p + h / 2 * k1, s)
+    k3 = f(p + h / 2 * k2, s)
+    k4 = f(p + h * k3, s)
+    F = ca.Function("F", [p, s], [p + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+    P, S = ca.SX.sym("P", 3, N + 1), ca.SX.sym("S", 3, N)
+    p0, sprev, pref, sref = ca.SX.sym("p0", 3), ca.SX.sym("sp", 3), ca.SX.sym("pr", 3, N + 1), ca.SX.sym("sr", 3, N)
+    cost, g_eq, g_rate = 0, [P[:, 0] - p0], []
     for k in range(N):
-        g.append(Z[:, k + 1] - F(Z[:, k], U[:, k]))
-        e = Z[:, k + 1]
+        g_eq.append(P[:, k + 1] - F(P[:, k], S[:, k]))
+        g_rate.append(S[:, k] - (sprev if k == 0 else S[:, k - 1]))
+        e = P[:, k + 1]
         cost += q_pos * ca.sumsqr(e[:2] - pref[:2, k + 1]) + q_theta * (e[2] - pref[2, k + 1]) ** 2
-        cost += q_s * ca.sumsqr(e[3:] - sref[:, k + 1]) + r_a * ca.sumsqr(U[:, k])
-        cost += r_da * ca.sumsqr(U[:, k] - (aprev if k == 0 else U[:, k - 1]))
-    nlp = {"x": ca.veccat(Z, U), "p": ca.veccat(z0, pref, sref, aprev), "f": cost, "g": ca.vertcat(*g)}
+        cost += q_s * ca.sumsqr(S[:, k] - sref[:, k]) + r_ds * ca.sumsqr(g_rate[-1])
+    nlp = {"x": ca.veccat(P, S), "p": ca.veccat(p0, sprev, pref, sref), "f": cost,
+           "g": ca.vertcat(*g_eq, *g_rate)}
     opts = {"qpsol": "qrqp", "max_iter": max_iter, "print_header": False, "print_iteration": False,
             "print_status": False, "print_time": False, "error_on_fail": False,
             "qpsol_options": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False}}
     solver = ca.nlpsol("mpc", "sqpmethod", nlp, opts)
-    lbz = np.tile([-np.inf, -np.inf, -np.inf, -speed_max, -speed_max, -speed_max], N + 1)
-    nz = 6 * (N + 1)
-    lbx = np.concatenate([lbz, np.full(3 * N, -accel_max)])
-    ubx = -lbx
-    return solver, {"lbx": lbx, "ubx": ubx, "lbg": 0.0, "ubg": 0.0, "nz": nz}
+    npose = 3 * (N + 1)
+    lbx = np.concatenate([np.full(npose, -np.inf), np.full(3 * N, -speed_max)])
+    dmax = accel_max * h
+    lbg = np.concatenate([np.zeros(npose), np.full(3 * N, -dmax)])
+    ubg = np.concatenate([np.zeros(npose), np.full(3 * N, dmax)])
+    return solver, {"lbx": lbx, "ubx": -lbx, "lbg": lbg, "ubg": ubg, "npose": npose}
 
 
 def taylor_preview(ref: RefPoint) -> Preview:
@@ -92,7 +94,7 @@ class MpcController(Controller):
 
     def reset(self) -> None:
         super().reset()
-        self._warm, self._a_prev = None, np.zeros(3)
+        self._warm, self._a_prev, self.preview = None, np.zeros(3), None
 
     def _ensure(self, dt: float) -> None:
         h = self.step_s if self.step_s is not None else dt
@@ -107,41 +109,44 @@ class MpcController(Controller):
         N, h = self.horizon, self._h
         tau = h * np.arange(N + 1)
         pr, dpr = (self.preview or taylor_preview(ref))(tau)
-        pr = np.array(pr, dtype=float)
+        pr, dpr = np.array(pr, dtype=float), np.asarray(dpr, dtype=float)
         th = pose[2]
         pr[:, 2] = th + np.unwrap(np.concatenate([[0.0], (pr[:, 2] - th + np.pi) % (2 * np.pi) - np.pi]))[1:]
-        c, s = np.cos(pr[:, 2]), np.sin(pr[:, 2])
-        vx, vy = c * dpr[:, 0] + s * dpr[:, 1], -s * dpr[:, 0] + c * dpr[:, 1]
-        half = 0.5 * self.wheelbase_m * dpr[:, 2]
+        mid_th, mid_dp = 0.5 * (pr[1:, 2] + pr[:-1, 2]), 0.5 * (dpr[1:] + dpr[:-1])    # interval midpoints
+        c, s = np.cos(mid_th), np.sin(mid_th)
+        vx, vy = c * mid_dp[:, 0] + s * mid_dp[:, 1], -s * mid_dp[:, 0] + c * mid_dp[:, 1]
+        half = 0.5 * self.wheelbase_m * mid_dp[:, 2]
         sref = np.stack([vx, vy + half, vy - half])
-        s0 = s_from_wheels(wheels)
-        z0 = np.array([pose[0], pose[1], th, *s0])
-        p = np.concatenate([z0, pr.T.ravel(order="F"), sref.ravel(order="F"), self._a_prev])
-        args = dict(p=p, lbx=self._bounds["lbx"], ubx=self._bounds["ubx"], lbg=0.0, ubg=0.0)
-        args.update(self._warm_start(z0))
+        sprev = np.asarray(s_from_wheels(self.prev if self.prev is not None else wheels))
+        p0 = np.array([pose[0], pose[1], th])
+        b = self._bounds
+        args = dict(p=np.concatenate([p0, sprev, pr.ravel(), sref.ravel(order="F")]),
+                    lbx=b["lbx"], ubx=b["ubx"], lbg=b["lbg"], ubg=b["ubg"])
+        args.update(self._warm_start(p0, sprev))
         sol = self._solver(**args)
-        if not self._solver.stats().get("success", False):
-            self.solve_fail += 1
-        else:
+        if self._solver.stats().get("success", False):
             self.solve_ok += 1
+        else:
+            self.solve_fail += 1
         x = np.asarray(sol["x"]).ravel()
         if not np.all(np.isfinite(x)):
             self._warm = None
             return None
         self._warm = {"x": x, "lam_x": np.asarray(sol["lam_x"]).ravel(), "lam_g": np.asarray(sol["lam_g"]).ravel()}
-        a0 = x[self._bounds["nz"]:self._bounds["nz"] + 3]
-        self._a_prev = a0.copy()
-        T = self.lead(dt)
-        return tuple(float(v) for v in np.asarray(s0) + T * a0), tuple(float(v) for v in a0)
+        S = x[b["npose"]:].reshape(N, 3)
+        rate = (S[1] - S[0]) / h if N > 1 else np.zeros(3)
+        s_cmd = S[0] + self.lead_s * rate               # extra lead for drive lag / latency beyond the ZOH
+        return tuple(float(v) for v in s_cmd), tuple(float(v) for v in rate)
 
-    def _warm_start(self, z0: np.ndarray) -> dict:
-        """Previous solution shifted one interval (last interval repeated); cold: hold z0, zero input."""
-        N, nz = self.horizon, self._bounds["nz"]
+    def _warm_start(self, p0: np.ndarray, sprev: np.ndarray) -> dict:
+        """Previous solution shifted one interval (last one repeated); cold: hold the pose and setpoint."""
+        N, npose = self.horizon, self._bounds["npose"]
         if self._warm is None:
-            return {"x0": np.concatenate([np.tile(z0, N + 1), np.zeros(3 * N)])}
-        x, lx, lg = self._warm["x"], self._warm["lam_x"], self._warm["lam_g"]
-        Z, U = x[:nz].reshape(N + 1, 6), x[nz:].reshape(N, 3)
-        Z = np.vstack([Z[1:], Z[-1:]])
-        Z[0] = z0
-        U = np.vstack([U[1:], U[-1:]])
-        return {"x0": np.concatenate([Z.ravel(), U.ravel()]), "lam_x0": lx, "lam_g0": lg}
+            return {"x0": np.concatenate([np.tile(p0, N + 1), np.tile(sprev, N)])}
+        x = self._warm["x"]
+        P, S = x[:npose].reshape(N + 1, 3), x[npose:].reshape(N, 3)
+        P = np.vstack([P[1:], P[-1:]])
+        P[0] = p0
+        S = np.vstack([S[1:], S[-1:]])
+        return {"x0": np.concatenate([P.ravel(), S.ravel()]), "lam_x0": self._warm["lam_x"],
+                "lam_g0": self._warm["lam_g"]}
