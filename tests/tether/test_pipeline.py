@@ -117,6 +117,7 @@ def test_replay_window_and_player_node(tmp_path: Path) -> None:
 
 def test_malformed_frames_into_a_live_node_are_counted_not_fatal(runtime_env: dict) -> None:
     import threading
+    import time
 
     import msgpack
     import zmq
@@ -132,14 +133,19 @@ def test_malformed_frames_into_a_live_node_are_counted_not_fatal(runtime_env: di
     pub = ctx.socket(zmq.XPUB)
     pub.bind(src_ep)
     spec = RunSpec(graph="t", node_id="scale", node="nodes.std.demo:Scale", binds=[out_ep],
-                   inputs={"value": Source(topic="c/value", endpoint=src_ep)})
+                   inputs={"value": Source(topic="c/value", endpoint=src_ep)},
+                   expect_subscribers={"scale/value": 1}, wait_subscribers_s=30.0)
     runtime = NodeRuntime(spec, Scale, ctx)
     sub = ctx.socket(zmq.SUB)
     sub.connect(out_ep)
     sub.subscribe(b"scale/value")
     thread = threading.Thread(target=runtime.serve, daemon=True)
     thread.start()
-    assert pub.poll(5000)                                   # the node subscribed
+    assert pub.poll(30000)                                  # the node subscribed
+    deadline = time.monotonic() + 30
+    while runtime._subscribers.get("scale/value", 0) < 1:   # ... and saw our subscription
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
     rng = np.random.default_rng(3)
     codec = Codec()
     good = codec.encode(Float64(data=21.0, seq=1))
