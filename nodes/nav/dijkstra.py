@@ -35,8 +35,8 @@ class GridGraph:
         (flat indices ``row * cols + col``).
     src : (E,) int32, source cell of each edge.
     step : (E,) float64, step length in cells (1 or sqrt 2).
-    side_a, side_b : (E,) int32, the two cells a diagonal edge cuts past (both = target for
-        straight edges).
+    diag : (D,) int, indices of the diagonal edges.
+    side_a, side_b : (D,) int32, the two cells each diagonal edge cuts past.
     move : (E,) int8, index into :data:`MOVES`.
     """
 
@@ -48,6 +48,7 @@ class GridGraph:
     side_a: np.ndarray
     side_b: np.ndarray
     move: np.ndarray
+    diag: np.ndarray
 
     @classmethod
     def of(cls, shape: tuple[int, int]) -> "GridGraph":
@@ -72,8 +73,10 @@ class GridGraph:
         order = np.lexsort((t, s))
         s, t, a, b, step, move = s[order], t[order], a[order], b[order], step[order], move[order]
         indptr = np.searchsorted(s, np.arange(n + 1)).astype(np.int32)
+        diag = np.flatnonzero(a != t)
         return cls(shape=(rows, cols), indptr=indptr, indices=t.astype(np.int32), src=s.astype(np.int32),
-                   step=step, side_a=a.astype(np.int32), side_b=b.astype(np.int32), move=move.astype(np.int8))
+                   step=step, side_a=a[diag].astype(np.int32), side_b=b[diag].astype(np.int32),
+                   move=move.astype(np.int8), diag=diag)
 
     @property
     def n_cells(self) -> int:
@@ -89,8 +92,7 @@ class GridGraph:
         weight = self.step * flat[self.src if reverse else self.indices]
         blocked = np.isinf(flat)
         if blocked.any():
-            corner = blocked[self.side_a] | blocked[self.side_b]
-            weight[corner] = np.inf
+            weight[self.diag[blocked[self.side_a] | blocked[self.side_b]]] = np.inf
         n = self.n_cells
         return csr_matrix((weight, self.indices, self.indptr), shape=(n, n))
 
