@@ -18,6 +18,7 @@ import numpy as np
 from sim.fls_scene import Scene, cast_rays
 
 _TABLE_WARP_RAD = np.radians(30.0)
+_FIXED = float(2 ** 30)
 
 
 def bearing_table(n_beams: int, aperture_rad: float) -> np.ndarray:
@@ -103,18 +104,29 @@ def _intervals(t: np.ndarray, echo: np.ndarray, labels: np.ndarray, valid: np.nd
 
 
 def _accumulate(lo, hi, w, col, n_ranges: int, n_beams: int, res: float) -> np.ndarray:
-    """Echo per metre of range in each (bin, beam): each interval spread evenly over its bins."""
-    density = w / np.maximum(hi - lo, res)
-    i0 = np.clip(np.floor(lo / res), 0, None).astype(np.int64)
-    i1 = np.minimum(np.floor(hi / res).astype(np.int64), n_ranges - 1)
-    keep = i0 <= i1
-    i0, i1, density, col = i0[keep], i1[keep], density[keep], col[keep]
-    diff = np.bincount(i0 * n_beams + col, density, (n_ranges + 1) * n_beams)
-    diff -= np.bincount((i1 + 1) * n_beams + col, density, (n_ranges + 1) * n_beams)
-    out = diff.reshape(n_ranges + 1, n_beams)[:n_ranges].astype(np.float32)
-    for i in range(1, n_ranges):                      # row loop: 3x faster than cumsum(axis=0) here
+    """Mean echo per metre of range over each (bin, beam): each interval's energy spread evenly along it.
+
+    Exact bin coverage: whole bins inside an interval get its density, the two end bins the
+    covered fraction of it (so the level does not depend on the bin size or the ray count).
+    """
+    lo = np.maximum(lo, 0.0)
+    hi = np.maximum(hi, lo + 1e-6)
+    density = w / (hi - lo)
+    i0, i1 = (lo / res).astype(np.int64), (hi / res).astype(np.int64)
+    rows = n_ranges + 2                               # room past the last bin; cropped below
+    i0, i1 = np.minimum(i0, rows - 2), np.minimum(i1, rows - 2)
+    same = i0 == i1
+    first = np.where(same, w / res, density * ((i0 + 1) * res - lo) / res)   # end bins: covered fraction
+    last = np.where(same, 0.0, density * (hi - i1 * res) / res)
+    inner = np.where(i1 - i0 >= 2, density, 0.0)                              # whole bins i0+1 .. i1-1
+    # one difference array: a value v over bins a..b is +v at a, -v at b+1; a cumulative sum restores it
+    idx = np.concatenate([i0, i0 + 1, i1, i1 + 1, i0 + 1, np.maximum(i1, i0 + 1)]) * n_beams + np.tile(col, 6)
+    # in units of 2^-30, so every partial sum is an exact float64 integer: no round-off left in the shadows
+    val = np.rint(np.concatenate([first, -first, last, -last, inner, -inner]) * _FIXED)
+    out = np.bincount(idx, val, (rows + 1) * n_beams).reshape(rows + 1, n_beams)
+    for i in range(1, rows):                          # row loop: 3x faster than cumsum(axis=0) here
         np.add(out[i - 1], out[i], out=out[i])
-    return out
+    return (out[:n_ranges] * (1.0 / _FIXED)).astype(np.float32)
 
 
 def render_ping(scene: Scene, pose: np.ndarray, settings: PingSettings = PingSettings(), *,

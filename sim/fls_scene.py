@@ -39,6 +39,12 @@ def _arr(v: Any, n: int | None = None) -> np.ndarray:
     return a
 
 
+def _cells(size: float, spacing_m: float) -> np.ndarray:
+    """Centres of ceil(size / spacing) equal cells across [-size/2, size/2] (no samples on edges)."""
+    n = max(1, int(np.ceil(size / spacing_m)))
+    return ((np.arange(n) + 0.5) / n - 0.5) * size
+
+
 @dataclass(frozen=True)
 class Plane:
     """Horizontal seafloor at ``z_m``."""
@@ -78,7 +84,7 @@ class HeightField:
         return top * (1 - ay) + bottom * ay
 
     def intersect(self, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        lo, hi = float(self.heights_m.min()), float(self.heights_m.max())
+        lo, hi = float(self.heights_m.min()) - 1e-3, float(self.heights_m.max()) + 1e-3   # band strictly brackets
         dz = np.where(np.abs(dirs[:, 2]) > _EPS, dirs[:, 2], -_EPS)
         t_in = np.clip(np.minimum((hi - origin[2]) / dz, (lo - origin[2]) / dz), 0, None)
         t_out = np.maximum((hi - origin[2]) / dz, (lo - origin[2]) / dz)
@@ -164,12 +170,28 @@ class Cylinder:
         u /= np.linalg.norm(u)
         v = np.cross(a, u)
         n_around = max(6, int(np.ceil(2 * np.pi * self.radius_m / spacing_m)))
-        n_along = max(2, int(np.ceil(length / spacing_m)) + 1)
         ang = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
         radial = np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v              # (A, 3)
-        s = np.linspace(0, length, n_along)
-        pts = self.p0 + s[:, None, None] * a + self.radius_m * radial[None]       # (L, A, 3)
-        return pts.reshape(-1, 3), np.broadcast_to(radial[None], pts.shape).reshape(-1, 3).copy()
+        s = _cells(length, spacing_m) + length / 2
+        pts = [(self.p0 + s[:, None, None] * a + self.radius_m * radial[None]).reshape(-1, 3)]
+        nrm = [np.broadcast_to(radial[None], (s.size, n_around, 3)).reshape(-1, 3)]
+        disk = [np.zeros((1, 3))]                                                 # the two end caps: rings
+        for rr in np.arange(spacing_m, self.radius_m, spacing_m):
+            ring = np.linspace(0, 2 * np.pi, max(6, int(np.ceil(2 * np.pi * rr / spacing_m))), endpoint=False)
+            disk.append(rr * (np.cos(ring)[:, None] * u + np.sin(ring)[:, None] * v))
+        disk = np.concatenate(disk)
+        for centre, sign in ((self.p0, -1.0), (self.p1, 1.0)):
+            pts.append(centre + disk)
+            nrm.append(np.broadcast_to(sign * a, disk.shape))
+        return np.concatenate(pts), np.concatenate(nrm).copy()
+
+    def inside(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+        a = (self.p1 - self.p0) / np.linalg.norm(self.p1 - self.p0)
+        w = points - self.p0
+        s = w @ a
+        r2 = np.einsum("ij,ij->i", w, w) - s ** 2
+        length = float(np.linalg.norm(self.p1 - self.p0))
+        return (s > margin_m) & (s < length - margin_m) & (r2 < (self.radius_m - margin_m) ** 2)
 
 
 @dataclass(frozen=True)
@@ -200,13 +222,15 @@ class Box:
     def sphere(self) -> tuple[np.ndarray, float]:
         return self.center, 0.5 * float(np.linalg.norm(self.size))
 
+    def inside(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+        local = (points - self.center) @ self.rotation
+        return np.all(np.abs(local) < self.size / 2 - margin_m, axis=1)
+
     def sample(self, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
         pts, nrm = [], []
         for k in range(3):
             i, j = [m for m in range(3) if m != k]
-            gi = np.linspace(-self.size[i] / 2, self.size[i] / 2, max(2, int(np.ceil(self.size[i] / spacing_m)) + 1))
-            gj = np.linspace(-self.size[j] / 2, self.size[j] / 2, max(2, int(np.ceil(self.size[j] / spacing_m)) + 1))
-            a, b = np.meshgrid(gi, gj, indexing="ij")
+            a, b = np.meshgrid(_cells(self.size[i], spacing_m), _cells(self.size[j], spacing_m), indexing="ij")
             for sign in (-1.0, 1.0):
                 local = np.zeros((a.size, 3))
                 local[:, i], local[:, j], local[:, k] = a.ravel(), b.ravel(), sign * self.size[k] / 2
@@ -382,13 +406,28 @@ def cast_rays(scene: Scene, origin: np.ndarray, dirs: np.ndarray, *,
 
 
 def sample_structures(scene: Scene, spacing_m: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """Points (M, 3) and outward normals (M, 3) on the structures' surfaces (not the seafloor), world m."""
+    """Points (M, 3) and outward normals (M, 3) on the structures' surfaces (not the seafloor), world m.
+
+    Samples buried inside another structure (a leg's end inside a mud mat) or in the seabed are
+    dropped; mesh
+    samples are random on the faces (seeded), cylinders and boxes are on grids of ``spacing_m``.
+    """
     if spacing_m <= 0:
         raise ValueError(f"spacing_m must be positive, got {spacing_m}")
-    parts = [s.sample(spacing_m) for s in scene.structures]
-    if not parts:
+    pts, nrm = [], []
+    for k, structure in enumerate(scene.structures):
+        p, n = structure.sample(spacing_m)
+        buried = np.zeros(len(p), bool)              # drop samples inside another structure (joints, feet)
+        for j, other in enumerate(scene.structures):
+            if j != k and hasattr(other, "inside"):
+                buried |= other.inside(p, margin_m=1e-3)
+        if scene.seafloor is not None:               # and the faces lying on or under the seabed
+            buried |= p[:, 2] <= scene.seafloor.depth_at(p[:, 0], p[:, 1]) + 1e-3
+        pts.append(p[~buried])
+        nrm.append(n[~buried])
+    if not pts:
         return np.zeros((0, 3)), np.zeros((0, 3))
-    return np.concatenate([p for p, _ in parts]), np.concatenate([n for _, n in parts])
+    return np.concatenate(pts), np.concatenate(nrm)
 
 
 def _rotation(spec: Mapping[str, Any]) -> np.ndarray:
