@@ -137,7 +137,7 @@ class FakeOculus:
                 if isinstance(item, Frame):
                     self.fire_version = 2 if item.header.version == 2 else 1
                     self.fire = decode_fire(item.data)
-                    self.triggers += bool(self.fire.flags & FLAG_NETWORK_TRIGGER)
+                    self.triggers += bool(self.fire.flags & FLAG_NETWORK_TRIGGER and self.fire.ping_rate != STANDBY)
                 else:
                     self.log.warning("client stream %s: %s", item.kind, item.detail)
 
@@ -189,7 +189,7 @@ class FlsSonar(Node):
 
     def run(self) -> None:
         cfg: Config = self.config
-        self._t0_ns = self.now_ns()
+        self._t0_ns = self.now_ns() // 1000 * 1000
         next_status = next_ping = next_dummy = time.monotonic()
         while not self.stopping.is_set():
             deadline = min(next_status, next_ping) if cfg.status_rate_hz > 0 else next_ping
@@ -201,7 +201,7 @@ class FlsSonar(Node):
             fire, version = self.fake.fire, self.fake.fire_version
             if fire is None and self.fake.client is None and cfg.self_fire:
                 fire, version = self.own_fire, 2
-            if fire is None or (fire.ping_rate == STANDBY and not self.fake.triggers):
+            if fire is None or fire.ping_rate == STANDBY:
                 if self.fake.client is not None and now >= next_dummy:
                     self.fake.send(Header(MSG_DUMMY, 0, src=cfg.serial).pack())
                     next_dummy = now + 1.0
