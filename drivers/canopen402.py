@@ -219,10 +219,13 @@ class Cia402Master:
                     continue
                 try:
                     self.bring_up(d)
-                except (DriverError, canopen.SdoError, can.CanError) as exc:
+                except (DriverError, canopen.SdoAbortedError, canopen.SdoCommunicationError, can.CanError) as exc:
                     d.next_try = time.monotonic() + self.cfg.retry_s
                     log.error("%s (node %d): bring-up failed: %s; retrying in %.1f s",
                               d.name, d.spec.node_id, exc, self.cfg.retry_s)
+                except Exception:  # noqa: BLE001 - the bring-up thread must outlive any surprise
+                    d.next_try = time.monotonic() + self.cfg.retry_s
+                    log.exception("%s (node %d): bring-up failed unexpectedly", d.name, d.spec.node_id)
             self._stop.wait(0.02)
 
     def _read(self, d: _Drive, index: int, sub: int, size: int, signed: bool = False) -> int:

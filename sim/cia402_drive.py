@@ -173,6 +173,10 @@ class SimDrive:
         self.state = p.FAULT_REACTION_ACTIVE
         self._emcy(code, 0x01)
 
+    def reboot(self, now_s: float) -> None:
+        """A power glitch: the drive restarts (boot-up, default configuration, motor unpowered)."""
+        self._boot(now_s)
+
     def inject_fault(self, code: int = 0x2310) -> None:
         """A fault from the power stage: fault reaction (quick-stop ramp), EMCY, then FAULT."""
         if self.state not in (p.FAULT, p.FAULT_REACTION_ACTIVE):
