@@ -203,14 +203,13 @@ def test_sdo_timeout_during_bring_up_leaves_everything_still(caplog):
 
 
 def test_missing_drive_is_reported_and_nothing_moves(caplog):
-    cfg_drives = list(DEFAULT_DRIVES)
     with caplog.at_level(logging.ERROR, logger="drivers.canopen402"), rig() as (master, bank):
         with bank.lock:
             bank.drives["rear_steer"].faults.mute = True             # never answers, not even boot-up
             bank.drives["rear_steer"].faults.deaf = True
         cycle(master, 1.0)
         assert not master.drives["rear_steer"].configured and all_still(bank)
-    assert any("no boot-up" in r.getMessage() for r in caplog.records) and len(cfg_drives) == 4
+    assert any("rear_steer" in r.getMessage() and "no boot-up" in r.getMessage() for r in caplog.records)
 
 
 def test_drive_rebooting_in_service_trips_and_is_reconfigured():

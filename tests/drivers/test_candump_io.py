@@ -1,0 +1,119 @@
+"""drivers.candump: candump -L / python-can .log import and export; the real shared log
+imports, round-trips through python-can's own reader/writer, and replays onto a bus."""
+from __future__ import annotations
+
+import io
+import threading
+import time
+
+import can
+import canopen
+import pytest
+
+from drivers import cia402 as p
+from drivers.can_bus import frame_from_message, open_bus
+from drivers.candump import CandumpPlayer, format_line, parse_line, read_candump, replay, write_candump
+from msgs.can import CanFrame
+from tether.testing import Harness
+
+REAL = "can/ros2_canopen_issue225_candump.log"
+
+
+def test_real_log_imports(shared_data):
+    frames = read_candump(shared_data / REAL)
+    assert len(frames) == 31
+    assert frames[0].stamp_ns == 1699584944_440580_000 and frames[0].channel == "can0"
+    assert (frames[1].arbitration_id, frames[1].data) == (0x000, b"\x82\x00")          # NMT reset comm
+    assert [f.arbitration_id for f in frames[2:5]] == [0x704, 0x703, 0x702]              # boot-ups
+    sdo = p.parse_sdo_response(frames[6].data)
+    assert (frames[6].arbitration_id, sdo.index, sdo.value()) == (0x582, 0x1000, 0x00020192)
+    syncs = [f for f in frames if f.arbitration_id == p.SYNC]
+    assert len(syncs) == 20 and all(f.data == b"" for f in syncs)
+    gaps_ms = [(b.stamp_ns - a.stamp_ns) / 1e6 for a, b in zip(syncs, syncs[1:])]
+    assert all(9.5 < g < 10.5 for g in gaps_ms)                                          # SYNC every 10 ms
+
+
+def test_real_log_round_trips_through_python_can(shared_data, tmp_path):
+    frames = read_candump(shared_data / REAL)
+    for pylog in (False, True):
+        out = tmp_path / f"copy{int(pylog)}.log"
+        write_candump(frames, out, pylog=pylog)
+        theirs = list(can.CanutilsLogReader(out))
+        assert [(m.arbitration_id, bytes(m.data), m.timestamp) for m in theirs] == \
+               [(f.arbitration_id, f.data, pytest.approx(f.stamp_ns * 1e-9, abs=1e-6)) for f in frames]
+        assert read_candump(out) == frames
+    # and what python-can writes, we read
+    pyfile = tmp_path / "python_can.log"
+    with can.CanutilsLogWriter(pyfile, channel="vcan0") as w:
+        for f in frames:
+            w.on_message_received(can.Message(timestamp=f.stamp_ns * 1e-9, arbitration_id=f.arbitration_id,
+                                              data=f.data, is_extended_id=False, is_rx=False, channel="vcan0"))
+    back = read_candump(pyfile)
+    assert [(f.arbitration_id, f.data, f.is_rx) for f in back] == [(f.arbitration_id, f.data, False) for f in frames]
+
+
+@pytest.mark.parametrize("line, check", [
+    ("(1.000000) can0 12345678#DEADBEEF", lambda f: f.is_extended_id and f.arbitration_id == 0x12345678),
+    ("(1.000000) can0 123#R", lambda f: f.is_remote_frame and f.dlc == 0),
+    ("(1.000000) can0 123#R4", lambda f: f.is_remote_frame and f.dlc == 4),
+    ("(1.000000) can0 123##1" + "00" * 12, lambda f: f.is_fd and len(f.data) == 12),
+    ("(1.000000) can0 20000080#0000000000000000", lambda f: f.is_error_frame),
+    ("(1.000000) can0 123#1122334455667788_E", lambda f: f.data == bytes.fromhex("1122334455667788")),
+    ("(1.5) vcan0 701#7F T", lambda f: not f.is_rx and f.stamp_ns == 1_500_000_000),
+])
+def test_line_forms(line, check):
+    f = parse_line(line)
+    assert check(f)
+    if not f.is_error_frame:
+        again = parse_line(format_line(f, direction=True))
+        assert (again.arbitration_id, again.data, again.is_remote_frame, again.is_fd, again.dlc) == \
+               (f.arbitration_id, f.data, f.is_remote_frame, f.is_fd, f.dlc)
+
+
+def test_bad_lines_name_the_line_or_are_skipped(caplog):
+    text = "(1.0) can0 701#00\nthis is not a frame\n(2.0) can0 800#00\n(3.0) can0 123#123\n# comment\n(4.0) can0 702#05\n"
+    with pytest.raises(ValueError, match="line 2"):
+        read_candump(io.StringIO(text))
+    frames = read_candump(io.StringIO(text), errors="skip")
+    assert [f.arbitration_id for f in frames] == [0x701, 0x702]
+    assert sum("skipped line" in r.getMessage() for r in caplog.records) == 3
+
+
+def test_real_log_replays_onto_a_bus_into_a_canopen_master(shared_data):
+    frames = read_candump(shared_data / REAL)
+    channel = "candump-replay"
+    src, dst = open_bus("virtual", channel), open_bus("virtual", channel)
+    network = canopen.Network(dst)
+    nodes = {n: network.add_node(n, canopen.ObjectDictionary()) for n in (2, 3, 4)}
+    seen: list[can.Message] = []
+    network.listeners.append(seen.append)
+    network.connect()
+    try:
+        t0 = time.monotonic()
+        assert replay(frames, src, speed=2.0) == 31
+        elapsed = time.monotonic() - t0
+        deadline = time.monotonic() + 2.0
+        while len(seen) < 31 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert elapsed > 0.19 / 2                                        # the log spans 193 ms; kept its pace
+        assert [m.arbitration_id for m in seen] == [f.arbitration_id for f in frames]
+        assert all(nodes[n].nmt.state == "PRE-OPERATIONAL" for n in (2, 3, 4))   # boot-ups were seen
+    finally:
+        network.disconnect()
+        src.shutdown()
+
+
+def test_candump_player_node_publishes_the_log(shared_data):
+    h = Harness(CandumpPlayer, params={"path": str(shared_data / REAL), "speed": 50.0})
+    h.node.run()
+    frames = h.of("frames")
+    assert [f.arbitration_id for f in frames] == [f.arbitration_id for f in read_candump(shared_data / REAL)]
+    assert all(isinstance(f, CanFrame) for f in frames)
+    h.close()
+
+
+def test_frame_message_conversion_keeps_fields():
+    m = can.Message(timestamp=12.5, arbitration_id=0x1ABCDEF0, data=b"\x01\x02", is_extended_id=True, channel="can1")
+    f = frame_from_message(m)
+    assert (f.stamp_ns, f.arbitration_id, f.data, f.is_extended_id, f.channel, f.dlc) == \
+           (12_500_000_000, 0x1ABCDEF0, b"\x01\x02", True, "can1", 2)

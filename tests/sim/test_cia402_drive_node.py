@@ -1,0 +1,42 @@
+"""sim.cia402_drive.Cia402DriveSim node: answers a master on the bus, publishes what the motors achieve."""
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import pytest
+
+from drivers.can_bus import open_bus
+from drivers.canopen402 import Cia402Master, Config
+from sim.cia402_drive import Cia402DriveSim
+from tether.testing import Harness
+
+
+def test_sim_node_answers_and_reports_achieved_motion():
+    channel = f"sim-node-{os.getpid()}"
+    h = Harness(Cia402DriveSim, params={"interface": "virtual", "channel": channel,
+                                        "sim": {"rear_steer": {"vendor_bits": 256, "junk_hex": "8faf8faf"}}})
+    runner = threading.Thread(target=h.node.run, daemon=True)
+    runner.start()
+    master = Cia402Master(open_bus("virtual", channel), Config(interface="virtual", channel=channel))
+    master.start()
+    try:
+        sp = {"front_wheel": 32_595, "front_steer": 16_297, "rear_wheel": 32_595, "rear_steer": -16_297}
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end:
+            master.step(time.monotonic(), sp)
+            got = h.of("achieved")
+            if got and abs(got[-1].v_front_mps - 0.5) < 0.01 and abs(got[-1].delta_rear_rad + 0.5) < 0.01:
+                break
+            time.sleep(0.01)
+        last = h.of("achieved")[-1]
+        assert last.v_front_mps == pytest.approx(32_595 / master.drives["front_wheel"].spec.counts_per_unit, abs=0.01)
+        assert last.delta_rear_rad == pytest.approx(-0.5, abs=0.01)
+        assert master.drives["rear_steer"].statusword & 0x0100          # vendor bit configured by param
+    finally:
+        master.close()
+        h.node.stopping.set()
+        runner.join(timeout=5)
+        h.close()
+    assert not runner.is_alive()
