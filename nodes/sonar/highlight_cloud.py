@@ -1,8 +1,9 @@
 """Highlight cloud node: sonar pings + sonar pose -> accumulated world-frame 3D point cloud (seed 01, eq. 7-17).
 
-Conventions: the world is z-up; ``pose`` is the sonar's pose in it (body frame FLU by default:
-x along the boresight, y port, z up; ``body_frame="frd"`` for x, starboard, down). Tilt, roll and
-altitude come from the pose (altitude = z - ``seafloor_z_m``) unless given as parameters.
+Conventions: the world is z-up; ``pose`` is the sonar's pose in it, body frame FRD by default (x
+along the boresight, y starboard, z down: the paper's eq. 15-17 and ``sim.fls``; ``body_frame="flu"``
+for x, port, up). Tilt, roll and altitude come from the pose (altitude = z - ``seafloor_z_m``)
+unless given as parameters.
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     attitude: Literal["pose", "param"] = "pose"
     altitude_m: float = 0.0                  # > 0: fixed altitude h; 0: pose z - seafloor_z_m
     seafloor_z_m: float = 0.0
-    body_frame: Literal["flu", "frd"] = "flu"
+    body_frame: Literal["frd", "flu"] = "frd"      # sim.fls and the paper: FRD
     model: Literal["beam", "paper"] = "beam"
     sigma_px: float = 1.5                    # Gaussian blur along range (cells)
     sigma_beam_px: float = -1.0              # across beams; < 0: same as sigma_px

@@ -27,8 +27,9 @@ def _rot(yaw: float, pitch_down: float, roll: float = 0.0) -> np.ndarray:
 
 
 def _pose(origin, rot, stamp_ns: int) -> Pose3D:
+    """FLU rotation in, FRD sonar pose out (the node's default body frame)."""
     t = np.eye(4)
-    t[:3, :3], t[:3, 3] = rot, origin
+    t[:3, :3], t[:3, 3] = rot @ np.diag([1.0, -1.0, -1.0]), origin
     return Pose3D.from_matrix(t, stamp_ns=stamp_ns, frame_id="world")
 
 

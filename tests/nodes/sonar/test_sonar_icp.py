@@ -1,0 +1,151 @@
+"""ICP against structure models: recovers offsets, flags degenerate and symmetric cases, survives bad clouds."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nodes.sonar.icp import IcpModel, IcpSettings, align, yaw_about
+from nodes.sonar.model import sample_cylinder, sample_seabed, tripod_model
+
+FAST = dict(yaw_hypotheses=0)
+
+
+def _offset(yaw_deg: float, shift) -> np.ndarray:
+    a = np.radians(yaw_deg)
+    t = np.eye(4)
+    t[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    t[:3, 3] = shift
+    return t
+
+
+def _view(pts, nrm, seed: int, n: int = 1500, sonar=(1.0, -14.0, -1.0), noise_m: float = 0.03,
+          outliers: float = 0.05) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    facing = np.einsum("ij,ij->i", np.asarray(sonar) - pts, nrm) > 0
+    cand = pts[facing]
+    k = int(n * (1 - outliers))
+    view = cand[rng.choice(len(cand), k, replace=False)] + rng.normal(0, noise_m, (k, 3))
+    lo, hi = view.min(axis=0) - 1, view.max(axis=0) + 1
+    return np.vstack([view, rng.uniform(lo, hi, (n - k, 3))])
+
+
+def _errors(estimate: np.ndarray, off: np.ndarray, pivot=(0.0, 0.0, -4.0)) -> tuple[float, float]:
+    c = estimate @ off
+    rot = np.degrees(np.arccos(np.clip((np.trace(c[:3, :3]) - 1) / 2, -1, 1)))
+    p = np.asarray(pivot)
+    return rot, float(np.linalg.norm(c[:3, :3] @ p + c[:3, 3] - p))
+
+
+@pytest.fixture(scope="module")
+def tripod() -> tuple[np.ndarray, np.ndarray, IcpModel]:
+    pts, nrm = tripod_model(spacing_m=0.15)
+    return pts, nrm, IcpModel.build(pts, nrm)
+
+
+@pytest.mark.parametrize("method,grid", [("point_to_plane", 0.0), ("point_to_plane", 0.15), ("point_to_point", 0.0)])
+def test_tripod_offset_is_recovered(tripod, method: str, grid: float) -> None:
+    pts, nrm, model = tripod
+    if grid:
+        model = IcpModel.build(pts, nrm, grid_m=grid)
+    off = _offset(10.0, [0.3, -0.4, 0.0])
+    cloud = _view(pts, nrm, 1) @ off[:3, :3].T + off[:3, 3]
+    out = align(cloud, model, settings=IcpSettings(method=method, **FAST))
+    rot, trans = _errors(out.transform, off)
+    tol = (0.5, 0.03) if method == "point_to_plane" else (1.0, 0.08)
+    assert rot < tol[0] and trans < tol[1], (rot, trans)
+    assert out.converged and not out.degenerate and not out.ambiguous
+    assert 0.85 < out.inlier_ratio <= 1.0 and out.rmse_m < 0.1
+    assert np.all(np.isfinite(out.covariance)) and np.all(np.diag(out.covariance) < 1e-2)
+
+
+def test_flat_seafloor_is_degenerate_and_does_not_wander() -> None:
+    pts, nrm = sample_seabed(-6.0, radius_m=8.0, spacing_m=0.2)
+    model = IcpModel.build(pts, nrm)
+    off = _offset(5.0, [0.4, 0.3, 0.2])
+    rng = np.random.default_rng(2)
+    cloud = pts[rng.choice(len(pts), 800, replace=False)] + rng.normal(0, 0.02, (800, 3))
+    out = align(cloud @ off[:3, :3].T + off[:3, 3], model, settings=IcpSettings())
+    assert out.degenerate and out.min_eigenvalue < 1e-3
+    assert out.unobservable.shape[1] == 3                     # x, y, yaw
+    t = out.transform
+    assert abs(t[2, 3] + 0.2) < 0.02                          # z is observed: corrected
+    assert np.hypot(t[0, 3], t[1, 3]) < 0.02                  # x, y held at the prior
+    assert abs(np.degrees(np.arctan2(t[1, 0], t[0, 0]))) < 0.1
+    cov = out.covariance
+    assert cov[0, 0] > 1e3 and cov[1, 1] > 1e3 and cov[5, 5] > 1e3 and cov[2, 2] < 1e-3
+
+
+def test_single_cylinder_leaves_axis_and_spin_free() -> None:
+    pile, nrm = sample_cylinder([2.0, 0.0, -6.0], [2.0, 0.0, 1.0], 0.5, 0.1)
+    model = IcpModel.build(pile, nrm)
+    rng = np.random.default_rng(3)
+    facing = np.einsum("ij,ij->i", np.array([-10.0, 0.0, 0.0]) - pile, nrm) > 0
+    view = pile[facing][rng.choice(facing.sum(), 600, replace=False)] + rng.normal(0, 0.01, (600, 3))
+    off = yaw_about(_offset(0.0, [0.3, -0.2, 0.5]), np.radians(8.0), np.array([2.0, 0.0, 0.0]))
+    out = align(view @ off[:3, :3].T + off[:3, 3], model, settings=IcpSettings(**FAST))
+    assert out.degenerate and out.unobservable.shape[1] == 2
+    c = out.transform @ off
+    axis_point = c[:3, :3] @ np.array([2.0, 0.0, -2.0]) + c[:3, 3]
+    assert np.hypot(axis_point[0] - 2.0, axis_point[1]) < 0.03           # lateral offset corrected
+    assert abs(out.transform[2, 3]) < 0.02                                 # no slide along the axis
+    # no spin: a big first lateral step on a curved surface couples ~1 deg in once, then it holds still
+    yaw = np.degrees(np.arctan2(out.transform[1, 0], out.transform[0, 0]))
+    assert abs(yaw) < 1.5
+    again = align(view @ off[:3, :3].T + off[:3, 3], model, init=out.transform,
+                  settings=IcpSettings(max_iterations=100, tolerance_m=1e-7, tolerance_rad=1e-8, **FAST))
+    assert abs(np.degrees(np.arctan2(again.transform[1, 0], again.transform[0, 0])) - yaw) < 0.05
+    assert abs(again.transform[2, 3] - out.transform[2, 3]) < 0.005
+
+
+def test_symmetric_tripod_sixty_degrees_off_is_flagged_or_right() -> None:
+    pts, nrm = tripod_model(pylons=False, spacing_m=0.15)
+    model = IcpModel.build(pts, nrm)
+    off = _offset(60.0, [0.2, 0.1, 0.0])
+    cloud = _view(pts, nrm, 4, sonar=(3.0, -14.0, -1.0)) @ off[:3, :3].T + off[:3, 3]
+    out = align(cloud, model, settings=IcpSettings())
+    rot, trans = _errors(out.transform, off)
+    assert out.ambiguous or (rot < 1.0 and trans < 0.05), (out.ambiguous, rot, trans)
+    assert out.ambiguous                                     # 3-fold symmetric: it cannot know
+    # and with the pylons the same start converges to the right pose, unambiguously
+    pts_p, nrm_p = tripod_model(pylons=True, spacing_m=0.15)
+    cloud_p = _view(pts_p, nrm_p, 4, sonar=(3.0, -14.0, -1.0)) @ off[:3, :3].T + off[:3, 3]
+    out_p = align(cloud_p, IcpModel.build(pts_p, nrm_p), settings=IcpSettings())
+    rot_p, trans_p = _errors(out_p.transform, off)
+    assert not out_p.ambiguous and rot_p < 1.0 and trans_p < 0.05, (rot_p, trans_p)
+
+
+def test_symmetric_tripod_near_the_prior_is_not_ambiguous() -> None:
+    pts, nrm = tripod_model(pylons=False, spacing_m=0.15)
+    off = _offset(10.0, [0.3, 0.0, 0.0])
+    cloud = _view(pts, nrm, 5) @ off[:3, :3].T + off[:3, 3]
+    out = align(cloud, IcpModel.build(pts, nrm), settings=IcpSettings())
+    rot, trans = _errors(out.transform, off)
+    assert not out.ambiguous and rot < 0.5 and trans < 0.03     # alternatives are 120 deg from the prior
+
+
+@pytest.mark.parametrize("cloud", [np.zeros((0, 3)), np.full((100, 3), np.nan), np.zeros(0)])
+def test_empty_and_nan_clouds_fail_cleanly(tripod, cloud) -> None:
+    out = align(cloud, tripod[2], settings=IcpSettings(**FAST))
+    assert not out.converged and out.reason and np.all(out.transform == np.eye(4))
+
+
+def test_nan_points_are_ignored(tripod) -> None:
+    pts, nrm, model = tripod
+    off = _offset(5.0, [0.2, 0.2, 0.0])
+    cloud = _view(pts, nrm, 6) @ off[:3, :3].T + off[:3, 3]
+    cloud[::7] = np.nan
+    out = align(cloud, model, settings=IcpSettings(**FAST))
+    rot, trans = _errors(out.transform, off)
+    assert out.converged and rot < 0.5 and trans < 0.03
+
+
+def test_far_away_cloud_reports_no_correspondences(tripod) -> None:
+    out = align(np.random.default_rng(0).normal(100.0, 1.0, (200, 3)), tripod[2], settings=IcpSettings(**FAST))
+    assert not out.converged and "gate" in out.reason
+
+
+def test_bad_settings_and_init_raise(tripod) -> None:
+    with pytest.raises(ValueError, match="method"):
+        IcpSettings(method="gicp")
+    with pytest.raises(ValueError, match="init"):
+        align(np.zeros((50, 3)), tripod[2], init=np.full((4, 4), np.nan))
