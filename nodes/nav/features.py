@@ -1,0 +1,177 @@
+"""Crowd features (Kim & Pineau 2016, Sec. 3.2): a local grid of 12-dim binary feature vectors from scene flow.
+
+The grid lies in the robot frame (x ahead, y left), rows along y, columns along x; cell
+(r, c) has its centre at ``x = origin_x_m + c * res``, ``y = origin_y_m + r * res``.
+Every cell gets four features, each one-hot over the levels high / medium / low, so
+exactly four of the 12 bits are set. Layout (index = 3 * group + level)::
+
+    0 density_high    1 density_medium    2 density_low         points in the cell
+    3 speed_high      4 speed_medium      5 speed_low           |mean velocity of its points|
+    6 direction_high  7 direction_medium  8 direction_low       risk table of Figure 3
+    9 goal_high      10 goal_medium      11 goal_low            distance from the cell to the goal
+
+- density: ``count < density_points[0]`` low, ``< density_points[1]`` medium, else high.
+  Every point counts, static ones too (walls are dense: that is how the planner sees them).
+- speed: the norm of the mean (x, y) velocity of the cell's points, binned by ``speed_mps``;
+  cells with fewer than ``density_points[0]`` points are low (too few to trust).
+- direction (Figure 3): a point moving faster than ``moving_mps`` flows along its heading.
+  With ``u = v / max(|vx|, |vy|)`` (its heading scaled to the Chebyshev unit square) it
+  flows into the first-degree neighbour ``cell + round(u)`` and on into the second-degree
+  neighbour ``cell + round(2 u)``. A cell is HIGH when at least ``flow_points`` points flow
+  in from its first-degree neighbours, else MEDIUM when at least that many flow in from its
+  second-degree neighbours, else LOW (its own points, if any, move out of it). Points up
+  to two cells outside the grid still flow into the border cells; nothing wraps around.
+- goal distance: Euclidean distance from the cell centre to the goal, binned by thirds of
+  the grid's own range (nearest third low, farthest third high), so the local grid always
+  has a gradient toward the goal however far away it is. Without a goal every cell is medium.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+GROUPS = ("density", "speed", "direction", "goal")
+LEVELS = ("high", "medium", "low")
+FEATURE_NAMES = [f"{g}_{lvl}" for g in GROUPS for lvl in LEVELS]
+HIGH, MEDIUM, LOW = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """Local grid extent in the robot frame (m); cells of ``resolution_m``."""
+
+    x_min_m: float = -0.5
+    x_max_m: float = 5.5
+    y_min_m: float = -3.0
+    y_max_m: float = 3.0
+    resolution_m: float = 0.25
+
+    def __post_init__(self) -> None:
+        if not (self.resolution_m > 0 and self.x_max_m > self.x_min_m and self.y_max_m > self.y_min_m):
+            raise ValueError(f"grid needs resolution > 0 and max > min on both axes, got {self}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols) = (cells along y, cells along x)."""
+        return (int(np.ceil((self.y_max_m - self.y_min_m) / self.resolution_m - 1e-9)),
+                int(np.ceil((self.x_max_m - self.x_min_m) / self.resolution_m - 1e-9)))
+
+    @property
+    def origin(self) -> tuple[float, float]:
+        """Centre (x_m, y_m) of cell (0, 0)."""
+        return self.x_min_m + 0.5 * self.resolution_m, self.y_min_m + 0.5 * self.resolution_m
+
+    def centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cell-centre coordinates: x (rows, cols) and y (rows, cols), metres."""
+        rows, cols = self.shape
+        ox, oy = self.origin
+        return np.meshgrid(ox + self.resolution_m * np.arange(cols), oy + self.resolution_m * np.arange(rows))
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Bin edges: below the first is low, below the second medium, else high."""
+
+    density_points: tuple[float, float] = (20.0, 150.0)
+    speed_mps: tuple[float, float] = (0.3, 0.8)
+    moving_mps: float = 0.25
+    flow_points: int = 10
+
+    def __post_init__(self) -> None:
+        for name in ("density_points", "speed_mps"):
+            lo, hi = getattr(self, name)
+            if not 0 <= lo <= hi:
+                raise ValueError(f"{name} must be (low_edge, high_edge) with 0 <= low <= high, got {(lo, hi)}")
+
+
+@dataclass(frozen=True)
+class FeatureResult:
+    """Features (rows, cols, 12) uint8 and the raw per-cell quantities behind them."""
+
+    features: np.ndarray
+    density: np.ndarray          # (rows, cols) int: points per cell
+    velocity_mps: np.ndarray     # (rows, cols, 2) mean (vx, vy) of the cell's points (0 where empty)
+    inflow_first: np.ndarray     # (rows, cols) int: points flowing in from first-degree neighbours
+    inflow_second: np.ndarray    # (rows, cols) int: ... from second-degree neighbours
+    outflow: np.ndarray          # (rows, cols) int: moving points in the cell (they move out)
+    goal_distance_m: np.ndarray  # (rows, cols) float, NaN without a goal
+
+
+def level(values: np.ndarray, edges: tuple[float, float]) -> np.ndarray:
+    """HIGH (0) / MEDIUM (1) / LOW (2) per value: < edges[0] low, < edges[1] medium, else high."""
+    return np.where(values < edges[0], LOW, np.where(values < edges[1], MEDIUM, HIGH))
+
+
+def _scatter_count(rows: int, cols: int, r: np.ndarray, c: np.ndarray) -> np.ndarray:
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+    return np.bincount(r[inside] * cols + c[inside], minlength=rows * cols).reshape(rows, cols)
+
+
+def extract_features(points_m: np.ndarray, velocity_mps: np.ndarray, goal_xy_m: tuple[float, float] | None,
+                     grid: GridSpec = GridSpec(), thresholds: Thresholds = Thresholds(), *,
+                     min_height_m: float = -np.inf, max_height_m: float = np.inf) -> FeatureResult:
+    """Per-cell features from points (N, 3) m and velocities (N, 3) m/s in the robot frame.
+
+    ``goal_xy_m`` is the goal in the same frame (or None). Points with a non-finite
+    coordinate or velocity, or outside ``[min_height_m, max_height_m]``, are ignored.
+    An empty cloud is fine: every cell is then density / speed / direction low.
+    """
+    pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    vel = np.asarray(velocity_mps, dtype=np.float64).reshape(-1, 3)
+    if len(pts) != len(vel):
+        raise ValueError(f"points ({len(pts)}) and velocities ({len(vel)}) must pair up")
+    ok = np.all(np.isfinite(pts), axis=1) & np.all(np.isfinite(vel), axis=1)
+    ok &= (pts[:, 2] >= min_height_m) & (pts[:, 2] <= max_height_m)
+    pts, vel = pts[ok], vel[ok, :2]
+    rows, cols = grid.shape
+    c = np.floor((pts[:, 0] - grid.x_min_m) / grid.resolution_m).astype(np.int64)
+    r = np.floor((pts[:, 1] - grid.y_min_m) / grid.resolution_m).astype(np.int64)
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+    flat = r[inside] * cols + c[inside]
+    density = np.bincount(flat, minlength=rows * cols).reshape(rows, cols)
+    sums = np.stack([np.bincount(flat, weights=vel[inside, k], minlength=rows * cols) for k in (0, 1)], axis=1)
+    mean_vel = (sums / np.maximum(density.reshape(-1, 1), 1)).reshape(rows, cols, 2)
+    speed = np.hypot(mean_vel[..., 0], mean_vel[..., 1])
+    speed = np.where(density < thresholds.density_points[0], 0.0, speed)
+
+    near = (r >= -2) & (r < rows + 2) & (c >= -2) & (c < cols + 2)          # may flow into a border cell
+    moving = near & (np.hypot(vel[:, 0], vel[:, 1]) >= thresholds.moving_mps)
+    vm = vel[moving]
+    u = vm / np.max(np.abs(vm), axis=1, keepdims=True) if len(vm) else np.zeros((0, 2))
+    first = np.rint(u).astype(np.int64)
+    second = np.rint(2 * u).astype(np.int64)
+    rm, cm = r[moving], c[moving]
+    inflow_first = _scatter_count(rows, cols, rm + first[:, 1], cm + first[:, 0])
+    inflow_second = _scatter_count(rows, cols, rm + second[:, 1], cm + second[:, 0])
+    outflow = _scatter_count(rows, cols, rm, cm)
+
+    k = thresholds.flow_points
+    direction = np.where(inflow_first >= k, HIGH, np.where(inflow_second >= k, MEDIUM, LOW))
+    goal_level, goal_dist = _goal_levels(grid, goal_xy_m)
+    feats = np.zeros((rows, cols, 12), np.uint8)
+    for g, lv in enumerate((level(density, thresholds.density_points), level(speed, thresholds.speed_mps),
+                            direction, goal_level)):
+        np.put_along_axis(feats, (3 * g + lv)[..., None], 1, axis=2)
+    return FeatureResult(feats, density, mean_vel.astype(np.float32), inflow_first, inflow_second, outflow,
+                         goal_dist)
+
+
+def _goal_levels(grid: GridSpec, goal_xy_m: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = grid.shape
+    if goal_xy_m is None or not np.all(np.isfinite(goal_xy_m)):
+        return np.full((rows, cols), MEDIUM), np.full((rows, cols), np.nan)
+    x, y = grid.centres()
+    dist = np.hypot(x - goal_xy_m[0], y - goal_xy_m[1])
+    span = dist.max() - dist.min()
+    if span <= 1e-9:                                  # a single cell: nothing to rank
+        return np.full((rows, cols), LOW), dist
+    q = (dist - dist.min()) / span
+    return np.where(q < 1 / 3, LOW, np.where(q < 2 / 3, MEDIUM, HIGH)), dist
+
+
+def goal_in_robot_frame(goal_xy: tuple[float, float], robot_pose: tuple[float, float, float]) -> tuple[float, float]:
+    """World goal (x, y) -> robot frame, given the robot pose (x, y, yaw) in the world."""
+    dx, dy = goal_xy[0] - robot_pose[0], goal_xy[1] - robot_pose[1]
+    c, s = np.cos(robot_pose[2]), np.sin(robot_pose[2])
+    return float(c * dx + s * dy), float(-s * dx + c * dy)

@@ -1,0 +1,164 @@
+"""RGB-D scene flow: optical flow presets, ego-motion removal, depth holes, hard cases (synthetic ground truth)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from nodes.nav.flow import (PRESETS, DenseFlow, Intrinsics, Mount, OpticalFlow, depth_usable, ego_flow_prior,
+                            relative_motion, scene_flow)
+from sim.crowd import CrowdWorld
+from sim.crowd_render import CameraModel
+
+CAM = CameraModel(width_px=320, height_px=240, fx_px=262.5, fy_px=262.5, cx_px=159.5, cy_px=119.5)
+INTR = Intrinsics(CAM.fx_px, CAM.fy_px, CAM.cx_px, CAM.cy_px)
+MOUNT = Mount(CAM.x_m, CAM.y_m, CAM.z_m)
+ROOM = [{"points": [[-6, -6], [6, -6], [6, 6], [-6, 6], [-6, -6]], "height_m": 2.5}]
+DT = 1 / 15
+
+
+def texture(seed: int = 0, shape=(240, 320)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return cv2.GaussianBlur((rng.random(shape) * 255).astype(np.uint8), (0, 0), 2.0)
+
+
+def frames(scene: dict, cmd: tuple[float, float], *, warmup: int = 4, preset: str = "dis_fast", prior: bool = True):
+    """Two consecutive rendered frames and the scene flow between them, plus the world."""
+    world = CrowdWorld(scene, camera=CAM)
+    for _ in range(warmup):
+        world.step(*cmd, DT)
+    rgb0, d0 = world.render()
+    pose0 = world.pose
+    world.step(*cmd, DT)
+    rgb1, d1 = world.render()
+    motion = relative_motion(pose0, world.pose)
+    est = OpticalFlow(preset)
+    init = ego_flow_prior(d1, motion, INTR, MOUNT, est.processing_shape(d1.shape)) if prior else None
+    flow = est(rgb1, rgb0, prior=init)
+    return scene_flow(flow, d0, d1, motion, DT, INTR, MOUNT), world
+
+
+def in_robot_frame(world, xy):
+    x, y, yaw = world.pose
+    c, s = np.cos(yaw), np.sin(yaw)
+    d = np.asarray(xy) - (x, y)
+    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+
+
+def test_relative_motion():
+    assert relative_motion((1.0, 2.0, 0.0), (3.0, 2.0, 0.0)) == pytest.approx((2.0, 0.0, 0.0))
+    dx, dy, dyaw = relative_motion((0.0, 0.0, np.pi / 2), (0.0, 1.0, np.pi))
+    assert (dx, dy, dyaw) == pytest.approx((1.0, 0.0, np.pi / 2))
+    assert relative_motion((0, 0, 3.1), (0, 0, -3.1))[2] == pytest.approx(2 * np.pi - 6.2)   # wraps
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_identical_images_give_zero_flow_and_a_known_shift_is_recovered(preset):
+    est = OpticalFlow(preset)
+    img = texture()
+    assert np.abs(est(img, img).full()[20:-20, 20:-20]).max() < 0.05
+    shifted = np.roll(img, (2, 3), axis=(0, 1))          # img(y, x) = shifted(y + 2, x + 3)
+    f = est(img, shifted).full()[30:-30, 30:-30]
+    np.testing.assert_allclose(np.median(f.reshape(-1, 2), axis=0), [3.0, 2.0], atol=0.15)
+
+
+def test_half_scale_flow_is_reported_in_full_resolution_pixels():
+    img = texture()
+    shifted = np.roll(img, 4, axis=1)
+    flow = OpticalFlow("dis_medium", scale=0.5)(img, shifted)
+    assert flow.field.shape == (120, 160, 2)
+    np.testing.assert_allclose(np.median(flow.at(np.array([100, 160]), np.array([100, 120]))[:, 0]), 4.0, atol=0.3)
+    assert flow.full().shape == (240, 320, 2)
+
+
+def test_bad_arguments_say_what_to_do():
+    with pytest.raises(ValueError, match="choose one of"):
+        OpticalFlow("lucas_kanade")
+    with pytest.raises(ValueError, match="scale"):
+        OpticalFlow("dis_fast", scale=2.0)
+    with pytest.raises(ValueError, match="differ in size"):
+        OpticalFlow()(texture(), texture(shape=(100, 100)))
+    with pytest.raises(ValueError, match="CameraInfo"):
+        Intrinsics(0.0, 0.0, 1.0, 1.0)
+    flow = DenseFlow(np.zeros((240, 320, 2), np.float32), 1.0, (240, 320))
+    with pytest.raises(ValueError, match="dt_s"):
+        scene_flow(flow, np.ones((240, 320)), np.ones((240, 320)), (0, 0, 0), 0.0, INTR)
+
+
+@pytest.mark.parametrize("cmd", [(0.0, 0.9), (0.7, 0.0), (0.5, -0.6)])
+def test_static_world_gives_near_zero_velocity_whatever_the_robot_does(cmd):
+    sf, _ = frames({"name": "s", "walls": ROOM, "obstacles": [
+        {"cylinder": {"x_m": 3.0, "y_m": 0.6, "radius_m": 0.3}, "height_m": 2.0},
+        {"box": {"x_m": 4.0, "y_m": -1.5, "length_m": 1.0, "width_m": 1.0}, "height_m": 1.2}]}, cmd)
+    speed = np.linalg.norm(sf.velocity_mps, axis=1)
+    assert len(speed) > 1000
+    # not removing the turn would leave ~w * range = 3 m/s here; flow noise at 320x240 is ~0.05 m/s
+    assert np.median(speed) < 0.1 and np.percentile(speed, 90) < 0.35
+
+
+def test_pure_rotation_needs_the_ego_prior_for_farneback_but_not_for_dis():
+    scene = {"name": "s", "walls": ROOM}
+    fast_turn = (0.0, 1.2)
+    with_prior, _ = frames(scene, fast_turn, warmup=10, preset="farneback")
+    dis, _ = frames(scene, fast_turn, warmup=10, preset="dis_medium", prior=False)
+    for sf in (with_prior, dis):
+        assert np.median(np.linalg.norm(sf.velocity_mps, axis=1)) < 0.08
+
+
+def test_moving_and_standing_pedestrians_get_their_own_velocities_in_the_robot_frame():
+    scene = {"name": "p", "walls": ROOM, "pedestrian_model": "linear", "pedestrians": [
+        {"id": 1, "waypoints": [[3.5, -1.5], [3.5, 3.0]], "speed_mps": 1.0},
+        {"id": 2, "waypoints": [[2.5, 0.9]], "speed_mps": 0}]}
+    sf, world = frames(scene, (0.4, 0.3), warmup=6)
+    peds = world.pedestrians()
+    yaw = world.pose[2]
+    for k, pid in enumerate(peds.ids):
+        centre = in_robot_frame(world, peds.xy_m[k])
+        near = np.linalg.norm(sf.points_m[:, :2] - centre, axis=1) < 0.45
+        assert near.sum() > 100, pid
+        truth = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]]) @ peds.vel_mps[k]
+        np.testing.assert_allclose(np.median(sf.velocity_mps[near, :2], axis=0), truth, atol=0.1)
+        assert np.all(sf.points_m[near, 0] > 0)                               # ahead of the robot
+
+
+def test_depth_holes_zeros_nan_inf_and_negative_are_dropped_and_outputs_stay_finite():
+    world = CrowdWorld({"name": "h", "walls": ROOM}, camera=CAM)
+    rgb, depth = world.render()
+    bad = depth.copy()
+    rng = np.random.default_rng(1)
+    holes = rng.random(bad.shape)
+    bad[holes < 0.1] = 0.0
+    bad[(holes >= 0.1) & (holes < 0.2)] = np.nan
+    bad[(holes >= 0.2) & (holes < 0.25)] = np.inf
+    bad[(holes >= 0.25) & (holes < 0.3)] = -1.0
+    flow = OpticalFlow()(rgb, rgb)
+    sf = scene_flow(flow, bad, bad, (0.0, 0.0, 0.0), DT, INTR, MOUNT, edge_rel=0.0)
+    assert len(sf.points_m) > 100
+    assert np.all(np.isfinite(sf.points_m)) and np.all(np.isfinite(sf.velocity_mps))
+    u, v = sf.pixels[:, 0], sf.pixels[:, 1]
+    assert np.all(np.isfinite(bad[v, u]) & (bad[v, u] > 0))
+    assert np.abs(sf.velocity_mps).max() < 1e-3
+    everything_missing = np.full_like(depth, np.nan)
+    empty = scene_flow(flow, everything_missing, everything_missing, (0, 0, 0), DT, INTR, MOUNT)
+    assert empty.points_m.shape == (0, 3) and empty.velocity_mps.shape == (0, 3)
+
+
+def test_depth_edges_are_not_usable():
+    depth = np.full((50, 50), 5.0, np.float32)
+    depth[:, 25:] = 2.0
+    ok = depth_usable(depth, min_m=0.4, max_m=8.0, edge_rel=0.1, edge_px=2)
+    assert not ok[:, 23:27].any() and ok[:, :22].all() and ok[:, 28:].all()
+
+
+def test_ego_prior_is_the_true_flow_of_a_static_scene():
+    world = CrowdWorld({"name": "s", "walls": ROOM}, camera=CAM)
+    world.step(0.5, 0.5, 0.5)
+    rgb0, d0 = world.render()
+    pose0 = world.pose
+    world.step(0.5, 0.5, DT)
+    _, d1 = world.render()
+    motion = relative_motion(pose0, world.pose)
+    prior = ego_flow_prior(d1, motion, INTR, MOUNT, d1.shape)
+    sf = scene_flow(DenseFlow(prior, 1.0, d1.shape), d0, d1, motion, DT, INTR, MOUNT)
+    assert len(sf.points_m) > 1000
+    assert np.median(np.linalg.norm(sf.velocity_mps, axis=1)) < 0.02
