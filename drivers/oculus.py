@@ -24,8 +24,8 @@ import msgspec
 import numpy as np
 
 from drivers.oculus_protocol import (DATA_PORT, MSG_DUMMY, MSG_PING, MSG_STATUS, PING_RATES, STATUS_PORT,
-                                     FireSettings, Frame, PingResult, Problem, ProtocolError, StreamParser,
-                                     decode_ping, decode_status, encode_fire)
+                                     FireSettings, PingResult, ProtocolError, decode_ping, decode_status, encode_fire)
+from drivers.oculus_stream import Frame, Problem, StreamParser
 from msgs.sonar import SonarPing
 from tether import DriverError, Node
 

@@ -23,7 +23,8 @@ import msgspec
 import numpy as np
 
 from drivers.oculus import sonar_ping_from
-from drivers.oculus_protocol import MSG_PING, Frame, Header, ProtocolError, StreamParser, decode_ping
+from drivers.oculus_protocol import MSG_PING, Header, ProtocolError, decode_ping
+from drivers.oculus_stream import Frame, StreamParser
 from msgs.sonar import SonarPing
 
 log = logging.getLogger("tether.oculus_file")

@@ -40,8 +40,9 @@ import numpy as np
 
 from drivers.oculus import sonar_ping_from
 from drivers.oculus_protocol import (FLAG_NETWORK_TRIGGER, FLAG_RANGE_METRES, MSG_DUMMY, MSG_FIRE, PING_RATE_HZ,
-                                     PING_RATES, STANDBY, FireSettings, Frame, Header, StatusInfo, StreamParser,
-                                     decode_fire, decode_ping, encode_ping, encode_status)
+                                     PING_RATES, STANDBY, FireSettings, Header, StatusInfo, decode_fire, decode_ping,
+                                     encode_ping, encode_status)
+from drivers.oculus_stream import Frame, StreamParser
 from msgs.geometry import Pose3D
 from msgs.sensor import PointCloud
 from msgs.sonar import SonarPing

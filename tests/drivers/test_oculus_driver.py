@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from drivers.oculus import OculusSonar
-from drivers.oculus_protocol import (MSG_FIRE, FireSettings, Frame, StatusInfo, StreamParser, decode_fire,
-                                     encode_ping, encode_status)
+from drivers.oculus_protocol import MSG_FIRE, FireSettings, StatusInfo, decode_fire, encode_ping, encode_status
+from drivers.oculus_stream import Frame, StreamParser
 from tether.testing import Harness
 
 
@@ -72,7 +72,10 @@ class ScriptedSonar:
 
     def _read_fires(self, conn: socket.socket) -> None:
         parser = StreamParser(accept=(MSG_FIRE,))
-        conn.settimeout(0.05)
+        try:
+            conn.settimeout(0.05)
+        except OSError:                                          # already closed by the script
+            return
         while not self._stop.is_set():
             try:
                 data = conn.recv(4096)

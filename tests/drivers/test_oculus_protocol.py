@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from drivers.oculus_protocol import (FIRE_V1_SIZE, FIRE_V2_SIZE, FLAG_16BIT, FLAG_512_BEAMS, FLAG_ROW_GAIN,
-                                     MSG_DUMMY, MSG_PING, FireSettings, Frame, Header, Problem, ProtocolError,
-                                     StatusInfo, StreamParser, decode_fire, decode_ping, decode_status,
-                                     encode_fire, encode_ping, encode_status)
+                                     MSG_DUMMY, MSG_PING, FireSettings, Header, ProtocolError, StatusInfo,
+                                     decode_fire, decode_ping, decode_status, encode_fire, encode_ping, encode_status)
+from drivers.oculus_stream import Frame, Problem, StreamParser
 
 SAMPLES = "sonar/oculus-m1200d"
 

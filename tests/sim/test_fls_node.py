@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from drivers.oculus import OculusSonar
-from drivers.oculus_protocol import (FLAG_NETWORK_TRIGGER, MSG_DUMMY, MSG_PING, FireSettings, Frame, StreamParser,
-                                     decode_ping, encode_fire)
+from drivers.oculus_protocol import FLAG_NETWORK_TRIGGER, MSG_DUMMY, MSG_PING, FireSettings, decode_ping, encode_fire
+from drivers.oculus_stream import Frame, StreamParser
 from sim.fls import FlsSonar
 from tether.testing import Harness
 
