@@ -193,7 +193,7 @@ class OculusSonar(Node):
             self._sonar_ip = ip
             try:
                 self._session(ip)
-            except (OSError, DriverError) as exc:
+            except (OSError, ValueError, DriverError) as exc:    # ValueError: select on a socket closed under us
                 self._close()
                 if self.stopping.is_set():
                     break
