@@ -15,6 +15,22 @@ In-process API (no sockets; what ``bench/social_nav.py`` drives)::
     world.occupancy(0.1)                        # OccupancyGrid of walls and obstacles (rows = y, cols = x)
     world.t_s, world.scene.duration_s
 
+A closed loop in-process (sim -> perception -> planner -> sim), as ``bench/social_nav.py`` runs it::
+
+    from nodes.nav.flow import FlowTracker, Intrinsics, Mount
+    from nodes.nav.features import GridSpec, extract_features, goal_in_robot_frame
+    cam = world.camera
+    intr = Intrinsics(cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px)
+    tracker = FlowTracker(Mount(cam.x_m, cam.y_m, cam.z_m))          # what nodes.nav.rgbd_flow runs
+    while world.t_s < world.scene.duration_s and not world.goal_reached:
+        rgb, depth = world.render()
+        sf = tracker.update(world.t_s, rgb, depth, intr, world.pose)   # None on the first frame
+        if sf is not None:
+            feats = extract_features(sf.points_m, sf.velocity_mps,
+                                     goal_in_robot_frame(world.goal[:2], world.pose), GridSpec()).features
+            v, w = ...                                                # your planner on feats (robot frame)
+        world.step(v, w, 1 / 15)
+
 The robot is a unicycle: speed and yaw rate follow the commands within acceleration
 limits; a step that would put its disc (``radius_m``) into a wall or obstacle is refused
 (the robot stops there). Pedestrian contact is counted, not prevented. Simulated

@@ -272,7 +272,7 @@ class Renderer:
     def _background(self, background: np.ndarray, depth: np.ndarray, map_x: np.ndarray, map_y: np.ndarray,
                     cam_xy: np.ndarray, dirs: np.ndarray) -> None:
         """Fill floor (below the horizon) and sky pixels in place."""
-        tiles, cam, lo = self.atlas.tiles, self.camera, self._below
+        tiles, lo = self.atlas.tiles, self._below
         sky = tiles["sky"]
         up = background[:lo]
         np.copyto(depth[:lo], 0.0, where=up)

@@ -221,8 +221,11 @@ def _bilinear_depth(depth: np.ndarray, usable: np.ndarray, x: np.ndarray, y: np.
     y0 = np.clip(np.floor(y).astype(int), 0, h - 2)
     ax, ay = np.clip(x - x0, 0, 1), np.clip(y - y0, 0, 1)
     ok = inside & usable[y0, x0] & usable[y0, x0 + 1] & usable[y0 + 1, x0] & usable[y0 + 1, x0 + 1]
-    d = np.where(usable, depth, 0.0)
-    z = ((1 - ay) * ((1 - ax) * d[y0, x0] + ax * d[y0, x0 + 1]) + ay * ((1 - ax) * d[y0 + 1, x0] + ax * d[y0 + 1, x0 + 1]))
+    x0, y0, ax, ay = x0[ok], y0[ok], ax[ok], ay[ok]          # only gather where all four are usable
+    d00, d01 = depth[y0, x0].astype(np.float64), depth[y0, x0 + 1].astype(np.float64)
+    d10, d11 = depth[y0 + 1, x0].astype(np.float64), depth[y0 + 1, x0 + 1].astype(np.float64)
+    z = np.zeros(len(x), np.float64)
+    z[ok] = (1 - ay) * ((1 - ax) * d00 + ax * d01) + ay * ((1 - ax) * d10 + ax * d11)
     return z, ok
 
 
@@ -275,7 +278,7 @@ def scene_flow(flow_back: DenseFlow, depth_prev: np.ndarray, depth_cur: np.ndarr
     z_cur = depth_cur[v, u].astype(np.float64)
     f = flow_back.at(u, v).astype(np.float64)
     up, vp = u + f[:, 0], v + f[:, 1]
-    z_prev, ok = _bilinear_depth(np.asarray(depth_prev, np.float64), ok_prev, up, vp)
+    z_prev, ok = _bilinear_depth(np.asarray(depth_prev), ok_prev, up, vp)
     if not ok.any():
         return _empty()
     u, v, z_cur, up, vp, z_prev = u[ok], v[ok], z_cur[ok], up[ok], vp[ok], z_prev[ok]
@@ -294,3 +297,55 @@ def scene_flow(flow_back: DenseFlow, depth_prev: np.ndarray, depth_cur: np.ndarr
 
 def _empty() -> SceneFlow:
     return SceneFlow(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32), np.zeros((0, 2), np.int32))
+
+
+class FlowTracker:
+    """Frame-to-frame scene flow with state: feed RGB-D frames and robot poses, get :class:`SceneFlow`.
+
+    What the ``RgbdFlow`` node runs, usable in-process (benchmarks, closed loops)::
+
+        tracker = FlowTracker(Mount(0.3, 0.0, 1.0), preset="dis_fast")
+        for t_s, rgb, depth, pose in frames:                 # pose = robot (x, y, yaw) in the world, or None
+            sf = tracker.update(t_s, rgb, depth, intr, pose) # None for the first frame or after a gap
+    """
+
+    def __init__(self, mount: Mount = Mount(), *, preset: str = "dis_fast", scale: float = 1.0,
+                 ego_prior: bool = True, stride_px: int = 4, min_depth_m: float = 0.4, max_depth_m: float = 8.0,
+                 edge_rel: float = 0.1, max_speed_mps: float = 3.0, min_height_m: float = 0.15,
+                 max_height_m: float = 2.2, max_gap_s: float = 0.5) -> None:
+        self.mount, self.estimator, self.ego_prior = mount, OpticalFlow(preset, scale), ego_prior
+        self.stride_px, self.min_depth_m, self.max_depth_m, self.edge_rel = stride_px, min_depth_m, max_depth_m, edge_rel
+        self.max_speed_mps, self.min_height_m, self.max_height_m = max_speed_mps, min_height_m, max_height_m
+        self.max_gap_s = max_gap_s
+        self._prev: tuple[float, np.ndarray, np.ndarray, np.ndarray, tuple[float, float, float] | None] | None = None
+
+    def reset(self) -> None:
+        self._prev = None
+
+    def update(self, t_s: float, rgb: np.ndarray, depth: np.ndarray, intr: Intrinsics,
+               pose: tuple[float, float, float] | None = None, *,
+               motion: tuple[float, float, float] | None = None) -> SceneFlow | None:
+        """Scene flow from the previous frame to this one (robot frame of this frame), floor and ceiling cut.
+
+        Give the robot ``pose`` at this frame (world), or the ``motion`` since the previous
+        frame directly; with neither the robot is taken as static. Returns None for the
+        first frame, after a gap longer than ``max_gap_s`` or a change of image size.
+        """
+        depth = np.asarray(depth, dtype=np.float32)
+        grey = to_gray(rgb)
+        if grey.shape != depth.shape:
+            raise ValueError(f"colour {grey.shape} and depth {depth.shape} images differ in size")
+        usable = depth_usable(depth, min_m=self.min_depth_m, max_m=self.max_depth_m, edge_rel=self.edge_rel)
+        prev, self._prev = self._prev, (t_s, grey, depth, usable, pose)
+        if prev is None or prev[1].shape != grey.shape or not 0 < t_s - prev[0] <= self.max_gap_s:
+            return None
+        if motion is None:
+            motion = relative_motion(prev[4], pose) if prev[4] is not None and pose is not None else (0.0, 0.0, 0.0)
+        prior = (ego_flow_prior(depth, motion, intr, self.mount, self.estimator.processing_shape(depth.shape),
+                                far_m=self.max_depth_m) if self.ego_prior else None)
+        sf = scene_flow(self.estimator(grey, prev[1], prior=prior), prev[2], depth, motion, t_s - prev[0], intr,
+                        self.mount, stride_px=self.stride_px, min_depth_m=self.min_depth_m,
+                        max_depth_m=self.max_depth_m, edge_rel=self.edge_rel, max_speed_mps=self.max_speed_mps,
+                        usable_prev=prev[3], usable_cur=usable)
+        keep = (sf.points_m[:, 2] >= self.min_height_m) & (sf.points_m[:, 2] <= self.max_height_m)
+        return SceneFlow(sf.points_m[keep], sf.velocity_mps[keep], sf.pixels[keep])

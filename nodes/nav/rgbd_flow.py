@@ -10,8 +10,7 @@ import numpy as np
 from msgs.geometry import Odometry2D
 from msgs.nav import FlowPoints
 from msgs.sensor import RgbdFrame
-from nodes.nav.flow import (PRESETS, Intrinsics, Mount, OpticalFlow, depth_usable, ego_flow_prior, relative_motion,
-                            scene_flow, to_gray)
+from nodes.nav.flow import PRESETS, FlowTracker, Intrinsics, Mount, relative_motion
 from tether import Input, Node
 
 
@@ -45,10 +44,13 @@ class RgbdFlow(Node):
         cfg = self.config
         if cfg.method not in PRESETS:
             raise ValueError(f"unknown flow method {cfg.method!r}; choose one of {sorted(PRESETS)}")
-        self.estimator = OpticalFlow(cfg.method, cfg.scale)
-        self.mount = Mount(cfg.camera_x_m, cfg.camera_y_m, cfg.camera_z_m)
+        self.tracker = FlowTracker(Mount(cfg.camera_x_m, cfg.camera_y_m, cfg.camera_z_m), preset=cfg.method,
+                                   scale=cfg.scale, ego_prior=cfg.ego_prior, stride_px=cfg.stride_px,
+                                   min_depth_m=cfg.min_depth_m, max_depth_m=cfg.max_depth_m, edge_rel=cfg.edge_rel,
+                                   max_speed_mps=cfg.max_speed_mps, min_height_m=cfg.min_height_m,
+                                   max_height_m=cfg.max_height_m, max_gap_s=cfg.max_gap_s)
         self._odom: deque[tuple[int, float, float, float, float, float]] = deque(maxlen=400)
-        self._prev: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None   # stamp, grey, depth, usable
+        self._prev_stamp: int | None = None
         self._warned_no_odom = False
         self.bad_frames = 0
 
@@ -85,40 +87,31 @@ class RgbdFlow(Node):
         da = np.arctan2(np.sin(a1 - a0), np.cos(a1 - a0))
         return x0 + r * (x1 - x0), y0 + r * (y1 - y0), a0 + r * da
 
-    def _motion(self, t_prev: int, t_cur: int) -> tuple[float, float, float]:
-        a, b = self.pose_at(t_prev), self.pose_at(t_cur)
-        if a is None or b is None:
+    def _motion(self, t_prev: int | None, t_cur: int) -> tuple[float, float, float]:
+        a = self.pose_at(t_prev) if t_prev is not None else None
+        b = self.pose_at(t_cur)
+        if t_prev is not None and (a is None or b is None):
             if not self._warned_no_odom:
                 self.log.warning("no odometry around the frames: the robot's own motion is NOT removed")
                 self._warned_no_odom = True
+        if a is None or b is None:
             return 0.0, 0.0, 0.0
         return relative_motion(a, b)
 
     def on_rgbd(self, frame: RgbdFrame) -> dict[str, FlowPoints] | None:
-        cfg = self.config
         depth = np.asarray(frame.depth_m, dtype=np.float32)
-        if frame.rgb.shape[:2] != depth.shape or depth.ndim != 2 or frame.info.fx_px <= 0:
+        if frame.rgb.shape[:2] != depth.shape or depth.ndim != 2 or frame.info.fx_px <= 0 or frame.info.fy_px <= 0:
             self.bad_frames += 1
             self.log.error("dropped frame %d: rgb %s / depth %s / fx %s do not fit", frame.stamp_ns,
                            frame.rgb.shape, depth.shape, frame.info.fx_px)
             return None
         intr = Intrinsics(frame.info.fx_px, frame.info.fy_px, frame.info.cx_px, frame.info.cy_px)
-        grey = to_gray(frame.rgb)
-        usable = depth_usable(depth, min_m=cfg.min_depth_m, max_m=cfg.max_depth_m, edge_rel=cfg.edge_rel)
-        prev, self._prev = self._prev, (frame.stamp_ns, grey, depth, usable)
-        if prev is None or prev[1].shape != grey.shape:
+        prev_stamp, self._prev_stamp = self._prev_stamp, frame.stamp_ns
+        if prev_stamp is not None and not 0 < (frame.stamp_ns - prev_stamp) / 1e9 <= self.config.max_gap_s:
+            self.log.warning("frames %.3f s apart: restarting the flow", (frame.stamp_ns - prev_stamp) / 1e9)
+        sf = self.tracker.update(frame.stamp_ns / 1e9, frame.rgb, depth, intr,
+                                 motion=self._motion(prev_stamp, frame.stamp_ns))
+        if sf is None:
             return None
-        dt = (frame.stamp_ns - prev[0]) / 1e9
-        if not 0 < dt <= cfg.max_gap_s:
-            self.log.warning("frames %.3f s apart: restarting the flow", dt)
-            return None
-        motion = self._motion(prev[0], frame.stamp_ns)
-        prior = (ego_flow_prior(depth, motion, intr, self.mount, self.estimator.processing_shape(depth.shape),
-                                far_m=cfg.max_depth_m) if cfg.ego_prior else None)
-        flow = self.estimator(grey, prev[1], prior=prior)
-        sf = scene_flow(flow, prev[2], depth, motion, dt, intr, self.mount, stride_px=cfg.stride_px,
-                        min_depth_m=cfg.min_depth_m, max_depth_m=cfg.max_depth_m, edge_rel=cfg.edge_rel,
-                        max_speed_mps=cfg.max_speed_mps, usable_prev=prev[3], usable_cur=usable)
-        keep = (sf.points_m[:, 2] >= cfg.min_height_m) & (sf.points_m[:, 2] <= cfg.max_height_m)
-        return {"flow": FlowPoints(stamp_ns=frame.stamp_ns, frame_id=cfg.frame_id, points_m=sf.points_m[keep],
-                                   velocity_mps=sf.velocity_mps[keep])}
+        return {"flow": FlowPoints(stamp_ns=frame.stamp_ns, frame_id=self.config.frame_id, points_m=sf.points_m,
+                                   velocity_mps=sf.velocity_mps)}

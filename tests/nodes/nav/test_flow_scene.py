@@ -162,3 +162,19 @@ def test_ego_prior_is_the_true_flow_of_a_static_scene():
     sf = scene_flow(DenseFlow(prior, 1.0, d1.shape), d0, d1, motion, DT, INTR, MOUNT)
     assert len(sf.points_m) > 1000
     assert np.median(np.linalg.norm(sf.velocity_mps, axis=1)) < 0.02
+
+
+def test_flow_tracker_keeps_state_between_frames_and_restarts_after_a_gap():
+    from nodes.nav.flow import FlowTracker
+    world = CrowdWorld({"name": "s", "walls": ROOM}, camera=CAM)
+    tracker = FlowTracker(MOUNT)
+    rgb, depth = world.render()
+    assert tracker.update(0.0, rgb, depth, INTR, world.pose) is None            # first frame
+    world.step(0.5, 0.4, DT)
+    rgb, depth = world.render()
+    sf = tracker.update(DT, rgb, depth, INTR, world.pose)
+    assert sf is not None and len(sf.points_m) > 500
+    assert sf.points_m[:, 2].min() >= 0.15 and np.median(np.linalg.norm(sf.velocity_mps, axis=1)) < 0.1
+    assert tracker.update(DT + 2.0, rgb, depth, INTR, world.pose) is None      # 2 s later: restart
+    with pytest.raises(ValueError, match="differ in size"):
+        tracker.update(3.0, rgb[:10], depth, INTR)

@@ -1,0 +1,244 @@
+"""RGB-D flow benchmark: flow method and resolution vs end-point error vs ms per frame; perception rate.
+
+(a) Synthetic warps with known flow on a rendered 640x480 crowd image: a smooth field
+    (turn + zoom + local waves, up to ~12 px) and a piecewise one (background shift plus
+    moving blobs with sharp borders). End-point error (px, mean over interior pixels) and
+    ms per frame for Farneback presets (the paper's method) vs DIS presets (cv2), at full and
+    reduced resolution, side by side; OpenCV's TV-L1 as a slow accuracy reference (full run).
+(b) Scene-flow velocity error (m/s) on the crowd simulator (hallway, robot driving and
+    turning), per method: a point's truth is its pedestrian's velocity (points within the
+    body radius) or zero; medians on pedestrian points and on static points.
+(c) Perception rate at 640x480: render + flow + features per frame (the default node setup).
+
+    python bench/nav_flow.py [--quick] [--json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from nodes.nav.features import GridSpec, extract_features, goal_in_robot_frame  # noqa: E402
+from nodes.nav.flow import FlowTracker, Intrinsics, Mount, OpticalFlow, to_gray  # noqa: E402
+from sim.crowd import CrowdWorld  # noqa: E402
+
+DT = 1 / 15
+
+
+def base_image() -> np.ndarray:
+    world = CrowdWorld("hallway")
+    world.step(0.5, 0.0, 3.0)
+    return to_gray(world.render()[0])
+
+
+def smooth_field(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    cx, cy = w / 2, h / 2
+    a, zoom = rng.uniform(-0.01, 0.01), rng.uniform(-0.02, 0.02)
+    fx = rng.uniform(-4, 4) + zoom * (x - cx) - a * (y - cy) + 3 * np.sin(2 * np.pi * y / 180 + rng.uniform(0, 6))
+    fy = rng.uniform(-2, 2) + zoom * (y - cy) + a * (x - cx) + 2 * np.cos(2 * np.pi * x / 240 + rng.uniform(0, 6))
+    return np.stack([fx, fy], axis=2).astype(np.float32)
+
+
+def piecewise_field(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    field = np.zeros((h, w, 2), np.float32)
+    field[..., 0] = rng.uniform(-6, 6)
+    y, x = np.mgrid[0:h, 0:w]
+    for _ in range(5):
+        cx, cy, rx, ry = rng.uniform(80, w - 80), rng.uniform(100, h - 60), rng.uniform(25, 60), rng.uniform(60, 150)
+        inside = ((x - cx) / rx) ** 2 + ((y - cy) / ry) ** 2 < 1
+        field[inside] = rng.uniform(-8, 8, 2)
+    return field
+
+
+def warp_pairs(quick: bool) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(first, second, truth) with first(q) = second(q + truth(q)), i.e. truth is the flow first -> second."""
+    img = base_image()
+    h, w = img.shape
+    rng = np.random.default_rng(4)
+    pairs = []
+    for make in (smooth_field, piecewise_field) * (1 if quick else 2):
+        g = make(h, w, rng)
+        y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+        second = cv2.remap(img, x - g[..., 0], y - g[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        pairs.append((second, img, -g))        # second(q) = img(q - g(q)): flow second -> img is -g
+    return pairs
+
+
+def epe_table(methods: list[tuple[str, float]], pairs, repeats: int) -> dict[str, tuple[float, float]]:
+    """Mean EPE (px) and median ms per method; methods are timed round-robin so load hits all alike."""
+    ests = {f"{p}@{s:g}": OpticalFlow(p, s) for p, s in methods}
+    times: dict[str, list[float]] = {k: [] for k in ests}
+    errs: dict[str, list[float]] = {k: [] for k in ests}
+    border = 16
+    for first, second, truth in pairs:
+        for name, est in ests.items():
+            flow = est(first, second)                # warm-up and the accuracy sample
+            err = np.linalg.norm(flow.full() - truth, axis=2)[border:-border, border:-border]
+            errs[name].append(float(err.mean()))
+        for _ in range(repeats):
+            for name, est in ests.items():
+                t = time.perf_counter()
+                est(first, second)
+                times[name].append(time.perf_counter() - t)
+    return {k: (float(np.mean(errs[k])), 1e3 * float(np.median(times[k]))) for k in ests}
+
+
+def tvl1_reference(pairs) -> tuple[float, float]:
+    tvl1 = cv2.optflow.DualTVL1OpticalFlow_create()
+    first, second, truth = pairs[0]
+    t = time.perf_counter()
+    flow = tvl1.calc(first, second, None)
+    ms = 1e3 * (time.perf_counter() - t)
+    return float(np.linalg.norm(flow - truth, axis=2)[16:-16, 16:-16].mean()), ms
+
+
+def velocity_errors(methods: list[tuple[str, float]], frames: int) -> dict[str, tuple[float, float]]:
+    """Median |v_est - v_true| (m/s, xy) on pedestrian points and on static points of a hallway drive."""
+    world = CrowdWorld("hallway")
+    world.step(0.5, 0.0, 2.0)
+    recs = []
+    for _ in range(frames + 1):
+        rgb, depth = world.render()
+        recs.append((world.t_s, rgb, depth, world.pose, world.pedestrians()))
+        world.step(0.5, 0.15, DT)
+    cam = world.camera
+    intr, mount = Intrinsics(cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px), Mount(cam.x_m, cam.y_m, cam.z_m)
+    out = {}
+    for preset, scale in methods:
+        tracker = FlowTracker(mount, preset=preset, scale=scale)
+        moving, still = [], []
+        for t, rgb, depth, pose, peds in recs:
+            sf = tracker.update(t, rgb, depth, intr, pose)
+            if sf is None:
+                continue
+            truth, on_ped = true_velocity(sf.points_m, pose, peds)
+            err = np.linalg.norm(sf.velocity_mps[:, :2] - truth, axis=1)
+            moving.append(err[on_ped])
+            still.append(err[~on_ped])
+        out[f"{preset}@{scale:g}"] = (float(np.median(np.concatenate(moving))), float(np.median(np.concatenate(still))))
+    return out
+
+
+def true_velocity(points: np.ndarray, pose, peds) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth (vx, vy) in the robot frame of each point (its pedestrian's velocity, else 0), and on-pedestrian mask."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    rot = np.array([[c, s], [-s, c]])                    # world -> robot
+    truth = np.zeros((len(points), 2))
+    on_ped = np.zeros(len(points), bool)
+    for k in range(len(peds.ids)):
+        centre = rot @ (peds.xy_m[k] - np.asarray(pose[:2]))
+        near = np.linalg.norm(points[:, :2] - centre, axis=1) < peds.radius_m[k] + 0.05
+        truth[near] = rot @ peds.vel_mps[k]
+        on_ped |= near
+    return truth, on_ped
+
+
+def perception_rate(frames: int, preset: str = "dis_fast", scale: float = 1.0) -> dict[str, float]:
+    """Median ms per stage of render -> flow (FlowTracker, what RgbdFlow runs) -> features on a hallway drive."""
+    world = CrowdWorld("hallway")
+    cam = world.camera
+    intr = Intrinsics(cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px)
+    tracker = FlowTracker(Mount(cam.x_m, cam.y_m, cam.z_m), preset=preset, scale=scale)
+    grid = GridSpec()
+    stages: dict[str, list[float]] = {"render": [], "flow": [], "features": [], "total": [], "total_cpu": []}
+    for _ in range(frames + 1):
+        world.step(0.6, 0.1, DT)
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        rgb, depth = world.render()
+        t1 = time.perf_counter()
+        sf = tracker.update(world.t_s, rgb, depth, intr, world.pose)
+        t2 = time.perf_counter()
+        if sf is None:
+            continue
+        extract_features(sf.points_m, sf.velocity_mps, goal_in_robot_frame(world.goal[:2], world.pose), grid)
+        t3 = time.perf_counter()
+        stages["total_cpu"].append(1e3 * (time.process_time() - c0))     # all threads: load-independent-ish
+        for k, v in (("render", t1 - t0), ("flow", t2 - t1), ("features", t3 - t2), ("total", t3 - t0)):
+            stages[k].append(1e3 * v)
+    return {k: float(np.median(v)) for k, v in stages.items()}
+
+
+def plot(table: dict[str, tuple[float, float]], ref: tuple[float, float] | None, stages: dict[str, float],
+         path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5), gridspec_kw={"width_ratios": [2, 1]})
+    for name, (epe, ms) in table.items():
+        colour = "tab:red" if name.startswith("farneback") else "tab:blue"
+        ax.scatter(ms, epe, c=colour, marker="o" if name.endswith("@1") else "s")
+        ax.annotate(name, (ms, epe), fontsize=8, xytext=(4, 3), textcoords="offset points")
+    if ref is not None:
+        ax.scatter(ref[1], ref[0], c="k", marker="*", s=90)
+        ax.annotate("tv-l1 (reference)", (ref[1], ref[0]), fontsize=8, xytext=(4, 3), textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_xlabel("ms per frame (640x480, log)")
+    ax.set_ylabel("mean end-point error (px)")
+    ax.set_title("optical flow: time vs error (red Farneback, blue DIS; circle full res, square reduced)")
+    ax.grid(True, which="both", alpha=0.3)
+    names = ["render", "flow", "features"]
+    bx.bar(names, [stages[n] for n in names], color=["tab:gray", "tab:blue", "tab:green"])
+    bx.set_ylabel("ms per frame (median)")
+    bx.set_title(f"perception at 640x480: {1e3 / stages['total']:.1f} Hz")
+    fig.tight_layout()
+    path.parent.mkdir(exist_ok=True)
+    fig.savefig(path, dpi=90)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer methods, warps and frames")
+    ap.add_argument("--json", action="store_true", help="print one JSON object with the headline figures")
+    args = ap.parse_args()
+    cv2.setRNGSeed(0)
+    if args.quick:
+        methods = [("farneback", 1.0), ("farneback", 0.5), ("dis_fast", 1.0), ("dis_medium", 1.0), ("dis_fast", 0.5)]
+    else:
+        methods = [(p, s) for s in (1.0, 0.5) for p in ("farneback_fast", "farneback", "farneback_accurate",
+                                                        "dis_ultrafast", "dis_fast", "dis_medium")]
+    pairs = warp_pairs(args.quick)
+    table = epe_table(methods, pairs, repeats=2 if args.quick else 5)
+    ref = None if args.quick else tvl1_reference(pairs)
+    vel = velocity_errors(methods, frames=4 if args.quick else 12)
+    stages = perception_rate(frames=15 if args.quick else 60)
+    plot(table, ref, stages, REPO / "out" / "nav_flow.png")
+    hz = 1e3 / stages["total"]
+    if args.json:
+        print(json.dumps({"flow_epe_px": {k: round(v[0], 4) for k, v in table.items()},
+                          "flow_ms": {k: round(v[1], 2) for k, v in table.items()},
+                          "velocity_err_mps": {k: round(v[0], 4) for k, v in vel.items()},
+                          "static_velocity_err_mps": {k: round(v[1], 4) for k, v in vel.items()},
+                          "perception_hz": round(hz, 2),
+                          "perception_ms": {k: round(v, 2) for k, v in stages.items()},
+                          "load_average": round(os.getloadavg()[0], 2)}))
+        return
+    fb = table.get("farneback@1")
+    print(f"{'method@scale':22s} {'EPE px':>8s} {'ms/frame':>9s} {'vs farneback@1':>15s} "
+          f"{'ped vel err':>12s} {'static err':>11s}  (m/s, medians)")
+    for name, (epe, ms) in sorted(table.items(), key=lambda kv: kv[1][1]):
+        speedup = f"{fb[1] / ms:6.1f}x faster" if fb else ""
+        print(f"{name:22s} {epe:8.3f} {ms:9.2f} {speedup:>15s} {vel[name][0]:12.3f} {vel[name][1]:11.3f}")
+    if ref is not None:
+        print(f"{'tv-l1@1 (reference)':22s} {ref[0]:8.3f} {ref[1]:9.1f}")
+    print(f"perception at 640x480 (render + dis_fast flow + features): {hz:.1f} Hz wall clock; median ms "
+          + ", ".join(f"{k} {v:.1f}" for k, v in stages.items()))
+    if os.getloadavg()[0] > os.cpu_count():
+        print(f"note: load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores while measuring; "
+              "times are inflated, compare ratios")
+    print("plot: out/nav_flow.png")
+
+
+if __name__ == "__main__":
+    main()
