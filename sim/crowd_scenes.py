@@ -321,7 +321,6 @@ class Walkers:
         self.height = np.array([p.height_m for p in specs], float)
         self.speed = np.array([p.speed_mps for p in specs], float)
         self.start_s = np.array([p.start_s for p in specs], float)
-        self.static = self.speed == 0
         self.tracks = tracks
         if scene.replay is not None and tracks is None:
             from sim.pedestrian_data import load_tracks
@@ -337,6 +336,7 @@ class Walkers:
         self.direction = np.ones(len(specs), int)
         self.v0 = self.speed.copy()
         self.present = self.start_s <= 0.0
+        self.static = self.speed == 0
 
     def step(self, t_s: float, dt: float, robot: tuple[float, ...] | None) -> None:
         """Advance from ``t_s`` by ``dt``; ``robot`` = (x, y, vx, vy, radius) when pedestrians should avoid it."""
@@ -357,6 +357,10 @@ class Walkers:
                                      np.column_stack([rep_xy, rep_r, rep_vel])])
             acc = self.force.acceleration(self.xy, self.vel, self.v0, goal, self.radius, others, self.scene, robot)
             vel = self.vel + acc * dt
+            to_goal = goal - self.xy
+            e = to_goal / np.maximum(np.linalg.norm(to_goal, axis=1, keepdims=True), 1e-9)
+            back = np.minimum(np.sum(vel * e, axis=1), 0.0)
+            vel -= back[:, None] * e                  # people side-step or stop; they do not walk backwards
             cap = self.force.max_speed_factor * np.maximum(self.speed, 0.1)
             norm = np.linalg.norm(vel, axis=1)
             vel *= np.minimum(1.0, cap / np.maximum(norm, 1e-9))[:, None]
@@ -394,7 +398,8 @@ class Walkers:
                 self.xy[i], self.vel[i] = wps[0], 0.0
                 self.target[i], self.direction[i] = min(1, len(wps) - 1), 1
             else:
-                self.v0[i] = 0.0                          # stand at the goal
+                self.v0[i], self.vel[i] = 0.0, 0.0        # stand at the goal, and stay there
+                self.static[i] = True
 
     def replayed(self) -> tuple[np.ndarray, ...]:
         """Replayed pedestrians inside the scene bounds now: ids, xy (M, 2), vel (M, 2), radius, height."""

@@ -313,6 +313,8 @@ class FlowTracker:
                  ego_prior: bool = True, stride_px: int = 4, min_depth_m: float = 0.4, max_depth_m: float = 8.0,
                  edge_rel: float = 0.1, max_speed_mps: float = 3.0, min_height_m: float = 0.15,
                  max_height_m: float = 2.2, max_gap_s: float = 0.5) -> None:
+        if stride_px < 1 or not 0 <= min_depth_m < max_depth_m or max_gap_s <= 0:
+            raise ValueError("need stride_px >= 1, 0 <= min_depth_m < max_depth_m and max_gap_s > 0")
         self.mount, self.estimator, self.ego_prior = mount, OpticalFlow(preset, scale), ego_prior
         self.stride_px, self.min_depth_m, self.max_depth_m, self.edge_rel = stride_px, min_depth_m, max_depth_m, edge_rel
         self.max_speed_mps, self.min_height_m, self.max_height_m = max_speed_mps, min_height_m, max_height_m
