@@ -45,7 +45,11 @@ def run_spec(spec: RunSpec, *, install_signals: bool = True) -> int:
             runtime.stop()
         signal.signal(signal.SIGTERM, on_signal)
         signal.signal(signal.SIGINT, on_signal)
-    return runtime.serve()
+    code = runtime.serve()
+    # Terminate ZeroMQ before the interpreter tears objects down: zero-copy frames still queued
+    # (within the linger time) must not outlive the buffers they point into.
+    runtime.ctx.term()
+    return code
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,75 @@
+"""Localisation metrics and pictures for the sonar pipeline (pure: arrays in, numbers and PNGs out)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+
+def pose_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Translation error (m) and heading error (rad, wrapped to [0, pi]) between two 4x4 poses."""
+    dt = float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
+    # Heading of the boresight (x axis) projected on the horizontal plane; arctan2, not arctan.
+    he = math.atan2(estimate[1, 0], estimate[0, 0])
+    ht = math.atan2(truth[1, 0], truth[0, 0])
+    return dt, abs(math.remainder(he - ht, 2 * math.pi))
+
+
+def nearest(stamps: np.ndarray, stamp: int) -> int:
+    """Index of the stamp closest to ``stamp`` (``stamps`` sorted ascending, non-empty)."""
+    i = int(np.searchsorted(stamps, stamp))
+    if i == 0:
+        return 0
+    if i == len(stamps):
+        return len(stamps) - 1
+    return i if stamps[i] - stamp < stamp - stamps[i - 1] else i - 1
+
+
+def save_fan_png(path: str | Path, image: np.ndarray, m_per_px: float, origin_row: float, origin_col: float,
+                 title: str = "") -> None:
+    """The Cartesian fan with metric axes (x starboard, y ahead)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    h, w = image.shape
+    extent = (-origin_col * m_per_px, (w - origin_col) * m_per_px, (origin_row - h) * m_per_px, origin_row * m_per_px)
+    fig, ax = plt.subplots(figsize=(7, 5.5))
+    ax.imshow(image, cmap="copper", extent=extent, origin="upper", interpolation="nearest")
+    ax.set_xlabel("starboard (m)")
+    ax.set_ylabel("ahead (m)")
+    ax.set_title(title or "sonar fan")
+    ax.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def save_cloud_png(path: str | Path, cloud: np.ndarray, model: np.ndarray, corrected: np.ndarray | None = None,
+                   title: str = "") -> None:
+    """Top and side views of the accumulated cloud (raw and ICP-corrected) over the structure model."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rng = np.random.default_rng(0)
+    def thin(p: np.ndarray, n: int = 20000) -> np.ndarray:
+        return p if len(p) <= n else p[rng.choice(len(p), n, replace=False)]
+
+    cloud, model = thin(cloud), thin(model)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+    for ax, (i, j, xl, yl) in zip(axes, [(0, 1, "x east (m)", "y north (m)"), (0, 2, "x east (m)", "z up (m)")]):
+        ax.scatter(model[:, i], model[:, j], s=1, c="0.6", label="structure model")
+        ax.scatter(cloud[:, i], cloud[:, j], s=1, c="tab:red", alpha=0.4, label="cloud (navigation pose)")
+        if corrected is not None and len(corrected):
+            c = thin(corrected)
+            ax.scatter(c[:, i], c[:, j], s=1, c="tab:blue", alpha=0.4, label="cloud after ICP")
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.set_aspect("equal")
+    axes[0].legend(loc="upper right", markerscale=8, fontsize=8)
+    fig.suptitle(title or "highlight cloud over the structure model")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
