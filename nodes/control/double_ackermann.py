@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple, Sequence
 
-from nodes.control.kinematics import (Limits, Wheels, predict_pose, s_from_wheels, shape_command, steer_targets,
+from nodes.control.kinematics import (Limits, Wheels, initial_wheels, predict_pose, s_from_wheels, shape_command, steer_targets,
                                       wheel_rates, world_from_s, wrap_angle)
 
 Vec3 = Sequence[float]
@@ -160,11 +160,12 @@ class Controller:
         self.wheelbase_m, self.limits, self.k_p, self.k_s, self.lead_s = wheelbase_m, limits, k_p, k_s, lead_s
         self.prev: Wheels | None = None
         self._aim: tuple[float, float] | None = None     # last steer targets (branch hysteresis)
+        self._fresh = True                                # at standstill: next motion picks the forward branch
         self.status = "idle"
         self.u: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
 
     def reset(self) -> None:
-        self.prev, self._aim, self.status = None, None, "idle"
+        self.prev, self._aim, self._fresh, self.status = None, None, True, "idle"
 
     def lead(self, dt: float) -> float:
         """Lead time T: half a zero-order-hold period plus the modelled lag and latency."""
@@ -181,6 +182,11 @@ class Controller:
             return self.stop(wheels, "singular")
         prev = self.prev if self.prev is not None else Wheels(0.0, 0.0, 0.0, 0.0)
         aim = self._aim if self._aim is not None else (prev.delta_front, prev.delta_rear)
+        if self._fresh:     # starting from standstill: take the forward branch (see kinematics.initial_wheels)
+            fwd = initial_wheels(desired[0], self.limits.steer_limit_rad)
+            aim = (fwd.delta_front if fwd.v_front else aim[0], fwd.delta_rear if fwd.v_rear else aim[1])
+            self._fresh = math.hypot(desired[0][0], max(abs(desired[0][1]), abs(desired[0][2]))) \
+                < self.limits.v_gate_mps
         self._aim = steer_targets(desired[0], desired[1], aim, self.limits)
         cmd = shape_command(desired[0], desired[1], self.prev, self.limits, dt, aim=self._aim)
         if not _finite(cmd):
@@ -193,7 +199,7 @@ class Controller:
         hold = self.prev if self.prev is not None else wheels
         df = hold.delta_front if hold is not None and math.isfinite(hold.delta_front) else 0.0
         db = hold.delta_rear if hold is not None and math.isfinite(hold.delta_rear) else 0.0
-        self.prev, self._aim, self.status = Wheels(0.0, df, 0.0, db), (df, db), why
+        self.prev, self._aim, self._fresh, self.status = Wheels(0.0, df, 0.0, db), (df, db), True, why
         return self.prev
 
     def desired(self, ref: RefPoint, pose: Vec3, wheels: Wheels, dt: float):

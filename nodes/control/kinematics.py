@@ -92,27 +92,36 @@ def world_from_s(theta: float, s: tuple[float, float, float],
     return c * v_tan - sn * vy, sn * v_tan + c * vy, (lat_f - lat_b) / wheelbase_m
 
 
-def choose_steer(tangential: float, lateral: float, prev_delta: float, steer_limit_rad: float) -> tuple[float, float]:
+def choose_steer(tangential: float, lateral: float, prev_delta: float, steer_limit_rad: float, *,
+                 clamp_margin_rad: float = 0.0) -> tuple[float, float]:
     """Steer angle and signed speed realising the wheel vector (tangential, lateral).
 
     A wheel vector is reached with ``(v, delta)`` or ``(-v, delta + pi)``; the branch
     nearest ``prev_delta`` inside ``[-steer_limit_rad, steer_limit_rad]`` is taken, so the
     wheel reverses instead of swinging half a turn, and the steer angle is unwrapped
     (no jump at +-pi).  Needs ``steer_limit_rad >= pi/2`` so a branch always exists.
+    If the nearest branch lies at most ``clamp_margin_rad`` beyond the stop, the angle is
+    clamped at the stop (speed: the vector's projection on the wheel) instead of starting
+    a half-turn flip: transients that graze the stop do not flip the wheel.
     """
     speed = math.hypot(tangential, lateral)
     base = math.atan2(lateral, tangential)
     k0 = round((prev_delta - base) / math.pi)
-    best = None
+    best = nearest = None
     for k in (k0 - 1, k0, k0 + 1, k0 + 2, k0 - 2):
         cand = base + k * math.pi
+        cost = abs(cand - prev_delta) + (1e-9 if k % 2 else 0.0)     # ties (e.g. 0 -> +-pi/2): drive forward
+        if nearest is None or cost < nearest[0]:
+            nearest = (cost, cand)
         if abs(cand) > steer_limit_rad + 1e-12:
             continue
-        cost = abs(cand - prev_delta) + (1e-9 if k % 2 else 0.0)     # ties (e.g. 0 -> +-pi/2): drive forward
         if best is None or cost < best[0]:
             best = (cost, cand, speed if k % 2 == 0 else -speed)
-    if best is None:  # only when steer_limit_rad < pi/2: clamp, and drive along the clamped angle
-        cand = max(-steer_limit_rad, min(steer_limit_rad, base))
+    if best is None or (nearest is not None and abs(nearest[1]) - steer_limit_rad <= clamp_margin_rad
+                        and nearest[1] != best[1]):
+        # clamp at the stop (also the only way out when steer_limit_rad < pi/2)
+        cand = math.copysign(steer_limit_rad, nearest[1]) if best is not None else \
+            max(-steer_limit_rad, min(steer_limit_rad, base))
         return cand, tangential * math.cos(cand) + lateral * math.sin(cand)
     return best[1], best[2]
 
@@ -140,6 +149,8 @@ class Limits(NamedTuple):
     steer_rate_radps, wheel_accel_mps2, wheel_speed_mps : per-axle rate / acceleration / speed bounds.
     v_gate_mps : below this wheel speed the steer angle is not derived from the (ill-defined)
         wheel-vector direction: it follows the acceleration hint, or is held.
+    clamp_margin_rad : a wanted angle up to this far beyond the stop is clamped rather than
+        flipped by half a turn (see :func:`choose_steer`).
     """
 
     steer_limit_rad: float = 2.5
@@ -147,15 +158,17 @@ class Limits(NamedTuple):
     wheel_accel_mps2: float = 2.0
     wheel_speed_mps: float = 2.0
     v_gate_mps: float = 0.01
+    clamp_margin_rad: float = 0.35
 
 
 def _axle_angle(tan: float, lat: float, hint_tan: float, hint_lat: float, prev_delta: float,
                 limits: Limits) -> float:
     """Desired steer angle of one axle (before rate limiting), gated at low speed."""
     if math.hypot(tan, lat) >= limits.v_gate_mps:
-        return choose_steer(tan, lat, prev_delta, limits.steer_limit_rad)[0]
+        return choose_steer(tan, lat, prev_delta, limits.steer_limit_rad, clamp_margin_rad=limits.clamp_margin_rad)[0]
     if math.hypot(hint_tan, hint_lat) > 1e-9:      # about to move: pre-steer along the acceleration
-        return choose_steer(hint_tan, hint_lat, prev_delta, limits.steer_limit_rad)[0]
+        return choose_steer(hint_tan, hint_lat, prev_delta, limits.steer_limit_rad,
+                            clamp_margin_rad=limits.clamp_margin_rad)[0]
     return prev_delta                               # at rest: hold the steering
 
 

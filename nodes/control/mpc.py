@@ -16,13 +16,15 @@ without one it is extrapolated from the current point at constant acceleration.
 """
 from __future__ import annotations
 
+import math
+from collections import deque
 from typing import Callable
 
 import casadi as ca
 import numpy as np
 
 from nodes.control.double_ackermann import Controller, RefPoint
-from nodes.control.kinematics import s_from_wheels
+from nodes.control.kinematics import predict_pose, s_from_wheels
 
 Preview = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -87,14 +89,15 @@ class MpcController(Controller):
         self._solver: ca.Function | None = None
         self._h = 0.0
         self._warm: dict | None = None
-        self._a_prev = np.zeros(3)
+        self._sent: deque = deque()
         self.preview: Preview | None = None
         self.solve_ok = 0
         self.solve_fail = 0
 
     def reset(self) -> None:
         super().reset()
-        self._warm, self._a_prev, self.preview = None, np.zeros(3), None
+        self._warm, self.preview = None, None
+        self._sent.clear()
 
     def _ensure(self, dt: float) -> None:
         h = self.step_s if self.step_s is not None else dt
@@ -107,7 +110,12 @@ class MpcController(Controller):
     def desired(self, ref, pose, wheels, dt):
         self._ensure(dt)
         N, h = self.horizon, self._h
-        tau = h * np.arange(N + 1)
+        # Delay compensation: the setpoint takes effect lead_s from now (latency, ~drive lag), while the
+        # previous one still runs; plan from the pose predicted that far ahead, against the reference then.
+        lead = self.lead_s if self.prev is not None else 0.0
+        if lead > 0.0:
+            pose = self._predict_through_sent(tuple(pose), lead, dt)
+        tau = lead + h * np.arange(N + 1)
         pr, dpr = (self.preview or taylor_preview(ref))(tau)
         pr, dpr = np.array(pr, dtype=float), np.asarray(dpr, dtype=float)
         th = pose[2]
@@ -124,10 +132,12 @@ class MpcController(Controller):
                     lbx=b["lbx"], ubx=b["ubx"], lbg=b["lbg"], ubg=b["ubg"])
         args.update(self._warm_start(p0, sprev))
         sol = self._solver(**args)
-        if self._solver.stats().get("success", False):
-            self.solve_ok += 1
+        status = self._solver.stats().get("return_status", "")
+        if self._solver.stats().get("success", False) or status == "Maximum_iterations_exceeded":
+            self.solve_ok += 1          # a capped SQP (real-time iteration style) is the intended use
         else:
             self.solve_fail += 1
+            self.log_status = status
         x = np.asarray(sol["x"]).ravel()
         if not np.all(np.isfinite(x)):
             self._warm = None
@@ -135,8 +145,20 @@ class MpcController(Controller):
         self._warm = {"x": x, "lam_x": np.asarray(sol["lam_x"]).ravel(), "lam_g": np.asarray(sol["lam_g"]).ravel()}
         S = x[b["npose"]:].reshape(N, 3)
         rate = (S[1] - S[0]) / h if N > 1 else np.zeros(3)
-        s_cmd = S[0] + self.lead_s * rate               # extra lead for drive lag / latency beyond the ZOH
-        return tuple(float(v) for v in s_cmd), tuple(float(v) for v in rate)
+        return tuple(float(v) for v in S[0]), tuple(float(v) for v in rate)
+
+    def _predict_through_sent(self, pose: tuple, lead: float, dt: float) -> tuple:
+        """Dead-reckon ``lead`` s ahead through the setpoints already sent (sent at t - m dt, active from + lead)."""
+        self._sent.appendleft(self.prev)                       # _sent[m-1] was sent m ticks ago
+        while len(self._sent) > int(math.ceil(lead / dt - 1e-9)) + 1:
+            self._sent.pop()
+        for m in range(len(self._sent), 0, -1):                # oldest first
+            start, end = max(0.0, lead - m * dt), min(lead, lead - (m - 1) * dt)
+            if m == len(self._sent):
+                start = 0.0                                    # older history unknown: the oldest we have
+            if end > start:
+                pose = predict_pose(pose, self._sent[m - 1], end - start, self.wheelbase_m)
+        return pose
 
     def _warm_start(self, p0: np.ndarray, sprev: np.ndarray) -> dict:
         """Previous solution shifted one interval (last one repeated); cold: hold the pose and setpoint."""
@@ -145,6 +167,7 @@ class MpcController(Controller):
             return {"x0": np.concatenate([np.tile(p0, N + 1), np.tile(sprev, N)])}
         x = self._warm["x"]
         P, S = x[:npose].reshape(N + 1, 3), x[npose:].reshape(N, 3)
+        P[:, 2] += 2 * np.pi * np.round((p0[2] - P[1, 2]) / (2 * np.pi))   # measured heading wrapped past +-pi
         P = np.vstack([P[1:], P[-1:]])
         P[0] = p0
         S = np.vstack([S[1:], S[-1:]])

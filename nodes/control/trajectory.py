@@ -147,11 +147,43 @@ GENERATORS: dict[str, Callable[..., Reference]] = {
 }
 
 
-def make_trajectory(kind: str, **params: object) -> Callable[[np.ndarray | float], Reference]:
-    """``t -> Reference`` for a named generator (circle, figure8, crab, spin, focus) and its parameters."""
+def ramp_time(t: np.ndarray | float, ramp_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smooth start: warped time ``tau(t)`` and its first two derivatives.
+
+    ``tau' = (1 - cos(pi t / ramp_s)) / 2`` rises from 0 to 1 over ``ramp_s`` seconds
+    (then ``tau = t - ramp_s / 2``), so a trajectory starts at rest with zero acceleration
+    and reaches full speed smoothly; ``tau = 0`` before ``t = 0``.
+    """
+    t = _as_t(t)
+    if ramp_s <= 0:
+        return t, np.ones_like(t), np.zeros_like(t)
+    tc = np.clip(t, 0.0, ramp_s)
+    w = np.pi / ramp_s
+    tau = np.where(t >= ramp_s, t - 0.5 * ramp_s, 0.5 * tc - np.sin(w * tc) / (2 * w))
+    dtau = np.where(t >= ramp_s, 1.0, 0.5 * (1 - np.cos(w * tc)))
+    ddtau = np.where((t > 0) & (t < ramp_s), 0.5 * w * np.sin(w * tc), 0.0)
+    return tau, dtau, ddtau
+
+
+def make_trajectory(kind: str, *, ramp_s: float = 0.0, **params: object) -> Callable[[np.ndarray | float], Reference]:
+    """``t -> Reference`` for a named generator (circle, figure8, crab, spin, focus) and its parameters.
+
+    ``ramp_s > 0`` starts the trajectory from rest (see :func:`ramp_time`): a robot that
+    starts standing still can align its wheels first instead of chasing a reference that
+    is already moving (the chain rule keeps the derivatives analytic).
+    """
     try:
         gen = GENERATORS[kind]
     except KeyError:
         raise ValueError(f"unknown trajectory {kind!r}; choose one of {sorted(GENERATORS)}") from None
+    if ramp_s < 0:
+        raise ValueError("ramp_s must be >= 0 s")
     gen(0.0, **params)      # validate the parameters now, not on the first tick
-    return lambda t: gen(t, **params)
+    if ramp_s == 0:
+        return lambda t: gen(t, **params)
+
+    def ramped(t: np.ndarray | float) -> Reference:
+        tau, d1, d2 = ramp_time(t, ramp_s)
+        r = gen(tau, **params)
+        return Reference(r.p, r.dp * d1[:, None], r.ddp * (d1 * d1)[:, None] + r.dp * d2[:, None])
+    return ramped

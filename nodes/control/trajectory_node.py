@@ -12,6 +12,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     kind: str = "figure8"               # circle | figure8 | crab | spin | focus
     rate_hz: float = 50.0
     params: dict[str, float | str | list[float]] = {}   # keyword arguments of the generator
+    ramp_s: float = 0.0                 # > 0: start from rest, reaching full speed smoothly over ramp_s
     duration_s: float = 0.0             # > 0: after this, hold the last pose with zero rates
     frame_id: str = "odom"
 
@@ -19,7 +20,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
         if self.kind not in GENERATORS:
             raise ValueError(f"kind must be one of {sorted(GENERATORS)}, not {self.kind!r}")
         try:
-            make_trajectory(self.kind, **_params(self.params))
+            make_trajectory(self.kind, ramp_s=self.ramp_s, **_params(self.params))
         except TypeError as exc:      # unknown keyword: say which generator refused it
             raise ValueError(f"{self.kind} params: {exc}") from None
 
@@ -36,7 +37,7 @@ class TrajectoryGenerator(Node):
     timers = {"tick": "rate_hz"}
 
     def setup(self) -> None:
-        self.traj = make_trajectory(self.config.kind, **_params(self.config.params))
+        self.traj = make_trajectory(self.config.kind, ramp_s=self.config.ramp_s, **_params(self.config.params))
         self._t0_ns: int | None = None
 
     def on_tick(self, tick: Tick) -> dict[str, TrajectoryPoint]:

@@ -125,3 +125,10 @@ def test_predict_pose_follows_an_arc():
     spin = Wheels(0.5, math.pi / 2, 0.5, -math.pi / 2)
     x, y, th = predict_pose((0.0, 0.0, math.pi - 0.05), spin, 0.1, 1.0)   # wraps through +-pi
     assert (x, y) == pytest.approx((0.0, 0.0), abs=1e-12) and th == pytest.approx(-math.pi + 0.05)
+
+
+def test_choose_steer_clamps_at_the_stop_before_flipping():
+    d, v = choose_steer(math.cos(2.7), math.sin(2.7), 2.45, 2.5, clamp_margin_rad=0.35)
+    assert d == pytest.approx(2.5) and v == pytest.approx(math.cos(0.2))      # grazing the stop: clamp
+    d, v = choose_steer(math.cos(2.95), math.sin(2.95), 2.45, 2.5, clamp_margin_rad=0.35)
+    assert d == pytest.approx(2.95 - math.pi) and v == pytest.approx(-1.0)    # well past it: flip

@@ -16,8 +16,9 @@ def mpc():
     return MpcController(horizon=10)
 
 
-@pytest.mark.parametrize("kind,bound_mm", [("figure8", 0.5), ("crab", 2.0), ("spin", 0.01)])
+@pytest.mark.parametrize("kind,bound_mm", [("figure8", 0.5), ("crab", 2.0), ("spin", 0.01), ("focus", 0.5)])
 def test_mpc_tracks(mpc, kind, bound_mm):
+    # focus: the heading crosses +-pi after 0.6 s (the warm start must follow the wrap)
     res = simulate_tracking(mpc, make_trajectory(kind), rate_hz=20, duration_s=4.0)
     s = res.summary()
     assert s["rms_mm"] < bound_mm and s["bad_ticks"] == 0.0

@@ -153,3 +153,19 @@ def test_config_errors():
     with pytest.raises(ValueError, match="wheelbase_m"):
         FinalController(wheelbase_m=0.0)
     assert initial_wheels((0.0, 0.0, 0.0)) == Wheels(0.0, 0.0, 0.0, 0.0)
+
+
+def test_start_from_rest_on_a_ramped_figure_eight_aligns_wheels_without_flips():
+    from sim.vehicle4ws import Vehicle4WSModel
+    traj = make_trajectory("figure8", ramp_s=2.0)
+    ctrl = FinalController(lead_s=0.02)
+    model = Vehicle4WSModel(VehicleParams(wheel_tau_s=0.02, steer_tau_s=0.02), pose=(0.0, 0.0, -math.pi / 2))
+    errs, rear = [], []
+    for k in range(300):                                   # 6 s at 50 Hz, wheels straight at rest at t = 0
+        cmd = ctrl.step(ref_at(traj, k * 0.02), model.pose, model.wheels, 0.02)
+        model.step(cmd, 0.02)
+        r = traj(k * 0.02 + 0.02).p[0]
+        errs.append(math.hypot(model.x - r[0], model.y - r[1]))
+        rear.append(cmd.delta_rear)
+    assert max(errs) < 0.02 and max(errs[200:]) < 5e-5       # ~1 cm while the wheels swing ~2 rad
+    assert min(rear[1:]) > 0.0      # the rear wheel turned the forward way (to ~2.2 rad), no half-turn flip
