@@ -21,8 +21,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     y_min_m: float = -3.0
     y_max_m: float = 3.0
     resolution_m: float = 0.25
-    density_low_points: float = 20.0     # fewer points: density low
-    density_high_points: float = 150.0   # at least this many: density high
+    density_low_points: float = 20.0     # fewer points: density low (tuned for RgbdFlow's stride 4 at 640x480,
+    density_high_points: float = 150.0   # fx 525): at least this many: density high
     speed_low_mps: float = 0.3
     speed_high_mps: float = 0.8
     moving_mps: float = 0.25         # slower points do not flow (Figure 3 direction feature)
