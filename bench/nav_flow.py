@@ -191,7 +191,7 @@ def plot(table: dict[str, tuple[float, float]], ref: tuple[float, float] | None,
     names = ["render", "flow", "features"]
     bx.bar(names, [stages[n] for n in names], color=["tab:gray", "tab:blue", "tab:green"])
     bx.set_ylabel("ms per frame (median)")
-    bx.set_title(f"perception at 640x480: {1e3 / stages['total']:.1f} Hz wall, "
+    bx.set_title(f"perception at 640x480:\n{1e3 / stages['total']:.1f} Hz wall clock, "
                  f"{1e3 / stages['total_cpu']:.1f} Hz by CPU time")
     fig.tight_layout()
     path.parent.mkdir(exist_ok=True)
