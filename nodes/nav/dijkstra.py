@@ -234,6 +234,29 @@ def plan_dijkstra(cost: np.ndarray, start: tuple[int, int], goal: tuple[int, int
     return PlanResult(cells, float(dist[g]), True, "", int(np.isfinite(dist).sum()))
 
 
+def cost_from(cost: np.ndarray, start: tuple[int, int], *, graph: GridGraph | None = None
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Least cost from ``start`` to every cell, (rows, cols) (inf = unreachable), and the predecessor
+    of each cell (flat index, -1 at the start and unreachable cells); see :func:`backtrack`."""
+    cost = check_costs(cost)
+    if graph is None or graph.shape != cost.shape:
+        graph = GridGraph.of(cost.shape)
+    s = _cell(start, cost.shape, "start")
+    dist, pred = dijkstra(graph.matrix(cost), indices=s, return_predecessors=True)
+    return dist.reshape(cost.shape), np.where(pred < 0, -1, pred).astype(np.int64).reshape(cost.shape)
+
+
+def backtrack(pred: np.ndarray, goal: tuple[int, int]) -> np.ndarray:
+    """Cells (n, 2) from the search's start to ``goal`` following ``pred`` from :func:`cost_from`."""
+    cols = pred.shape[1]
+    chain = [int(goal[0]) * cols + int(goal[1])]
+    while pred.flat[chain[-1]] >= 0:
+        chain.append(int(pred.flat[chain[-1]]))
+        if len(chain) > pred.size:
+            raise ValueError("predecessor array has a cycle; it does not come from cost_from")
+    return np.stack(np.divmod(np.array(chain[::-1], dtype=np.int64), cols), axis=1)
+
+
 def cost_to_go(cost: np.ndarray, goal: tuple[int, int], *, graph: GridGraph | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
     """Least cost from every cell to ``goal`` and each cell's next cell on that path.

@@ -23,11 +23,12 @@ from dataclasses import dataclass, field
 
 import msgspec
 import numpy as np
+from scipy.ndimage import grey_dilation
 
 from msgs.geometry import Odometry2D, Path2D, Twist2D
 from msgs.nav import CostGrid, FeatureGrid, Goal2D, PlanStatus
 from msgs.sensor import Grid
-from nodes.nav.dijkstra import (GridFrame, GridGraph, densify, extract_waypoint, smooth_path, inflate, pick_subgoal, plan_dijkstra,
+from nodes.nav.dijkstra import (GridFrame, GridGraph, backtrack, cost_from, densify, extract_waypoint, inflate, smooth_path,
                                 plan_on_map, steer, to_robot, to_world)
 from tether import Node
 
@@ -46,6 +47,12 @@ class PlannerParams:
     inflate_margin_m: float = 0.1
     v_max_mps: float = 1.0
     w_max_radps: float = 1.2
+    crowd_margin_m: float = 0.3   # the cost grid is dilated by robot radius + this (personal space)
+    commitment: float = 0.5       # cost of moving the sub-goal between re-plans, x typical cost per cell
+    memory_s: float = 1.5         # unseen cells keep what was seen there this long
+    fov_deg: float = 57.0         # the camera's horizontal field of view
+    camera_x_m: float = 0.3       # camera ahead of the robot centre
+    min_range_m: float = 0.4      # the camera measures nothing nearer
 
 
 @dataclass
@@ -75,12 +82,17 @@ class SocialPlanner:
         self.waypoint_t_s = 0.0
         self._graphs: dict[tuple[int, int], GridGraph] = {}
         self._event = "new_goal"
+        self._subgoal: np.ndarray | None = None
+        self._memory: list[tuple] = []
 
     # -- inputs -----------------------------------------------------------------------------------
     def set_goal(self, xy: tuple[float, float], tolerance_m: float = 0.3) -> None:
+        """A new goal resets the plans; the same goal sent again (goals are re-published) changes nothing."""
+        if self.goal is not None and np.allclose(self.goal, xy) and self.goal_tol_m == tolerance_m:
+            return
         self.goal = np.asarray(xy, float).reshape(2)
         self.goal_tol_m = float(tolerance_m)
-        self.global_path, self.waypoint, self._event = None, None, "new_goal"
+        self.global_path, self.waypoint, self._event, self._subgoal = None, None, "new_goal", None
 
     def set_map(self, occupancy: np.ndarray, frame: GridFrame) -> None:
         """Occupancy (rows = y, cols = x; > 0.5 occupied) of the known world map."""
@@ -129,17 +141,48 @@ class SocialPlanner:
         if reason:
             self.mode, self.waypoint = "unreachable", None
             return Decision("unreachable", reason=reason)
+        cost, high_density = self._remember(pose, np.asarray(cost, float), frame, np.asarray(high_density, bool), t_s)
         event = self._replan_event(pose, frame, high_density, t_s)
         if not event:
             return Decision(self.mode, "", self.waypoint)
         if not self._obstacle_near(frame, high_density):
-            self.mode, self.waypoint = "global", None
+            self.mode, self.waypoint, self._subgoal = "global", None, None
             return Decision("global", event, self.carrot(pose), self.global_path)
         t0 = time.perf_counter()
         decision = self._local(pose, cost, frame, event)
         decision.plan_ms = (time.perf_counter() - t0) * 1e3
         self.mode, self.waypoint, self.waypoint_t_s = decision.mode, decision.waypoint, t_s
         return decision
+
+    def _remember(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame, high: np.ndarray,
+                  t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Cells the camera cannot see now (outside its field of view, or nearer than it can
+        measure) keep the dearest cost and the density flag they had in the last ``memory_s``.
+
+        The camera sees ~57 degrees; a pedestrian being passed leaves the view while still at
+        arm's length, and planning as if they had vanished steers the robot back into them
+        (the paper's Sec. 7.1 limitation). What is in view always overrides the memory.
+        """
+        self._memory = [m for m in self._memory if t_s - m[0] <= self.p.memory_s and m[3].shape == frame.shape]
+        entry = (t_s, pose, cost, frame, high)
+        if not self._memory or self.p.memory_s <= 0:
+            self._memory.append(entry)
+            return cost, high
+        rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
+        rel = frame.xy_of(np.stack([rr.ravel(), cc.ravel()], axis=1))
+        bearing = np.arctan2(rel[:, 1], rel[:, 0] - self.p.camera_x_m)
+        unseen = ((np.abs(bearing) > np.radians(self.p.fov_deg) / 2)
+                  | (np.hypot(rel[:, 0] - self.p.camera_x_m, rel[:, 1]) < self.p.min_range_m))
+        world = to_world(pose, rel[unseen])
+        fused_cost, fused_high = cost.reshape(-1).copy(), high.reshape(-1).copy()
+        for _, m_pose, m_cost, m_frame, m_high in self._memory:
+            cells = m_frame.cell_of(to_robot(m_pose, world))
+            ok = m_frame.inside(cells)
+            idx = np.flatnonzero(unseen)[ok]
+            fused_cost[idx] = np.maximum(fused_cost[idx], m_cost[cells[ok, 0], cells[ok, 1]])
+            fused_high[idx] |= m_high[cells[ok, 0], cells[ok, 1]]
+        self._memory.append(entry)
+        return fused_cost.reshape(cost.shape), fused_high.reshape(high.shape)
 
     def _replan_event(self, pose: tuple[float, float, float], frame: GridFrame, high: np.ndarray, t_s: float) -> str:
         if self._event:
@@ -175,23 +218,55 @@ class SocialPlanner:
         return (inside & self.occupied[cells[:, 0], cells[:, 1]]).reshape(frame.shape)
 
     def _local(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame, event: str) -> Decision:
-        assert self.global_path is not None
-        cost = np.where(self._static_mask(pose, frame), np.inf, cost)
+        """Dijkstra from the robot over the local cost grid to a sub-goal; the sub-goal is the cell at the
+        edge of the local action radius (``subgoal_m``; or the goal itself when nearer) that minimises
+        cost-so-far + (typical cell cost) x (remaining global-path length).
+
+        Taking the global path's point at ``subgoal_m`` as the sub-goal would end every local plan
+        on that point even when a pedestrian stands on it; scoring the whole rim lets the plan end
+        beside the person, on the side that is cheaper overall.
+        """
+        assert self.global_path is not None and self.goal is not None
+        cost = footprint_cost(np.where(self._static_mask(pose, frame), np.inf, cost),
+                              (self.p.robot_radius_m + self.p.crowd_margin_m) / frame.resolution_m)
         start = tuple(frame.clamp(frame.cell_of(np.zeros(2)))[0])
-        sub = pick_subgoal(self.global_path, np.asarray(pose[:2]), self.p.subgoal_m)
-        rel = to_robot(pose, self.global_path[:sub + 1])
-        cells = frame.cell_of(rel)
-        ok = frame.inside(cells)
-        ok[ok] = np.isfinite(cost[cells[ok, 0], cells[ok, 1]])
-        if not ok.any():    # the global path does not cross the local grid (e.g. it is behind): follow it
-            return Decision("global", event, self.carrot(pose), self.global_path)
-        goal = tuple(cells[np.flatnonzero(ok)[-1]])
-        plan = plan_dijkstra(cost, start, goal, graph=self._graph(cost.shape))
-        if not plan.reachable:
-            return Decision("hold", event, None, reason=f"local plan: {plan.reason}")
-        corners = smooth_path(cost, plan.cells)
+        dist, pred = cost_from(cost, start, graph=self._graph(cost.shape))
+        rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
+        cells = np.stack([rr.ravel(), cc.ravel()], axis=1)
+        xy = frame.xy_of(cells)
+        r = np.hypot(xy[:, 0], xy[:, 1])
+        goal_rel = to_robot(pose, self.goal)[0]
+        goal_cell = frame.cell_of(goal_rel)
+        if np.hypot(*goal_rel) <= self.p.subgoal_m and frame.inside(goal_cell)[0]:
+            rim = (np.abs(cells - goal_cell).max(axis=1) <= 1)           # the goal (or next to it)
+        else:
+            rim = (r <= self.p.subgoal_m) & (r > self.p.subgoal_m - 2.0 * frame.resolution_m)
+        ok = rim & np.isfinite(dist.ravel())
+        if not ok.any():
+            return Decision("hold", event, None, reason="local plan: no reachable sub-goal around the robot")
+        rim_world = to_world(pose, xy[ok])
+        remaining = self._remaining_m(pose, rim_world)
+        typical = float(np.median(cost[np.isfinite(cost)]))
+        score = dist.ravel()[ok] + typical * remaining / frame.resolution_m
+        if self._subgoal is not None:      # commit to a side: moving the sub-goal costs like walking there
+            score += self.p.commitment * typical * np.hypot(*(rim_world - self._subgoal).T) / frame.resolution_m
+        k = int(np.argmin(score))
+        self._subgoal = rim_world[k]
+        sub = cells[np.flatnonzero(ok)[k]]
+        corners = smooth_path(cost, backtrack(pred, tuple(sub)))
         path_xy = to_world(pose, np.vstack([np.zeros((1, 2)), frame.xy_of(corners[1:])]))
         return Decision("local", event, extract_waypoint(path_xy, self.p.waypoint_m), path_xy)
+
+    def _remaining_m(self, pose: tuple[float, float, float], xy: np.ndarray) -> np.ndarray:
+        """Distance (m) from world points (n, 2) to the global goal along the global path (ahead of the robot)."""
+        assert self.global_path is not None
+        gp = self.global_path
+        i0 = int(np.argmin(np.hypot(*(gp - pose[:2]).T)))
+        ahead = gp[i0:]
+        seg = np.hypot(*np.diff(ahead, axis=0).T)
+        to_end = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+        d = np.hypot(xy[:, None, 0] - ahead[None, :, 0], xy[:, None, 1] - ahead[None, :, 1])
+        return (d + to_end[None, :]).min(axis=1)
 
     # -- command ----------------------------------------------------------------------------------
     def command(self, pose: tuple[float, float, float]) -> tuple[float, float]:
@@ -200,10 +275,26 @@ class SocialPlanner:
             return 0.0, 0.0
         if np.hypot(*(self.goal - pose[:2])) <= self.goal_tol_m:
             return 0.0, 0.0
+        if self.global_path is None and self._global(pose):
+            return 0.0, 0.0
         target = self.carrot(pose) if self.mode == "global" or self.waypoint is None else self.waypoint
         final = bool(np.allclose(target, self.goal))
         return steer(pose, target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps,
                      stop_at_m=self.goal_tol_m if final else None)
+
+
+def footprint_cost(cost: np.ndarray, radius_cells: float) -> np.ndarray:
+    """Cost of placing the robot's disc (``radius_cells``) centred on each cell: the dearest cell under it.
+
+    The cost grid is per cell of the floor; the robot covers several cells, so the planner
+    searches over its centre with each cell's cost raised to the maximum under the disc
+    (a configuration-space costmap, as obstacle inflation does for occupancy).
+    """
+    r = int(np.ceil(radius_cells))
+    if r <= 0:
+        return cost
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return grey_dilation(cost, footprint=np.hypot(yy, xx) <= radius_cells + 1e-9, mode="nearest")
 
 
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -217,6 +308,12 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     inflate_margin_m: float = 0.1
     v_max_mps: float = 1.0
     w_max_radps: float = 1.2
+    crowd_margin_m: float = 0.3
+    commitment: float = 0.5
+    memory_s: float = 1.5
+    fov_deg: float = 57.0
+    camera_x_m: float = 0.3
+    min_range_m: float = 0.4
     density_feature: str = "density_high"   # the FeatureGrid feature that flags an obstacle (Algorithm 2)
     density_index: int = 0                  # used when the grid carries no feature names
 
@@ -235,7 +332,7 @@ def high_density_mask(grid: FeatureGrid, name: str, index: int) -> np.ndarray:
 class DijkstraPlanner(Node):
     """Inputs ``odom``, ``goal``, ``map`` (occupancy, world), ``features`` and ``costs`` (robot frame).
 
-    Outputs ``cmd`` (velocity toward the waypoint, on every odom), ``path`` (the path being
+    Outputs ``cmd`` (velocity toward the waypoint, on every odom and decision), ``path`` (the path being
     followed, world frame) and ``status`` (mode, re-plan event, plan time) on every cost grid.
     """
 
@@ -249,7 +346,8 @@ class DijkstraPlanner(Node):
             safe_zone_m=c.safe_zone_m, obstacle_radius_m=c.obstacle_radius_m, subgoal_m=c.subgoal_m,
             waypoint_m=c.waypoint_m, waypoint_timeout_s=c.waypoint_timeout_s, stray_m=c.stray_m,
             robot_radius_m=c.robot_radius_m, inflate_margin_m=c.inflate_margin_m, v_max_mps=c.v_max_mps,
-            w_max_radps=c.w_max_radps))
+            w_max_radps=c.w_max_radps, crowd_margin_m=c.crowd_margin_m, commitment=c.commitment, memory_s=c.memory_s, fov_deg=c.fov_deg,
+            camera_x_m=c.camera_x_m, min_range_m=c.min_range_m))
         self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
         self._high: np.ndarray | None = None
         self._map: np.ndarray | None = None
@@ -303,7 +401,9 @@ class DijkstraPlanner(Node):
         d = self.planner.update(pose, cost, frame, high, msg.stamp_ns * 1e-9)
         status = PlanStatus(stamp_ns=msg.stamp_ns, state=_STATE[d.mode] if d.event or d.mode != "local" else "following",
                             reason="/".join(x for x in (d.mode, d.event, d.reason) if x), plan_ms=d.plan_ms)
-        out: list[tuple[str, object]] = [("status", status)]
+        v, w = self.planner.command(self._poses[-1][1])        # steer on the fresh decision right away
+        out: list[tuple[str, object]] = [("status", status),
+                                         ("cmd", Twist2D(stamp_ns=msg.stamp_ns, frame_id="base", vx_mps=v, wz_radps=w))]
         if len(d.path_xy) >= 2:
             step = np.diff(d.path_xy, axis=0)
             yaw = np.arctan2(step[:, 1], step[:, 0])

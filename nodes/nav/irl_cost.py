@@ -38,7 +38,7 @@ class IrlCost(Node):
         self.step_cost = self.config.step_cost if self.config.step_cost > 0 else self.weights.step_cost
         self._vector: tuple[tuple[str, ...], int, np.ndarray] | None = None
         self.bad_inputs = 0
-        self.log.info("IRL weights %s (step cost %.3g)", dict(zip(self.weights.names, self.weights.weights.round(3))),
+        self.log.info("IRL weights %s (step cost %.3g)", {n: round(float(v), 3) for n, v in zip(self.weights.names, self.weights.weights)},
                       self.step_cost)
 
     def _weights_for(self, names: list[str], k: int) -> np.ndarray:

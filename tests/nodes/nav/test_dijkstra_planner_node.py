@@ -77,7 +77,7 @@ def test_goal_walled_off_on_the_map_is_reported_unreachable():
 
 
 def test_safe_zone_keeps_the_waypoint_until_reached_then_replans():
-    planner = SocialPlanner(PlannerParams())
+    planner = SocialPlanner(PlannerParams(memory_s=0.0))
     planner.set_goal((8.0, 0.0))
     frame = GridFrame((ROWS, COLS), RES, ORIGIN_X, ORIGIN_Y)
     f, c = crowd((2.0, 0.0))
@@ -94,3 +94,23 @@ def test_safe_zone_keeps_the_waypoint_until_reached_then_replans():
 def test_goal_reached_stops():
     h = run(*crowd(None), goal=(0.1, 0.0))
     assert h.of("status")[-1].state == "reached" and h.of("cmd")[-1].vx_mps == 0.0
+
+
+def test_pedestrian_leaving_the_field_of_view_is_remembered():
+    planner = SocialPlanner(PlannerParams(memory_s=1.0))
+    planner.set_goal((8.0, 0.0))
+    frame = GridFrame((ROWS, COLS), RES, ORIGIN_X, ORIGIN_Y)
+    f, c = crowd((2.0, 1.2), radius_m=0.3)            # ahead-left, inside the 57 degree view
+    planner.update((0.0, 0.0, 0.0), c.cost, frame, f.features[..., 0] > 0, 0.0)
+    empty_f, empty_c = crowd(None)
+    # 1.4 m further on, the person is beside the robot (bearing ~ 60 deg): the camera sees nothing there now
+    pose = (1.4, 0.0, 0.0)
+    fused_cost, fused_high = planner._remember(pose, empty_c.cost.astype(float), frame,
+                                               empty_f.features[..., 0] > 0, 0.5)
+    cell = frame.cell_of(np.array([[0.6, 1.2]]))[0]
+    assert fused_high[cell[0], cell[1]] and fused_cost[cell[0], cell[1]] > 2.0
+    ahead = frame.cell_of(np.array([[3.0, 0.0]]))[0]      # in view: what the camera sees now wins
+    assert not fused_high[ahead[0], ahead[1]]
+    later_cost, later_high = planner._remember(pose, empty_c.cost.astype(float), frame,
+                                               empty_f.features[..., 0] > 0, 2.0)
+    assert not later_high.any() and later_cost.max() == 2.0        # forgotten after memory_s

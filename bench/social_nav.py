@@ -1,0 +1,372 @@
+"""Social navigation: IRL planner vs DWA vs the human reference, on the paper's scenarios and replayed real crowds.
+
+    python bench/social_nav.py [--quick] [--json] [--weights nodes/nav/weights/default.json]
+
+Closed loop, in-process, deterministic (virtual time, 15 Hz camera): the simulator
+(sim.crowd) renders 640x480 RGB-D; the IRL method runs the nodes of
+``launch/social_nav.yaml`` (RgbdFlow -> CrowdFeatures -> IrlCost -> DijkstraPlanner ->
+CollisionGuard), DWA those of ``launch/social_nav_dwa.yaml`` (Dwa -> CollisionGuard). The
+human reference is, on the paper's scenes, a social-force walker sent from the robot's
+start to its goal at the robot's top speed, and on the real crowds the recorded
+pedestrian whose place the robot takes (taken out of the replay). Metrics: closest
+centre distance to a pedestrian, avoidance distance (robot-pedestrian distance when
+|yaw rate| first exceeds 0.3 rad/s), time to goal, path length, collisions, success.
+Writes ``out/social_nav.png`` (trajectories) and prints a table; ``--json`` prints one
+object with the metrics per scenario and method, ``pipeline_hz`` and ``plan_ms_100x100``.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from msgs.geometry import Odometry2D, Pose2D, Twist2D  # noqa: E402
+from msgs.nav import Goal2D  # noqa: E402
+from msgs.sensor import CameraInfo, Grid, RgbdFrame  # noqa: E402
+from nodes.nav.collision_guard import CollisionGuard  # noqa: E402
+from nodes.nav.dijkstra import GridGraph, plan_dijkstra  # noqa: E402
+from nodes.nav.dijkstra_planner import DijkstraPlanner  # noqa: E402
+from nodes.nav.dwa import Dwa  # noqa: E402
+from nodes.nav.irl_cost import IrlCost  # noqa: E402
+from nodes.nav.irl_learn import PLANNER_PARAMS, FeaturePipeline, sim_camera  # noqa: E402
+from sim.crowd import CrowdWorld  # noqa: E402
+from sim.crowd_scenes import PedestrianSpec, load_scene  # noqa: E402
+from tether.testing import Harness  # noqa: E402
+
+DT = 1.0 / 15.0
+TURN_RADPS = 0.3
+SCENES = ["toward", "crossing", "group", "hallway"]
+REAL = [("students003", 1.0), ("crowds_zara03", 1.0)]     # data set, max mean speed of the reference (m/s)
+
+
+@dataclasses.dataclass
+class Episode:
+    """One run: times (n,), poses (n, 3), yaw rates (n,), pedestrians per step [(ids, xy)], outcome."""
+
+    t: np.ndarray
+    pose: np.ndarray
+    yaw_rate: np.ndarray
+    peds: list[tuple[np.ndarray, np.ndarray]]
+    goal_t: float | None
+    collisions: int
+    stage_ms: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+
+
+def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
+    """The paper's metrics (centre distances, m; times, s) from an episode."""
+    d = np.full(len(ep.t), np.inf)
+    for k, (_, xy) in enumerate(ep.peds):
+        if len(xy):
+            d[k] = np.hypot(*(xy - ep.pose[k, :2]).T).min()
+    turning = np.flatnonzero((np.abs(ep.yaw_rate) > TURN_RADPS) & (ep.t > 0.5) & np.isfinite(d) & (d < 8.0))
+    end = len(ep.t) if ep.goal_t is None else int(np.searchsorted(ep.t, ep.goal_t)) + 1
+    length = float(np.sum(np.hypot(*np.diff(ep.pose[:end, :2], axis=0).T)))
+    closest = float(d[:end].min()) if np.isfinite(d[:end]).any() else None
+    return {"closest_m": None if closest is None else round(closest, 3),
+            "avoidance_m": round(float(d[turning[0]]), 3) if len(turning) else None,
+            "time_s": None if ep.goal_t is None else round(ep.goal_t, 2), "path_m": round(length, 2),
+            "collisions": int(ep.collisions), "success": bool(ep.goal_t is not None and ep.collisions == 0)}
+
+
+# -- robot methods ----------------------------------------------------------------------------------
+def _msgs(world: CrowdWorld, t: float, rgb: np.ndarray | None = None, depth: np.ndarray | None = None):
+    stamp = int(round(t * 1e9))
+    pose, twist = world.pose, world.twist
+    odom = Odometry2D(stamp_ns=stamp, frame_id="world", pose=Pose2D(x_m=pose[0], y_m=pose[1], yaw_rad=pose[2]),
+                      twist=Twist2D(vx_mps=twist[0], wz_radps=twist[1]))
+    if rgb is None:
+        return odom, None
+    c = world.camera
+    info = CameraInfo(width_px=c.width_px, height_px=c.height_px, fx_px=c.fx_px, fy_px=c.fy_px, cx_px=c.cx_px, cy_px=c.cy_px)
+    return odom, RgbdFrame(stamp_ns=stamp, frame_id="camera", rgb=rgb, depth_m=depth, info=info)
+
+
+def _static(world: CrowdWorld) -> tuple[Goal2D, Grid]:
+    gx, gy, tol = world.goal
+    occ = world.occupancy(0.1)
+    return (Goal2D(x_m=gx, y_m=gy, tolerance_m=tol, frame_id="world"),
+            Grid(data=occ.data, resolution_m=occ.resolution_m, origin_x_m=occ.origin_x_m, origin_y_m=occ.origin_y_m,
+                 frame_id="world"))
+
+
+class IrlStack:
+    """launch/social_nav.yaml in-process: flow -> features -> cost -> planner -> guard."""
+
+    name = "irl"
+
+    def __init__(self, world: CrowdWorld, weights: str) -> None:
+        self.pipe = FeaturePipeline()
+        self.cost = Harness(IrlCost, params={"weights_path": weights}, roundtrip=False, node_id="cost")
+        self.plan = Harness(DijkstraPlanner, params=PLANNER_PARAMS, roundtrip=False, node_id="planner")
+        self.guard = Harness(CollisionGuard, roundtrip=False, node_id="guard")
+        goal, grid = _static(world)
+        self.pipe.set_goal((goal.x_m, goal.y_m), 0.0)
+        self.plan.feed([(0.0, "goal", goal), (0.0, "map", grid)])
+
+    def step(self, world: CrowdWorld, t: float, ms: dict[str, list[float]]) -> tuple[float, float]:
+        rgb, depth = world.render()
+        odom, frame = _msgs(world, t, rgb, depth)
+        t0 = time.perf_counter()
+        flow, grid = self.pipe.step(t, world.pose, world.twist, rgb, depth, world.camera)
+        t1 = time.perf_counter()
+        cmds = [o.msg for o in self.plan.feed([(t, "odom", odom)]) if o.output == "cmd"]
+        if grid is not None:
+            costs = [o.msg for o in self.cost.feed([(t, "features", grid)])]
+            t2 = time.perf_counter()
+            out = self.plan.feed([(t, "features", grid)] + [(t, "costs", c) for c in costs])
+            cmds += [o.msg for o in out if o.output == "cmd"]
+            t3 = time.perf_counter()
+            ms.setdefault("flow+features", []).append((t1 - t0) * 1e3)
+            ms.setdefault("cost", []).append((t2 - t1) * 1e3)
+            ms.setdefault("plan", []).append((t3 - t2) * 1e3)
+        cmd = cmds[-1] if cmds else Twist2D()
+        safe = [o.msg for o in self.guard.feed([(t, "rgbd", frame), (t, "cmd", cmd)]) if o.output == "cmd"]
+        return (safe[-1].vx_mps, safe[-1].wz_radps) if safe else (0.0, 0.0)
+
+
+class DwaStack:
+    """launch/social_nav_dwa.yaml in-process: DWA -> guard."""
+
+    name = "dwa"
+
+    def __init__(self, world: CrowdWorld, weights: str) -> None:
+        self.dwa = Harness(Dwa, roundtrip=False, node_id="dwa")
+        self.guard = Harness(CollisionGuard, roundtrip=False, node_id="guard")
+        goal, grid = _static(world)
+        self.dwa.feed([(0.0, "goal", goal), (0.0, "map", grid)])
+
+    def step(self, world: CrowdWorld, t: float, ms: dict[str, list[float]]) -> tuple[float, float]:
+        rgb, depth = world.render()
+        odom, frame = _msgs(world, t, rgb, depth)
+        t0 = time.perf_counter()
+        out = self.dwa.feed([(t, "odom", odom), (t, "rgbd", frame)])
+        ms.setdefault("dwa", []).append((time.perf_counter() - t0) * 1e3)
+        cmds = [o.msg for o in out if o.output == "cmd"]
+        cmd = cmds[-1] if cmds else Twist2D()
+        safe = [o.msg for o in self.guard.feed([(t, "rgbd", frame), (t, "cmd", cmd)]) if o.output == "cmd"]
+        return (safe[-1].vx_mps, safe[-1].wz_radps) if safe else (0.0, 0.0)
+
+
+def run_robot(make_world, stack_cls, weights: str, max_s: float) -> Episode:
+    world = make_world()
+    stack = stack_cls(world, weights)
+    ts, poses, rates, peds, ms = [], [], [], [], {}
+    goal_t = None
+    while world.t_s <= max_s:
+        t = world.t_s
+        p = world.pedestrians()
+        ts.append(t), poses.append(world.pose), rates.append(world.twist[1]), peds.append((p.ids.copy(), p.xy_m.copy()))
+        if world.goal_reached:
+            goal_t = t
+            break
+        v, w = stack.step(world, t, ms)
+        world.step(v, w, DT)
+    return Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms)
+
+
+# -- human references -------------------------------------------------------------------------------
+def _yaw_rate(xy: np.ndarray, dt: float) -> np.ndarray:
+    v = np.gradient(xy, dt, axis=0)
+    heading = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
+    rate = np.gradient(heading, dt)
+    rate[np.hypot(v[:, 0], v[:, 1]) < 0.2] = 0.0          # standing still: no heading
+    return np.convolve(rate, np.ones(3) / 3, mode="same")
+
+
+def human_walker(scene, max_s: float) -> Episode:
+    """A social-force pedestrian sent from the robot's start to its goal at the robot's top speed."""
+    (sx, sy, _), (gx, gy, tol) = scene.robot_start, scene.goal
+    walker = PedestrianSpec(id=999, waypoints=np.array([[sx, sy], [gx, gy]]), speed_mps=1.0)
+    far = (scene.bounds_m[0] - 100.0, scene.bounds_m[1] - 100.0, 0.0)
+    world = CrowdWorld(dataclasses.replace(scene, pedestrians=scene.pedestrians + (walker,), robot_start=far),
+                       camera=sim_camera())
+    ts, xy, peds, goal_t = [], [], [], None
+    while world.t_s <= max_s:
+        p = world.pedestrians()
+        me = p.ids == 999
+        ts.append(world.t_s), xy.append(p.xy_m[me][0]), peds.append((p.ids[~me], p.xy_m[~me]))
+        if np.hypot(xy[-1][0] - gx, xy[-1][1] - gy) <= tol:
+            goal_t = world.t_s
+            break
+        world.step(0.0, 0.0, DT)
+    xy_a = np.array(xy)
+    collisions = sum(1 for (_, o), a, b in zip(peds[1:], xy_a[1:], xy_a[:-1]) if len(o) and
+                     np.hypot(*(o - a).T).min() < 0.65 <= np.hypot(*(o - b).T).min())
+    return Episode(np.array(ts), np.column_stack([xy_a, np.zeros(len(xy_a))]), _yaw_rate(xy_a, DT), peds, goal_t, collisions)
+
+
+def pick_reference(tracks, max_mean_mps: float, min_len_m: float = 8.0) -> int:
+    """The pedestrian (index) at wheelchair pace that walks far through the most company."""
+    best, best_n = -1, -1
+    for i, (t, xy) in enumerate(zip(tracks.t_s, tracks.xy_m)):
+        if len(t) < 5:
+            continue
+        length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+        mean = length / (t[-1] - t[0])
+        if np.hypot(*(xy[-1] - xy[0])) < min_len_m or not 0.6 <= mean <= max_mean_mps:
+            continue
+        n = 0
+        for tk, p in zip(t, xy):
+            ids, pos, _ = tracks.state_at(tk)
+            n += int(np.sum((np.hypot(*(pos - p).T) < 3.0) & (ids != tracks.ids[i])))
+        if n > best_n:
+            best, best_n = i, n
+    if best < 0:
+        raise ValueError(f"{tracks.name}: no pedestrian walks {min_len_m} m at 0.6-{max_mean_mps} m/s")
+    return best
+
+
+def real_case(dataset: str, max_mean_mps: float):
+    """A scene where the robot replaces a recorded pedestrian; returns (make_world, human Episode, max_s, scene)."""
+    from sim.pedestrian_data import Tracks, load_tracks
+
+    tracks = load_tracks(dataset)
+    i = pick_reference(tracks, max_mean_mps)
+    keep = [j for j in range(len(tracks.ids)) if j != i]
+    others = Tracks(tracks.name, tracks.ids[keep], tuple(tracks.t_s[j] for j in keep), tuple(tracks.xy_m[j] for j in keep),
+                    tracks.row_period_s)
+    t, xy = tracks.t_s[i] - tracks.t_s[i][0], tracks.xy_m[i]
+    lo, hi = xy.min(axis=0) - 6.0, xy.max(axis=0) + 6.0
+    yaw0 = float(np.arctan2(*(xy[1] - xy[0])[::-1]))
+    scene = load_scene({"name": f"{dataset}#{tracks.ids[i]}", "bounds_m": [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])],
+                        "robot": {"x_m": float(xy[0, 0]), "y_m": float(xy[0, 1]), "yaw_rad": yaw0},
+                        "goal": {"x_m": float(xy[-1, 0]), "y_m": float(xy[-1, 1]), "tolerance_m": 0.5},
+                        "replay": {"dataset": dataset, "t0_s": float(tracks.t_s[i][0])}})
+    tt = np.arange(0.0, t[-1] + 1e-9, DT)
+    hx = np.column_stack([np.interp(tt, t, xy[:, 0]), np.interp(tt, t, xy[:, 1])])
+    peds = []
+    for tk in tt:
+        ids, pos, _ = others.state_at(tracks.t_s[i][0] + tk)
+        peds.append((ids, pos))
+    goal_k = int(np.argmax(np.hypot(*(hx - xy[-1]).T) <= 0.5))
+    human = Episode(tt[:goal_k + 1], np.column_stack([hx, np.zeros(len(tt))])[:goal_k + 1], _yaw_rate(hx, DT)[:goal_k + 1],
+                    peds[:goal_k + 1], float(tt[goal_k]), 0)
+    return (lambda: CrowdWorld(scene, tracks=others, camera=sim_camera())), human, 2.0 * float(t[-1]) + 10.0, scene
+
+
+# -- report -----------------------------------------------------------------------------------------
+def plan_ms_100x100(repeats: int = 41) -> float:
+    rng = np.random.default_rng(0)
+    cost = rng.uniform(2.0, 12.0, (100, 100))
+    cost[rng.random(cost.shape) < 0.1] = np.inf
+    cost[50, 0] = cost[50, 99] = 2.0
+    graph = GridGraph.of(cost.shape)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        plan_dijkstra(cost, (50, 0), (50, 99), graph=graph)
+        times.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(times))
+
+
+def plot(cases: dict, runs: dict) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(cases)
+    cols = 3
+    fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(6 * cols, 4.2 * ((n + cols - 1) // cols)), squeeze=False)
+    colours = {"irl": "tab:blue", "dwa": "tab:red", "human": "tab:green"}
+    for ax, (name, scene) in zip(axes.ravel(), cases.items()):
+        for a, b in scene.segments:
+            ax.plot([a[0], b[0]], [a[1], b[1]], "k-", lw=1)
+        ep = runs[name]["irl"]
+        tracks: dict[int, list] = {}
+        for ids, xy in ep.peds:
+            for i, p in zip(ids, xy):
+                tracks.setdefault(int(i), []).append(p)
+        for tr in tracks.values():
+            tr = np.array(tr)
+            ax.plot(tr[:, 0], tr[:, 1], "-", color="0.75", lw=0.8)
+        for method, e in runs[name].items():
+            m = metrics(e)
+            ax.plot(e.pose[:, 0], e.pose[:, 1], "-", color=colours[method], lw=2,
+                    label=f"{method}: closest {m['closest_m']} m, {m['time_s']} s")
+        (sx, sy, _), (gx, gy, _) = scene.robot_start, scene.goal
+        ax.plot(sx, sy, "ko"), ax.plot(gx, gy, "k*", ms=12)
+        pad = 2.0
+        xs = np.concatenate([e.pose[:, 0] for e in runs[name].values()])
+        ys = np.concatenate([e.pose[:, 1] for e in runs[name].values()])
+        ax.set_xlim(xs.min() - pad, xs.max() + pad), ax.set_ylim(ys.min() - pad, ys.max() + pad)
+        ax.set_aspect("equal"), ax.set_title(name), ax.legend(fontsize=7, loc="best")
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    fig.tight_layout()
+    out = ROOT / "out"
+    out.mkdir(exist_ok=True)
+    fig.savefig(out / "social_nav.png", dpi=100)
+    plt.close(fig)
+    return out / "social_nav.png"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="the three paper scenes and one real crowd")
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--weights", default="", help="weights file for the IRL cost ('' = shipped default)")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.ERROR)
+    scenes = SCENES[:3] if args.quick else SCENES
+    real = REAL[:1] if args.quick else REAL
+    cases, runs, stage_ms = {}, {}, {}
+    for name in scenes:
+        scene = load_scene(name)
+        make = (lambda s=scene: CrowdWorld(s))
+        cases[name] = scene
+        runs[name] = {"human": human_walker(scene, scene.duration_s)}
+    for dataset, vmax in real:
+        make, human, max_s, scene = real_case(dataset, vmax)
+        cases[scene.name] = scene
+        runs[scene.name] = {"human": human}
+    for name, scene in cases.items():
+        make = (lambda s=scene: CrowdWorld(s, camera=sim_camera())) if name in scenes else None
+        if make is None:
+            ds = next(d for d, v in real if name.startswith(d))
+            make, _, max_s, _ = real_case(ds, dict(real)[ds])
+        else:
+            max_s = scene.duration_s
+        for stack in (IrlStack, DwaStack):
+            ep = run_robot(make, stack, args.weights, max_s)
+            runs[name][stack.name] = ep
+            for k, v in ep.stage_ms.items():
+                stage_ms.setdefault(k, []).extend(v)
+        if not args.json:
+            print(f"{name}: done", file=sys.stderr)
+    report = {name: {m: metrics(e) for m, e in r.items()} for name, r in runs.items()}
+    med = {k: float(np.median(v)) for k, v in stage_ms.items()}
+    pipeline_ms = med.get("flow+features", np.nan) + med.get("cost", np.nan) + med.get("plan", np.nan)
+    goals = {}
+    for name, r in report.items():
+        irl, dwa, hum = r["irl"], r["dwa"], r["human"]
+        goals[name] = {"closest_ge_dwa": irl["closest_m"] is not None and (dwa["closest_m"] is None or irl["closest_m"] >= dwa["closest_m"]),
+                       "time_within_15pct": irl["time_s"] is not None and hum["time_s"] is not None and irl["time_s"] <= 1.15 * hum["time_s"]}
+    png = plot(cases, runs)
+    out = {"scenarios": report, "goals": goals, "pipeline_hz": round(1000.0 / pipeline_ms, 1),
+           "stage_ms_median": {k: round(v, 2) for k, v in med.items()}, "plan_ms_100x100": round(plan_ms_100x100(), 3),
+           "resolution": "640x480", "plot": str(png.relative_to(ROOT))}
+    if args.json:
+        print(json.dumps(out))
+        return
+    print(f"{'scenario':<22}{'method':<7}{'closest m':>10}{'avoid m':>9}{'time s':>8}{'path m':>8}{'coll':>6}{'ok':>5}")
+    for name, r in report.items():
+        for m, v in r.items():
+            print(f"{name:<22}{m:<7}{v['closest_m'] if v['closest_m'] is not None else '-':>10}"
+                  f"{v['avoidance_m'] if v['avoidance_m'] is not None else '-':>9}{v['time_s'] if v['time_s'] is not None else '-':>8}"
+                  f"{v['path_m']:>8}{v['collisions']:>6}{'yes' if v['success'] else 'no':>5}")
+        print(f"{'':<22}goals: closest >= DWA {goals[name]['closest_ge_dwa']}, time <= 1.15 x human {goals[name]['time_within_15pct']}")
+    print(f"pipeline (flow+features+cost+plan, 640x480): {out['pipeline_hz']} Hz; stages (median ms) {out['stage_ms_median']}")
+    print(f"local plan 100x100: {out['plan_ms_100x100']} ms (median); plot {png}")
+
+
+if __name__ == "__main__":
+    main()

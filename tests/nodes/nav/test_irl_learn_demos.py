@@ -1,0 +1,48 @@
+"""irl_learn: expert paths cut from trajectories into grid demos; npz round trip without pickles."""
+from __future__ import annotations
+
+import numpy as np
+
+from nodes.nav.dijkstra import GridFrame
+from nodes.nav.irl import Demo
+from nodes.nav.irl_learn import DemoSet, demo_path, demos_from_poses, load_demos, save_demos
+
+FRAME = GridFrame((24, 24), 0.25, origin_x_m=-0.375, origin_y_m=-2.875)
+
+
+def test_demo_path_follows_the_future_track_until_it_leaves_the_grid():
+    future = np.stack([np.linspace(0.2, 9.0, 45), np.linspace(0.0, 2.0, 45)], axis=1)   # world = robot frame here
+    path = demo_path(FRAME, (0.0, 0.0, 0.0), future)
+    start = FRAME.clamp(FRAME.cell_of(np.zeros(2)))[0]
+    assert tuple(path[0]) == tuple(start)
+    assert np.abs(np.diff(path, axis=0)).max() == 1 and FRAME.inside(path).all()      # 8-connected, in the grid
+    end = FRAME.xy_of(path[-1:])[0]
+    assert end[0] > 5.0 and 0.9 < end[1] < 1.5                                       # reached the far edge on the track
+
+
+def test_demo_path_in_a_rotated_robot_frame_and_standing_still():
+    pose = (10.0, 5.0, np.pi / 2)                       # facing +y: walking +y in the world is straight ahead
+    path = demo_path(FRAME, pose, np.array([[10.0, 6.0], [10.0, 7.0]]))
+    assert (np.diff(path[:, 1]) > 0).all() and (path[:, 0] == path[0, 0]).all()
+    assert len(demo_path(FRAME, pose, np.zeros((0, 2)))) == 1            # no future: no move, no demo
+
+
+def test_demos_from_poses_samples_grids_and_skips_ones_without_a_future():
+    t = np.arange(0, 6.0, 0.1)
+    poses = np.column_stack([t, 1.2 * t, np.zeros_like(t), np.zeros_like(t)])
+    f = np.zeros((24, 24, 12), np.uint8)
+    grids = [(ts, f, FRAME) for ts in (0.5, 2.0, 5.95, 9.0)]
+    demos = demos_from_poses(grids, poses, horizon_s=3.0)
+    assert len(demos) == 2                              # 5.95 s has no future left, 9.0 s is past the log
+    assert all(len(d.path) > 5 for d in demos)
+
+
+def test_demo_cache_roundtrip(tmp_path):
+    rng = np.random.default_rng(0)
+    demos = DemoSet({"a": [Demo(rng.integers(0, 2, (4, 5, 12)).astype(np.uint8), np.array([[0, 0], [1, 1]]))],
+                     "b": [Demo(np.zeros((4, 5, 12), np.uint8), np.array([[2, 2], [2, 3], [3, 4]]))] * 2})
+    save_demos(tmp_path / "d.npz", demos)
+    back = load_demos(tmp_path / "d.npz")
+    assert sorted(back.scenes) == ["a", "b"] and len(back.scenes["b"]) == 2
+    np.testing.assert_array_equal(back.scenes["b"][1].path, [[2, 2], [2, 3], [3, 4]])
+    np.testing.assert_array_equal(back.scenes["a"][0].features, demos.scenes["a"][0].features)
