@@ -159,6 +159,9 @@ def test_malformed_frames_into_a_live_node_are_counted_not_fatal(runtime_env: di
     assert sub.poll(5000), "the node stopped answering after garbage"
     topic, body = sub.recv_multipart()
     assert topic == b"scale/value" and codec.decode(Float64, [body]).data == 42.0
+    deadline = time.monotonic() + 10      # the handler publishes before its call is counted
+    while runtime.stats().inputs[0].handled < 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
     stats = runtime.stats().inputs[0]
     assert stats.decode_errors == 25 and stats.handled == 1 and stats.received == 26
     runtime.stop()
