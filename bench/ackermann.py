@@ -131,7 +131,7 @@ def main() -> None:
     if not args.json:
         table("median controller step (us), figure-eight at 50 Hz", ["law", "step_us", "vs final"],
               [[law, steps[law], steps[law] / steps["final"]] for law in laws])
-        table("MPC (CasADi sqpmethod+qrqp, 3 SQP iterations, warm start): solve time vs horizon at 50 Hz",
+        table("MPC (CasADi sqpmethod+qrqp, <= 3 SQP iterations, warm start): step time (solve + shaping) vs horizon, 50 Hz",
               ["horizon", "median ms", "rms_mm"], [[str(h), mpc_h[h]["step_us"] / 1e3, mpc_h[h]["rms_mm"]]
                                                    for h in horizons])
         say(f"\nmodelled bus (5 ms latency, 5 ms state delay, 20 ms drives) + 1% slip noise: "
@@ -185,7 +185,7 @@ def plot(sweep, rates, bus, lats, per, mpc_h, horizons) -> str:
     a = ax[0, 2]
     a.plot(horizons, [mpc_h[h]["step_us"] / 1e3 for h in horizons], "o-")
     a.axhline(10.0, color="k", ls=":", lw=1)
-    a.set(xlabel="MPC horizon (intervals of 20 ms)", ylabel="median solve time (ms)", title="MPC solve time")
+    a.set(xlabel="MPC horizon (intervals of 20 ms)", ylabel="median step time (ms)", title="MPC step (solve + shaping)")
     a = ax[1, 2]
     for law in per_laws(per):
         res = per[law, "figure8"]["result"]

@@ -25,7 +25,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     steer_rate_radps: float = 3.0
     wheel_accel_mps2: float = 2.0
     wheel_speed_mps: float = 2.0
-    v_gate_mps: float = 0.01
+    v_gate_mps: float = 0.01            # below this wheel speed the steering is held (or pre-steers)
+    clamp_margin_rad: float = 0.35      # a wanted angle this far past the steer stop is clamped, not flipped
     stale_s: float = 0.25               # watchdog: no fresh reference or state for this long -> stop
     mpc_horizon: int = 20
     mpc_max_iter: int = 3
@@ -40,7 +41,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
 def make_controller(cfg: Config) -> Controller:
     """The pure controller object a config describes."""
     limits = Limits(cfg.steer_limit_rad, cfg.steer_rate_radps, cfg.wheel_accel_mps2, cfg.wheel_speed_mps,
-                    cfg.v_gate_mps)
+                    cfg.v_gate_mps, cfg.clamp_margin_rad)
     kw = dict(wheelbase_m=cfg.wheelbase_m, limits=limits, k_p=cfg.k_p, k_s=cfg.k_s, lead_s=cfg.lead_s)
     if cfg.law == "mpc":
         from nodes.control.mpc import MpcController   # casadi only when asked for

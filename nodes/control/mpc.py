@@ -93,6 +93,7 @@ class MpcController(Controller):
         self.preview: Preview | None = None
         self.solve_ok = 0
         self.solve_fail = 0
+        self.log_status = ""            # CasADi return status of the last failed solve
 
     def reset(self) -> None:
         super().reset()
