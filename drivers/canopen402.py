@@ -52,6 +52,7 @@ class DriveConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     role: str = "wheel"              # 'wheel' or 'steer'
     axle: str = "front"              # 'front' or 'rear'
     counts_per_unit: float = WHEEL_COUNTS_PER_M   # counts per m (wheel) or per rad (steer)
+    eds: str = ""                    # EDS / DCF of this drive ('' = the bus-wide one, if any)
 
     def axle_drive(self) -> AxleDrive:
         return AxleDrive(self.name, self.role, self.axle, self.counts_per_unit)
@@ -74,10 +75,10 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     rate_hz: float = 100.0               # cyclic set-points, state machine, watchdog
     state_hz: float = 20.0               # DriveState publishing
     cmd_timeout_s: float = 0.25          # watchdog: quick stop when commands are older
-    heartbeat_ms: int = 50               # producer heartbeat asked of each drive
+    heartbeat_ms: int = 100              # producer heartbeat asked of each drive
     heartbeat_loss_factor: float = 3.0   # lost after factor x heartbeat_ms
     master_node_id: int = 127            # our own heartbeat (0: none); drives consume it
-    master_heartbeat_ms: int = 50
+    master_heartbeat_ms: int = 100       # drives fault after factor x this without it
     tpdo_event_ms: int = 10              # TPDO event timer
     sync_hz: float = 0.0                 # > 0: produce SYNC and use synchronous TPDOs
     sdo_timeout_s: float = 0.3
@@ -92,6 +93,35 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     steer_quick_stop_radps2: float = 80.0
     steer_limit_rad: float = 2.5             # fold commands beyond this (turn the wheel half a turn, reverse)
     publish_frames: bool = True
+    eds: str = ""                        # EDS / DCF for every drive: checked before use, sizes SDO reads
+
+
+#: (index, bits, PDO-mapped) a drive of each role must have; ramps are optional.
+REQUIRED_OBJECTS = {
+    "wheel": ((p.CONTROLWORD, 16, True), (p.STATUSWORD, 16, True), (p.MODES_OF_OPERATION, 8, False),
+              (p.MODES_DISPLAY, 8, True), (p.POSITION_ACTUAL, 32, True), (p.VELOCITY_ACTUAL, 32, True),
+              (p.TARGET_VELOCITY, 32, True)),
+    "steer": ((p.CONTROLWORD, 16, True), (p.STATUSWORD, 16, True), (p.MODES_OF_OPERATION, 8, False),
+              (p.MODES_DISPLAY, 8, True), (p.POSITION_ACTUAL, 32, True), (p.VELOCITY_ACTUAL, 32, True),
+              (p.TARGET_POSITION, 32, True)),
+}
+OPTIONAL_OBJECTS = {"wheel": (p.PROFILE_ACCEL, p.PROFILE_DECEL, p.QUICK_STOP_DECEL),
+                    "steer": (p.PROFILE_VELOCITY, p.PROFILE_ACCEL, p.PROFILE_DECEL, p.QUICK_STOP_DECEL)}
+
+
+def check_object_dictionary(od: canopen.ObjectDictionary, role: str) -> tuple[list[str], set[int]]:
+    """What rules a drive with this object dictionary out of ``role``, and which optional
+    (ramp) objects it lacks (those are then not written)."""
+    problems = []
+    for index, bits, mapped in REQUIRED_OBJECTS[role]:
+        var = od.get_variable(index, 0)
+        if var is None:
+            problems.append(f"0x{index:04X} missing")
+        elif len(var) != bits:
+            problems.append(f"0x{index:04X} is {len(var)} bits, expected {bits}")
+        elif mapped and not var.pdo_mappable:
+            problems.append(f"0x{index:04X} is not PDO-mappable")
+    return problems, {i for i in OPTIONAL_OBJECTS[role] if od.get_variable(i, 0) is None}
 
 
 class _Drive:
@@ -140,8 +170,16 @@ class Cia402Master:
         self._stop = threading.Event()
         self._next_master_hb = 0.0
         self._thread: threading.Thread | None = None
+        self._skip: dict[str, set[int]] = {}
         for spec in cfg.drives:
-            node = canopen.RemoteNode(spec.node_id, canopen.ObjectDictionary())
+            od = canopen.ObjectDictionary()
+            if spec.eds or cfg.eds:
+                od = canopen.import_od(spec.eds or cfg.eds, node_id=spec.node_id)
+                problems, self._skip[spec.name] = check_object_dictionary(od, spec.role)
+                if problems:
+                    raise ValueError(f"drive {spec.name!r}: {spec.eds or cfg.eds} cannot serve as a {spec.role} "
+                                     f"drive: {'; '.join(problems)}")
+            node = canopen.RemoteNode(spec.node_id, od)
             node.sdo.RESPONSE_TIMEOUT = cfg.sdo_timeout_s
             self.network.add_node(node)
             d = _Drive(spec, node)
@@ -310,7 +348,8 @@ class Cia402Master:
             ramps = {p.PROFILE_VELOCITY: cfg.steer_speed_radps, p.PROFILE_ACCEL: cfg.steer_accel_radps2,
                      p.PROFILE_DECEL: cfg.steer_accel_radps2, p.QUICK_STOP_DECEL: cfg.steer_quick_stop_radps2}
         for index, value in ramps.items():
-            self._write(d, index, 0, int(round(value * k)), 4)
+            if index not in self._skip.get(d.name, ()):
+                self._write(d, index, 0, int(round(value * k)), 4)
         d.position = p.unwrap_int32(None, self._read(d, p.POSITION_ACTUAL, 0, 4, signed=True))
         # A safe set-point before anything can enable: stand still / stay where you are.
         d.target = 0 if wheel else int(d.position)

@@ -133,21 +133,29 @@ class TrackingEval(Node):
         err = math.hypot(msg.x_m - (x0 + a * (x1 - x0)), msg.y_m - (y0 + a * (y1 - y0)))
         return {"error": Float64(stamp_ns=msg.stamp_ns, data=err)}
 
-    def evaluate(self) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def evaluate(self, skip_s: float | None = None) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray,
+                                                           np.ndarray]:
+        """Summary over the states after ``skip_s`` (default: the configured one), and the arrays."""
+        skip_s = self.config.skip_s if skip_s is None else skip_s
         ref = np.array(self._ref, float).reshape(-1, 4)
         st = np.array(self._states, float).reshape(-1, 4)
         if len(ref):
-            st = st[st[:, 0] >= ref[0, 0] + self.config.skip_s]
+            st = st[st[:, 0] >= ref[0, 0] + skip_s]
         keep, pos, head = tracking_errors(ref[:, 0], ref[:, 1:], st[:, 0], st[:, 1:])
         return summarize(pos, head), ref, st, keep, pos
 
     def teardown(self) -> None:
-        self.summary, ref, st, keep, pos = self.evaluate()
+        self.summary, _, _, _, _ = self.evaluate()
         s = self.summary
-        self.log.info("tracking: %d states, position RMS %.1f mm max %.1f mm, heading RMS %.2f deg max %.2f deg",
-                      s["n"], s["rms_mm"], s["max_mm"], s["rms_heading_deg"], s["max_heading_deg"])
+        self.log.info("tracking after %.1f s: %d states, position RMS %.1f mm max %.1f mm, heading RMS %.2f deg "
+                      "max %.2f deg", self.config.skip_s, s["n"], s["rms_mm"], s["max_mm"], s["rms_heading_deg"],
+                      s["max_heading_deg"])
+        full, ref, st, keep, pos = self.evaluate(0.0)
+        if self.config.skip_s > 0:
+            self.log.info("tracking over the whole run (start-up included): position RMS %.1f mm max %.1f mm",
+                          full["rms_mm"], full["max_mm"])
         if self.config.png and len(st) and len(ref):
             t0 = ref[0, 0]
             plot_tracking(self.config.png, ref[:, 1:], st[:, 1:], st[keep, 0] - t0, pos,
-                          f"{self.config.title}: RMS {s['rms_mm']:.1f} mm")
+                          f"{self.config.title}: RMS {s['rms_mm']:.1f} mm after {self.config.skip_s:g} s")
             self.log.info("tracking plot written to %s", self.config.png)

@@ -9,6 +9,7 @@ import logging
 import time
 
 import can
+import canopen
 import msgspec
 import pytest
 
@@ -81,8 +82,8 @@ def test_bring_up_maps_pdos_and_configures_each_drive():
             assert [od[(0x1600, s)].value for s in range(3)] == [2, 0x60400010, target << 16 | 0x20]
             assert [od[(0x1A00, s)].value for s in range(3)] == [2, 0x60410010, 0x60610008]
             assert [od[(0x1A01, s)].value for s in range(3)] == [2, 0x60640020, 0x606C0020]
-            assert od[(0x1800, 5)].value == 10 and od[(0x1017, 0)].value == 50
-            assert od[(0x1016, 1)].value == 127 << 16 | 150
+            assert od[(0x1800, 5)].value == 10 and od[(0x1017, 0)].value == 100
+            assert od[(0x1016, 1)].value == 127 << 16 | 300
             assert od[(0x1401, 1)].value & 0x80000000 and od[(0x1803, 1)].value & 0x80000000
             assert od[(p.MODES_OF_OPERATION, 0)].value == (p.MODE_PV if spec.role == "wheel" else p.MODE_PP)
         assert all_still(bank)                                      # configured, but nobody commanded motion
@@ -222,3 +223,22 @@ def test_drive_rebooting_in_service_trips_and_is_reconfigured():
         assert cycle(master, 3.0, until=master.ready)                # configured again in the background
         master.reset()
         assert cycle(master, 3.0, until=lambda: running(bank))
+
+
+def test_object_dictionaries_from_the_shared_eds_and_dcf(shared_data):
+    from drivers.canopen402 import check_object_dictionary
+    eds = canopen.import_od(str(shared_data / "can" / "ros2_canopen_cia402_slave.eds"), node_id=1)
+    for role in ("wheel", "steer"):
+        assert check_object_dictionary(eds, role) == ([], set())
+    dcf = canopen.import_od(str(shared_data / "can" / "pilz_prbt_0_1.dcf"), node_id=1)
+    problems, missing = check_object_dictionary(dcf, "wheel")
+    assert problems == ["0x60FF missing"]                       # a joint module: no profile velocity target
+    assert check_object_dictionary(dcf, "steer") == ([], {p.PROFILE_DECEL, p.QUICK_STOP_DECEL})
+    with pytest.raises(ValueError, match="0x60FF missing"):
+        Cia402Master(open_bus("virtual", "dcf-check"), Config(interface="virtual", channel="dcf-check",
+                                                              eds=str(shared_data / "can" / "pilz_prbt_0_1.dcf")))
+
+
+def test_runs_with_the_eds_object_dictionary(shared_data):
+    with rig(eds=str(shared_data / "can" / "ros2_canopen_cia402_slave.eds")) as (master, bank):
+        up_and_running(master, bank)

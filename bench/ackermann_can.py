@@ -1,0 +1,215 @@
+"""Figure-eight tracking with the REAL CAN loop: CiA 402 master -> python-can -> simulated drives.
+
+    python bench/ackermann_can.py [--quick] [--json]
+
+The controller (seed's final law, 50 Hz by default) computes per-axle commands; the
+CANopen master (drivers/canopen402.py) turns them into RPDO set-points (profile velocity
+for wheels, profile position with the set-point handshake for steering) on a python-can
+bus; simulated CiA 402 drives (sim/cia402_drive.py: protocol stack + first-order motors)
+answer; the vehicle model integrates the speeds and angles the drives actually reach and
+the controller reads them back. Everything runs in real time in this process (the bus
+is ``udp_multicast`` -- real sockets, echo filtering -- or python-can's ``virtual``).
+
+Knob swept: the master's set-point rate (50-200 Hz) and the control rate. Reference, in
+the same run: the same controller on the pure model with no bus, and with the bus
+modelled as a delay + first-order drives (what bench/ackermann.py calls "modelled bus").
+Errors are against the analytic trajectory at the control ticks. The first ``--skip``
+seconds (drives enabling, wheels spinning up from rest: the model runs start ON the
+reference with the wheels already at speed) are reported separately.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import sys
+import time
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, REPO)
+
+import numpy as np  # noqa: E402
+
+from drivers.can_bus import open_bus  # noqa: E402
+from drivers.canopen402 import DEFAULT_DRIVES, Cia402Master, Config as BusConfig  # noqa: E402
+from nodes.control.can_axles import command_from_actuals, setpoints_from_command  # noqa: E402
+from nodes.control.double_ackermann import FinalController, RefPoint  # noqa: E402
+from nodes.control.kinematics import Wheels, initial_wheels, s_from_world  # noqa: E402
+from nodes.control.trajectory import make_trajectory  # noqa: E402
+from sim.cia402_drive import DriveFaults, SimDrive, SimDriveBank  # noqa: E402
+from sim.vehicle4ws import VehicleParams, Vehicle4WSModel, simulate_tracking  # noqa: E402
+
+TAU_S = 0.02           # simulated drives' first-order motor lag
+PHYSICS_HZ = 500.0
+
+
+def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: str, skip_s: float) -> dict:
+    """One real-time closed loop over the CAN stack; returns error summaries and timings."""
+    traj = make_trajectory("figure8")
+    r0 = traj(0.0)
+    params = VehicleParams()
+    w0 = initial_wheels(s_from_world(float(r0.p[0, 2]), *map(float, r0.dp[0]), params.wheelbase_m),
+                        params.steer_limit_rad)
+    channel = "239.74.163.2" if interface == "udp_multicast" else f"bench-{os.getpid()}-{master_hz}-{rate_hz}"
+    opts = {"port": 46_000 + os.getpid() % 1000} if interface == "udp_multicast" else {}
+    cfg = BusConfig(interface=interface, channel=channel, rate_hz=master_hz, **opts)
+    sim_bus, master_bus = open_bus(interface, channel, **opts), open_bus(interface, channel, **opts)
+    frames = [0]
+    master_bus.tx_listeners.append(lambda m: frames.__setitem__(0, frames[0] + 1))
+    now = time.monotonic()
+    start_angle = {"front": w0.delta_front, "rear": w0.delta_rear}
+    drives = {d.name: SimDrive(d.node_id, role=d.role, time_constant_s=TAU_S, now_s=now, faults=DriveFaults(
+        position_offset=int(round(start_angle[d.axle] * d.counts_per_unit)) if d.role == "steer" else 0))
+        for d in DEFAULT_DRIVES}
+    bank = SimDriveBank(sim_bus, drives).start()
+    master = Cia402Master(master_bus, cfg)
+    master.start()
+    axles = [d.axle_drive() for d in DEFAULT_DRIVES]
+    try:
+        t_ready = time.monotonic()
+        while not master.ready():
+            master.step(time.monotonic(), None)
+            time.sleep(0.01)
+            if time.monotonic() - t_ready > 10:
+                raise RuntimeError("drives never came up")
+        bring_up_s = time.monotonic() - t_ready
+        ctrl = FinalController(lead_s=TAU_S + 0.5 / master_hz + 0.001)
+        ctrl.prev = Wheels(0.0, w0.delta_front, 0.0, w0.delta_rear)    # what the drives hold now
+        model = Vehicle4WSModel(params, pose=tuple(map(float, r0.p[0])), wheels=Wheels(0.0, w0.delta_front, 0.0,
+                                                                                       w0.delta_rear))
+        setpoints = setpoints_from_command(0.0, w0.delta_front, 0.0, w0.delta_rear, axles)
+        log, step_us, master_us, late = [], [], [], []
+        t0 = last = time.monotonic()
+        next_ctrl, next_master, next_phys = t0, t0, t0
+        frames0 = frames[0]
+        while True:
+            now = time.monotonic()
+            t = now - t0
+            if t > duration_s:
+                break
+            wheels = Wheels(*command_from_actuals(bank.actuals(), axles))
+            model.step_measured(wheels, now - last)
+            last = now
+            if now >= next_ctrl:
+                late.append(now - next_ctrl)
+                next_ctrl += 1.0 / rate_hz
+                r = traj(t)
+                c0 = time.perf_counter()
+                cmd = ctrl.step(RefPoint(tuple(r.p[0]), tuple(r.dp[0]), tuple(r.ddp[0])), model.pose, wheels,
+                                1.0 / rate_hz)
+                step_us.append((time.perf_counter() - c0) * 1e6)
+                setpoints = setpoints_from_command(*cmd, axles, steer_limit_rad=cfg.steer_limit_rad)
+                log.append((t, *model.pose, *map(float, r.p[0])))
+            if now >= next_master:
+                next_master += 1.0 / master_hz
+                c0 = time.perf_counter()
+                master.step(now, setpoints)
+                master_us.append((time.perf_counter() - c0) * 1e6)
+            next_phys = now + 1.0 / PHYSICS_HZ
+            time.sleep(max(0.0, min(next_phys, next_ctrl, next_master) - time.monotonic()))
+        arr = np.array(log)
+        err = np.hypot(arr[:, 1] - arr[:, 4], arr[:, 2] - arr[:, 5])
+        head = np.abs((arr[:, 3] - arr[:, 6] + np.pi) % (2 * np.pi) - np.pi)
+        steady = arr[:, 0] >= skip_s
+        return {"rms_mm": float(np.sqrt(np.mean(err[steady] ** 2)) * 1e3), "max_mm": float(err[steady].max() * 1e3),
+                "rms_mm_full": float(np.sqrt(np.mean(err ** 2)) * 1e3), "max_mm_full": float(err.max() * 1e3),
+                "rms_deg": float(np.degrees(np.sqrt(np.mean(head[steady] ** 2)))),
+                "step_us": statistics.median(step_us), "master_step_us": statistics.median(master_us),
+                "tick_late_ms_p95": float(np.percentile(late, 95) * 1e3), "tick_late_ms_max": float(max(late) * 1e3),
+                "bring_up_s": bring_up_s, "tripped": master.latched,
+                "tx_frames_per_s": (frames[0] - frames0) / duration_s, "log": arr, "err": err}
+    finally:
+        master.close()
+        bank.stop()
+        sim_bus.shutdown()
+
+
+def model_run(*, rate_hz: float, duration_s: float, bus: bool) -> dict:
+    """The same controller on the pure model (no bus), or with the bus modelled as delays + lag."""
+    lead = TAU_S + 0.005 if bus else 0.0
+    params = VehicleParams(wheel_tau_s=TAU_S, steer_tau_s=TAU_S) if bus else VehicleParams()
+    t0 = time.perf_counter()
+    res = simulate_tracking(FinalController(lead_s=lead), make_trajectory("figure8"), rate_hz=rate_hz,
+                            duration_s=duration_s, params=params, latency_s=0.005 if bus else 0.0,
+                            state_delay_s=0.0)
+    s = res.summary()
+    return {"rms_mm": s["rms_mm"], "max_mm": s["max_mm"], "rms_deg": s["rms_deg"],
+            "wall_s": time.perf_counter() - t0}
+
+
+def plot(path: str, runs: dict[str, dict], skip_s: float) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.8))
+    first = next(iter(runs.values()))["log"]
+    ax.plot(first[:, 4], first[:, 5], "k--", lw=1, label="reference")
+    for name, r in runs.items():
+        ax.plot(r["log"][:, 1], r["log"][:, 2], lw=1, label=name)
+        bx.semilogy(r["log"][:, 0], np.maximum(r["err"] * 1e3, 1e-3), lw=1, label=f"{name}: {r['rms_mm']:.2f} mm RMS")
+    bx.axvline(skip_s, color="gray", ls=":", lw=1)
+    bx.axhline(10.0, color="C3", ls="--", lw=1, label="goal 10 mm")
+    ax.set_aspect("equal")
+    ax.set_title("figure-eight, controller -> CiA 402 bus -> simulated drives -> vehicle")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2)
+    bx.set_xlabel("t (s)")
+    bx.set_ylabel("position error (mm)")
+    bx.legend(fontsize=7)
+    bx.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="shorter runs, fewer settings")
+    ap.add_argument("--json", action="store_true", help="print one JSON object with the headline figures only")
+    ap.add_argument("--skip", type=float, default=3.0, help="start-up transient excluded from the RMS (s)")
+    args = ap.parse_args()
+    say = (lambda *a, **k: None) if args.json else print
+    duration = 14.0 if args.quick else 40.0          # 40 s = one full lap of the figure-eight
+    settings = [("udp_multicast", 50.0, 100.0)] if args.quick else [
+        ("udp_multicast", 50.0, 50.0), ("udp_multicast", 50.0, 100.0), ("udp_multicast", 50.0, 200.0),
+        ("udp_multicast", 100.0, 100.0), ("virtual", 50.0, 100.0)]
+    say(f"figure-eight, {duration:.0f} s per run in real time; RMS after the first {args.skip:.0f} s")
+    say(f"{'loop':>32s} {'rms mm':>8s} {'max mm':>8s} {'rms(all)':>9s} {'head deg':>9s} {'ctrl us':>8s} "
+        f"{'master us':>9s} {'tx fr/s':>8s} {'late p95':>8s} {'late max':>8s}")
+    runs: dict[str, dict] = {}
+    for interface, rate, master_hz in settings:
+        name = f"CAN {interface} ctrl {rate:.0f} Hz, bus {master_hz:.0f} Hz"
+        r = can_run(rate_hz=rate, master_hz=master_hz, duration_s=duration, interface=interface, skip_s=args.skip)
+        runs[name] = r
+        say(f"{name:>32s} {r['rms_mm']:8.2f} {r['max_mm']:8.2f} {r['rms_mm_full']:9.2f} {r['rms_deg']:9.3f} "
+            f"{r['step_us']:8.0f} {r['master_step_us']:9.0f} {r['tx_frames_per_s']:8.0f} {r['tick_late_ms_p95']:7.2f}ms"
+            f" {r['tick_late_ms_max']:7.1f}ms" + (f"  TRIPPED: {r['tripped']} (drives quick-stopped)" if r["tripped"] else ""))
+    ref = {"model, no bus": model_run(rate_hz=50, duration_s=duration, bus=False),
+           "model, modelled bus": model_run(rate_hz=50, duration_s=duration, bus=True)}
+    for name, r in ref.items():
+        say(f"{name + ' (50 Hz)':>32s} {r['rms_mm']:8.2f} {r['max_mm']:8.2f} {'':>9s} {r['rms_deg']:9.3f}")
+    head = runs[next(n for n in runs if "bus 100 Hz" in n and "ctrl 50" in n and "udp" in n)]
+    ratio = head["rms_mm"] / max(ref["model, no bus"]["rms_mm"], 1e-9)
+    os.makedirs(os.path.join(REPO, "out"), exist_ok=True)
+    png = os.path.join(REPO, "out", "ackermann_can.png")
+    plot(png, runs, args.skip)
+    say(f"\nheadline: figure-eight over the CAN loop {head['rms_mm']:.2f} mm RMS (goal <= 10 mm), "
+        f"{ratio:.0f}x the no-bus model; max {head['max_mm']:.1f} mm; plot {png}")
+    if args.json:
+        print(json.dumps({
+            "fig8_rms_mm_can": head["rms_mm"], "fig8_max_mm_can": head["max_mm"],
+            "fig8_rms_mm_can_full": head["rms_mm_full"],
+            "fig8_rms_mm_can_is": f"real CiA 402 loop over python-can udp_multicast, sim drives tau {TAU_S * 1e3:.0f} ms, "
+                                  f"control 50 Hz, set-points 100 Hz, after the first {args.skip:.0f} s",
+            "fig8_rms_mm_model_nobus": ref["model, no bus"]["rms_mm"],
+            "fig8_rms_mm_model_bus": ref["model, modelled bus"]["rms_mm"],
+            "can_vs_nobus_ratio": ratio, "can_tripped": head["tripped"], "master_step_us": head["master_step_us"], "step_us": head["step_us"],
+            "by_setting": {n: {"rms_mm": r["rms_mm"], "max_mm": r["max_mm"]} for n, r in runs.items()},
+        }))
+
+
+if __name__ == "__main__":
+    main()
