@@ -1,7 +1,20 @@
-"""Robust ICP of a sonar point cloud against a known structure model, with degeneracy and ambiguity checks.
+"""Robust ICP of a sonar point cloud (or of elevation arcs) against a known structure model.
 
-Point-to-plane (default) or point-to-point Gauss-Newton on a KD-tree (``scipy.spatial.cKDTree``),
-Huber or Cauchy weights, a shrinking correspondence gate (outlier rejection), and:
+Point-to-plane (default) or point-to-point Gauss-Newton on a KD-tree (``scipy.spatial.cKDTree``)
+or a nearest-point grid, Huber or Cauchy weights, a shrinking correspondence gate (outlier
+rejection), and:
+
+* **restricted degrees of freedom** (``dof``): ``"all"`` solves x, y, z, roll, pitch, yaw;
+  ``"xyz_yaw"`` and ``"xy_yaw"`` hold roll and pitch (and z) at the initial transform, as a vehicle
+  with an AHRS (and a depth sensor) measures them directly. Only the free columns of the Jacobian
+  enter the normal equations, so degeneracy, steps and covariance live in that reduced space; the
+  6x6 covariance has zero rows and columns for the held directions (known, not estimated).
+* **elevation arcs**: a forward-looking sonar measures range and bearing, not elevation. A source
+  may be given as arcs, (N, K, 3) samples across the vertical aperture at the measured range.
+  Each arc's residual is taken at its sample with the smallest signed distance to the model
+  surface (``n . (p - q)``): at the true pose the arc touches the surface where the first return
+  came from and lies in free space elsewhere, so the smallest signed distance is 0; a gap pulls
+  the model in, a penetration pushes it out. No elevation is ever guessed.
 
 * **degeneracy**: the smallest eigenvalue of the point-to-plane normal matrix (translation in m,
   rotation scaled by the cloud's radius, per inlier) says which directions the geometry pins down.
@@ -20,88 +33,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from nodes.sonar.icp_model import IcpModel, NearestGrid
+
+__all__ = ["DOFS", "IcpModel", "IcpOutcome", "IcpSettings", "NearestGrid", "align", "yaw_about"]
 
 METHODS = ("point_to_plane", "point_to_point")
 KERNELS = ("huber", "cauchy", "none")
+# Free directions per setting, indices into (x, y, z, roll, pitch, yaw).
+DOFS = {"all": (0, 1, 2, 3, 4, 5), "xyz_yaw": (0, 1, 2, 5), "xy_yaw": (0, 1, 5)}
 UNOBSERVED_VARIANCE = 1e6       # m^2 or rad^2 for directions the geometry does not constrain
-
-
-@dataclass(frozen=True)
-class NearestGrid:
-    """Precomputed nearest model point per voxel around the model (-1: none within the margin).
-
-    A static model makes the nearest-neighbour search a table lookup: the match of a point is the
-    model point nearest to its voxel's centre (at most ``voxel_m * sqrt(3) / 2`` from the exact one;
-    the same surface patch, which is what the point-to-plane error needs). :func:`align` polishes
-    the last iterations with the exact KD-tree.
-    """
-
-    origin: np.ndarray
-    voxel_m: float
-    dims: tuple[int, int, int]
-    table: np.ndarray
-
-    @classmethod
-    def build(cls, points: np.ndarray, tree: cKDTree, voxel_m: float, margin_m: float) -> "NearestGrid":
-        from scipy.ndimage import binary_dilation
-
-        lo = points.min(axis=0) - margin_m
-        dims = tuple(int(v) for v in np.ceil((points.max(axis=0) + margin_m - lo) / voxel_m))
-        if int(np.prod(dims)) > 20_000_000:
-            raise ValueError(f"nearest grid of {dims} voxels is too big; raise voxel_m or lower margin_m")
-        occupied = np.zeros(dims, bool)
-        occupied[tuple(((points - lo) / voxel_m).astype(int).T)] = True
-        near = binary_dilation(occupied, iterations=int(np.ceil(margin_m / voxel_m)))
-        cells = np.flatnonzero(near.ravel())
-        centres = lo + (np.stack(np.unravel_index(cells, dims), axis=1) + 0.5) * voxel_m
-        _, idx = tree.query(centres, k=1, distance_upper_bound=margin_m + voxel_m)
-        table = np.full(int(np.prod(dims)), -1, np.int32)
-        table[cells] = np.where(idx < len(points), idx, -1)
-        return cls(lo, float(voxel_m), dims, table)
-
-    def lookup(self, p: np.ndarray) -> np.ndarray:
-        """Index of the model point matched to each of ``p`` (K, 3), -1 where none."""
-        v = np.floor((p - self.origin) / self.voxel_m).astype(np.int64)
-        d0, d1, d2 = self.dims
-        inside = (v >= 0).all(axis=1) & (v[:, 0] < d0) & (v[:, 1] < d1) & (v[:, 2] < d2)
-        out = np.full(len(p), -1, np.int32)
-        vi = v[inside]
-        out[inside] = self.table[(vi[:, 0] * d1 + vi[:, 1]) * d2 + vi[:, 2]]
-        return out
-
-
-@dataclass(frozen=True)
-class IcpModel:
-    """A model ready for matching: points, unit normals, their KD-tree and optionally a nearest grid."""
-
-    points: np.ndarray
-    normals: np.ndarray
-    tree: cKDTree
-    centroid: np.ndarray
-    grid: NearestGrid | None = None
-
-    @classmethod
-    def build(cls, points: np.ndarray, normals: np.ndarray, *, grid_m: float = 0.0,
-              grid_margin_m: float = 1.0) -> "IcpModel":
-        """Build once per model. ``grid_m`` > 0 adds a :class:`NearestGrid` (faster matching, ~1 s to build)."""
-        p, n = np.asarray(points, float), np.asarray(normals, float)
-        if p.ndim != 2 or p.shape[1] != 3 or p.shape != n.shape or len(p) < 3:
-            raise ValueError(f"model needs >= 3 points (K, 3) and normals of the same shape, got {p.shape}, {n.shape}")
-        ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(n), axis=1) & (np.linalg.norm(n, axis=1) > 0)
-        p, n = p[ok], n[ok] / np.linalg.norm(n[ok], axis=1, keepdims=True)
-        tree = cKDTree(p, leafsize=16, balanced_tree=False)
-        grid = NearestGrid.build(p, tree, grid_m, grid_margin_m) if grid_m > 0 else None
-        return cls(p, n, tree, p.mean(axis=0), grid)
-
-    def nearest(self, p: np.ndarray, gate: float, exact: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """``(distance, index)`` of each point's match; distance inf beyond ``gate`` or without one."""
-        if exact or self.grid is None:
-            return self.tree.query(p, k=1, distance_upper_bound=gate)
-        idx = self.grid.lookup(p)
-        d = np.linalg.norm(p - self.points[idx], axis=1)
-        d[(idx < 0) | (d > gate)] = np.inf
-        return d, idx
 
 
 @dataclass(frozen=True)
@@ -109,6 +50,7 @@ class IcpSettings:
     """Tuning of :func:`align` (distances in m, angles in rad)."""
 
     method: str = "point_to_plane"
+    dof: str = "all"                         # "all", "xyz_yaw" or "xy_yaw" (see the module docstring)
     kernel: str = "huber"
     kernel_scale_m: float = 0.2
     max_correspondence_m: float = 1.5        # first iteration's gate
@@ -135,6 +77,8 @@ class IcpSettings:
     def __post_init__(self) -> None:
         if self.method not in METHODS or self.kernel not in KERNELS:
             raise ValueError(f"method must be one of {METHODS} and kernel one of {KERNELS}")
+        if self.dof not in DOFS:
+            raise ValueError(f"dof must be one of {tuple(DOFS)}, got {self.dof!r}")
         if not (0 < self.min_correspondence_m <= self.max_correspondence_m) or not (0 < self.gate_decay <= 1):
             raise ValueError("need 0 < min_correspondence_m <= max_correspondence_m and 0 < gate_decay <= 1")
         if self.max_iterations < 1 or self.max_points < 6 or self.kernel_scale_m <= 0:
@@ -152,7 +96,7 @@ class IcpOutcome:
     ambiguous: bool
     min_eigenvalue: float
     eigenvalues: np.ndarray
-    unobservable: np.ndarray                   # (6, k) basis of unconstrained directions
+    unobservable: np.ndarray                   # (6, k) basis of unconstrained free directions
     rmse_m: float
     inlier_ratio: float
     iterations: int
@@ -198,35 +142,57 @@ def _plane_system(p: np.ndarray, q: np.ndarray, n: np.ndarray, c: np.ndarray) ->
     return r, np.hstack([n, np.cross(p - c, n)])
 
 
-def _eig_scaled(h: np.ndarray, scale: float, norm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Eigen-decomposition of the per-point normal matrix with rotation scaled to metres at ``scale``."""
-    s = np.array([1.0, 1.0, 1.0, 1 / scale, 1 / scale, 1 / scale])
-    evals, evecs = np.linalg.eigh((h * s[:, None] * s[None, :]) / norm)
-    return evals, evecs, s
+def _match(src: np.ndarray, model: IcpModel, transform: np.ndarray, gate: float,
+           exact: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One matched point per source element: ``(p (k, 3) transformed, model index (k,), ok (N,))``.
+
+    ``src`` is (N, K, 3): K = 1 for points; for arcs the sample with the smallest signed
+    distance to its match's tangent plane represents the arc (see the module docstring).
+    Samples without a model point within ``gate`` are ignored; an arc without any is unmatched.
+    """
+    n_src, k = src.shape[:2]
+    p = src.reshape(-1, 3) @ transform[:3, :3].T + transform[:3, 3]
+    d, idx = model.nearest(p, gate, exact)
+    found = np.isfinite(d)
+    if k == 1:
+        return p[found], idx[found], found
+    sd = np.full(len(p), np.inf)
+    i = idx[found]
+    sd[found] = np.einsum("ij,ij->i", p[found] - model.points[i], model.normals[i])
+    sd = sd.reshape(n_src, k)
+    pick = np.argmin(sd, axis=1)
+    ok = np.isfinite(sd[np.arange(n_src), pick])
+    flat = (np.flatnonzero(ok) * k + pick[ok])
+    return p[flat], idx[flat], ok
 
 
 def _system(src: np.ndarray, model: IcpModel, transform: np.ndarray, gate: float, cfg: IcpSettings,
             exact: bool = True) -> dict | None:
-    """Correspondences within ``gate`` and the point-to-plane normal equations at ``transform``."""
-    p = src @ transform[:3, :3].T + transform[:3, 3]
-    d, idx = model.nearest(p, gate, exact)
-    ok = np.isfinite(d)
-    if ok.sum() < cfg.min_inliers:
+    """Correspondences within ``gate`` and the point-to-plane normal equations over the free directions.
+
+    ``h``, ``g``, ``evals``, ``evecs`` and ``s`` are in the reduced space of ``cfg.dof`` (``sel``
+    lists its directions); rotation is scaled to metres at the matched points' radius.
+    """
+    p, idx, ok = _match(src, model, transform, gate, exact)
+    if len(p) < cfg.min_inliers:
         return None
-    p, q, n = p[ok], model.points[idx[ok]], model.normals[idx[ok]]
+    q, n = model.points[idx], model.normals[idx]
     c = p.mean(axis=0)
     scale = max(float(np.sqrt(((p - c) ** 2).sum(axis=1).mean())), 1e-3)
     r, j = _plane_system(p, q, n, c)
+    sel = np.asarray(DOFS[cfg.dof])
+    j = j[:, sel]
     w = _weights(r, cfg.kernel, cfg.kernel_scale_m)
     jw = j * w[:, None]
     h = jw.T @ j
-    evals, evecs, s = _eig_scaled(h, scale, max(float(w.sum()), 1e-9))
-    return dict(p=p, q=q, r=r, w=w, h=h, g=jw.T @ r, c=c, scale=scale, s=s, evals=evals, evecs=evecs,
-                n_in=int(ok.sum()), n=len(src))
+    s = np.array([1.0, 1.0, 1.0, 1 / scale, 1 / scale, 1 / scale])[sel]
+    evals, evecs = np.linalg.eigh((h * s[:, None] * s[None, :]) / max(float(w.sum()), 1e-9))
+    return dict(p=p, q=q, r=r, w=w, h=h, g=jw.T @ r, c=c, scale=scale, s=s, sel=sel, evals=evals, evecs=evecs,
+                n_in=len(p), n=len(src))
 
 
 def _point_to_point(sys_: dict, cfg: IcpSettings) -> tuple[np.ndarray, np.ndarray]:
-    """Normal equations of the point-to-point error, J_i = [I, -[a_i]x], in closed form."""
+    """Normal equations of the point-to-point error, J_i = [I, -[a_i]x], in closed form (free directions)."""
     e, a = sys_["p"] - sys_["q"], sys_["p"] - sys_["c"]
     w = _weights(np.linalg.norm(e, axis=1), cfg.kernel, cfg.kernel_scale_m)
     wa = w @ a
@@ -236,22 +202,27 @@ def _point_to_point(sys_: dict, cfg: IcpSettings) -> tuple[np.ndarray, np.ndarra
     h[:3, 3:] = -_skew(wa)
     h[3:, :3] = _skew(wa)
     h[3:, 3:] = np.trace(waa) * np.eye(3) - waa
-    return h, np.concatenate([w @ e, w @ np.cross(a, e)])
+    sel = sys_["sel"]
+    return h[np.ix_(sel, sel)], np.concatenate([w @ e, w @ np.cross(a, e)])[sel]
 
 
 def _step(sys_: dict, cfg: IcpSettings) -> np.ndarray:
-    """Gauss-Newton step [dt, dw] confined to the directions the plane system observes."""
+    """Gauss-Newton step [dt, dw] (6,) confined to the free directions the plane system observes."""
     s, evals, evecs = sys_["s"], sys_["evals"], sys_["evecs"]
     keep = evals > cfg.degeneracy_threshold
     if cfg.method == "point_to_plane":
         gs = sys_["g"] * s / max(float(sys_["w"].sum()), 1e-9)
-        return -(evecs[:, keep] @ ((evecs[:, keep].T @ gs) / evals[keep])) * s
-    # Point-to-point matching "sticks" on a flat floor (nearest points are nearby), which would
-    # hide the degeneracy: solve it, then drop what the plane system cannot see.
-    h, g = _point_to_point(sys_, cfg)
-    step_s = np.linalg.lstsq((h * s[:, None] * s[None, :]), -g * s, rcond=1e-9)[0]
-    free = evecs[:, ~keep]
-    return (step_s - free @ (free.T @ step_s)) * s
+        reduced = -(evecs[:, keep] @ ((evecs[:, keep].T @ gs) / evals[keep])) * s
+    else:
+        # Point-to-point matching "sticks" on a flat floor (nearest points are nearby), which would
+        # hide the degeneracy: solve it, then drop what the plane system cannot see.
+        h, g = _point_to_point(sys_, cfg)
+        step_s = np.linalg.lstsq((h * s[:, None] * s[None, :]), -g * s, rcond=1e-9)[0]
+        free = evecs[:, ~keep]
+        reduced = (step_s - free @ (free.T @ step_s)) * s
+    step = np.zeros(6)
+    step[sys_["sel"]] = reduced
+    return step
 
 
 def _iterate(src: np.ndarray, model: IcpModel, transform: np.ndarray, cfg: IcpSettings, iterations: int,
@@ -288,9 +259,17 @@ def _iterate(src: np.ndarray, model: IcpModel, transform: np.ndarray, cfg: IcpSe
 
 
 def _score(src: np.ndarray, model: IcpModel, transform: np.ndarray, gate: float) -> float:
-    """Truncated mean squared distance to the model: a fit measure comparable across restarts."""
-    p = src @ transform[:3, :3].T + transform[:3, 3]
-    d, _ = model.tree.query(p, k=1, distance_upper_bound=gate)
+    """Truncated mean squared distance to the model: a fit measure comparable across restarts.
+
+    Points: distance to the nearest model point. Arcs: distance of the sample that represents the arc.
+    """
+    if src.shape[1] == 1:
+        p = src[:, 0] @ transform[:3, :3].T + transform[:3, 3]
+        d, _ = model.tree.query(p, k=1, distance_upper_bound=gate)
+    else:
+        p, idx, ok = _match(src, model, transform, gate, exact=True)
+        d = np.full(len(src), gate)
+        d[ok] = np.linalg.norm(p - model.points[idx], axis=1)
     return float(np.mean(np.minimum(np.nan_to_num(d, posinf=gate), gate) ** 2))
 
 
@@ -304,13 +283,16 @@ def _distinct(a: np.ndarray, b: np.ndarray, cfg: IcpSettings, pivot: np.ndarray)
     return dyaw > cfg.distinct_yaw_rad or moved > cfg.distinct_m
 
 
-def _finite_points(cloud: np.ndarray) -> np.ndarray:
-    pts = np.asarray(cloud, float)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        if pts.size == 0:
-            return np.zeros((0, 3))
-        raise ValueError(f"cloud must be (N, 3) points in metres, got shape {pts.shape}")
-    return pts[np.all(np.isfinite(pts), axis=1)]
+def _finite_source(cloud: np.ndarray) -> np.ndarray:
+    """(N, 3) points or (N, K, 3) arcs -> (N', K, 3) without non-finite elements (K = 1 for points)."""
+    src = np.asarray(cloud, float)
+    if src.size == 0:
+        return np.zeros((0, 1, 3))
+    if src.ndim == 2 and src.shape[1] == 3:
+        src = src[:, None, :]
+    if src.ndim != 3 or src.shape[2] != 3 or src.shape[1] < 1:
+        raise ValueError(f"cloud must be (N, 3) points or (N, K, 3) arc samples in metres, got shape {src.shape}")
+    return src[np.all(np.isfinite(src), axis=(1, 2))]
 
 
 def _subsample(pts: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -323,36 +305,50 @@ def _failed(init: np.ndarray, n: int, reason: str) -> IcpOutcome:
 
 
 def _covariance(sys_: dict, cfg: IcpSettings) -> tuple[np.ndarray, np.ndarray]:
-    """6x6 covariance about the model origin, and the (6, k) unobservable basis (unscaled)."""
-    s, evals, evecs, w, r = sys_["s"], sys_["evals"], sys_["evecs"], sys_["w"], sys_["r"]
+    """6x6 covariance about the model origin, and the (6, k) unobservable basis (unscaled).
+
+    Directions held by ``cfg.dof`` have zero variance (known from other sensors); free directions
+    the geometry does not constrain get :data:`UNOBSERVED_VARIANCE`.
+    """
+    s, evals, evecs, w, r, sel = sys_["s"], sys_["evals"], sys_["evecs"], sys_["w"], sys_["r"], sys_["sel"]
     keep = evals > cfg.degeneracy_threshold
-    dof = max(float(w.sum()) - 6.0, 1.0)
+    dof = max(float(w.sum()) - len(sel), 1.0)
     sigma2 = float((w * r ** 2).sum()) / dof
     inv = evecs[:, keep] @ np.diag(1.0 / evals[keep]) @ evecs[:, keep].T * (sigma2 / max(float(w.sum()), 1e-9))
     inv += UNOBSERVED_VARIANCE * evecs[:, ~keep] @ evecs[:, ~keep].T
-    cov_c = inv * s[:, None] * s[None, :]
+    cov_c = np.zeros((6, 6))
+    cov_c[np.ix_(sel, sel)] = inv * s[:, None] * s[None, :]
     a = np.eye(6)
     a[:3, 3:] = _skew(sys_["c"])           # about c -> about the origin: dt_o = dt + c x dw
-    free = evecs[:, ~keep] * s[:, None]
+    free = np.zeros((6, int((~keep).sum())))
+    free[sel] = evecs[:, ~keep] * s[:, None]
     return a @ cov_c @ a.T, free / np.maximum(np.linalg.norm(free, axis=0), 1e-12)
 
 
 def align(cloud: np.ndarray, model: IcpModel, init: np.ndarray | None = None,
           settings: IcpSettings = IcpSettings()) -> IcpOutcome:
-    """Align ``cloud`` (N, 3, m) to ``model`` starting from ``init`` (4x4 cloud -> model).
+    """Align ``cloud`` to ``model`` starting from ``init`` (4x4 cloud -> model).
 
-    Non-finite points are dropped; a cloud with too few points gives ``converged=False`` and
-    ``reason`` rather than an exception. See the module docstring for degeneracy and ambiguity.
+    Parameters
+    ----------
+    cloud : (N, 3) points or (N, K, 3) elevation-arc samples, metres
+        Non-finite points (arcs with a non-finite sample) are dropped; too few gives
+        ``converged=False`` and ``reason`` rather than an exception.
+    model : IcpModel
+    init : (4, 4), optional
+        Prior; directions held by ``settings.dof`` keep its values.
+    settings : IcpSettings
 
     Returns
     -------
     IcpOutcome
+        See the module docstring for degeneracy, ambiguity and the covariance layout.
     """
     cfg = settings
     t0 = np.eye(4) if init is None else np.asarray(init, float)
     if t0.shape != (4, 4) or not np.all(np.isfinite(t0)):
         raise ValueError("init must be a finite 4x4 transform (cloud -> model)")
-    pts = _finite_points(cloud)
+    pts = _finite_source(cloud)
     if len(pts) < cfg.min_inliers:
         return _failed(t0, len(pts), f"cloud has {len(pts)} finite points, need >= {cfg.min_inliers}")
     rng = np.random.default_rng(cfg.seed)
@@ -379,8 +375,9 @@ def _resolve_yaw(src: np.ndarray, model: IcpModel, prior: np.ndarray, first: np.
                  rng: np.random.Generator) -> tuple[np.ndarray, bool, list[tuple[float, np.ndarray]]]:
     """Restart at yaw offsets about the model's vertical axis; pick the best fit nearest the prior.
 
-    Returns the chosen transform (``first`` itself if it stays), whether a distinct pose within the
-    prior window fits as well, and every (score, transform).
+    Only poses within ``prior_window_rad`` of the prior's yaw can be chosen. Returns the chosen
+    transform (``first`` itself if it stays), whether it is ambiguous (a distinct pose within the
+    window fits as well, or one outside it fits clearly better), and every (score, transform).
     """
     small = _subsample(src, cfg.hypothesis_points, rng)
     gate = 2.0 * cfg.min_correspondence_m
@@ -397,14 +394,20 @@ def _resolve_yaw(src: np.ndarray, model: IcpModel, prior: np.ndarray, first: np.
         if score <= cfg.refine_ratio * max(top, floor):
             t, _, _, _ = _iterate(small, model, t, cfg, cfg.max_iterations, polish=False)
             hyps[i] = (_score(small, model, t, gate), t)
-    top = min(score for score, _ in hyps)
-    good = [(sc, t) for sc, t in hyps if sc <= cfg.ambiguity_ratio * max(top, floor)]
-
     def off_prior(t: np.ndarray) -> float:
         return abs((_yaw_of(t) - _yaw_of(prior) + np.pi) % (2 * np.pi) - np.pi)
 
+    inside = [(sc, t) for sc, t in hyps if off_prior(t) <= cfg.prior_window_rad]
+    if not inside:
+        return first, True, hyps
+    top = min(sc for sc, _ in inside)
+    good = [(sc, t) for sc, t in inside if sc <= cfg.ambiguity_ratio * max(top, floor)]
     chosen = min(good, key=lambda h: (off_prior(h[1]), h[0]))[1]
     if any(h[1] is first for h in good) and not _distinct(first, chosen, cfg, pivot):
         chosen = first
-    rivals = [t for _, t in good if _distinct(t, chosen, cfg, pivot) and off_prior(t) <= cfg.prior_window_rad]
-    return chosen, bool(rivals), hyps
+    rivals = [t for _, t in good if _distinct(t, chosen, cfg, pivot)]
+    # A pose the prior rules out is never chosen; but if one fits clearly better than anything the
+    # prior allows, the data contradict the prior (or fit the model almost anywhere): not trusted.
+    conflict = top > floor and any(sc * cfg.ambiguity_ratio < top for sc, t in hyps
+                                   if off_prior(t) > cfg.prior_window_rad)
+    return chosen, bool(rivals) or conflict, hyps

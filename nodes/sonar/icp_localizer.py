@@ -1,7 +1,22 @@
-"""ICP localizer node: accumulated sonar cloud -> pose correction against the structure's known model."""
+"""ICP localizer node: sonar returns -> pose correction against the structure's known model.
+
+Two sources (``source``):
+
+* ``"cloud"``: the accumulated world cloud of ``HighlightCloud`` (``points``), every point on the
+  lower aperture edge (eq. 13). Simple, but the elevation guess distorts it (a pylon's first
+  return comes from the upper edge: placed too deep and too close).
+* ``"arcs"``: each line scan (``HighlightCloud`` output ``scan``, sonar frame) with the sonar pose
+  it was taken at (the same navigation pose the cloud uses) becomes elevation arcs
+  (:mod:`nodes.sonar.arcs`); ICP registers the arcs, so no elevation is guessed. A sliding window
+  (``window_s``) keeps the arcs whose navigation drift is close to the current one.
+
+``dof`` restricts the correction: ``xy_yaw`` (default) for a vehicle whose depth sensor and AHRS
+give z, roll and pitch; the held directions have zero variance in the 6x6 covariance.
+"""
 from __future__ import annotations
 
 import math
+from collections import deque
 from pathlib import Path
 from typing import Literal
 
@@ -12,6 +27,7 @@ import yaml
 from msgs.geometry import Pose3D
 from msgs.sensor import PointCloud
 from msgs.sonar import IcpResult
+from nodes.sonar.arcs import arcs_from_scan
 from nodes.sonar.icp import IcpModel, IcpSettings, align
 from nodes.sonar.model import load_mesh, sample_mesh, sample_seabed, sample_structures, tripod_model
 from tether import Input, Node
@@ -21,6 +37,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     # "tripod" (the paper's, with its two pylons), "tripod_symmetric" (without them), a .ply/.obj
     # mesh, or a scene .yaml whose `structures` list is sampled (sim/scenes/fls_*.yaml format)
     model: str = "tripod"
+    source: Literal["cloud", "arcs"] = "cloud"
+    dof: Literal["xy_yaw", "xyz_yaw", "all"] = "xy_yaw"
     spacing_m: float = 0.1                  # model surface sample spacing
     seabed_z_m: float = -6.0
     seabed_radius_m: float = 0.0            # > 0: add a seabed disc (when the cloud keeps seafloor points)
@@ -31,22 +49,31 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     max_correspondence_m: float = 1.5
     min_correspondence_m: float = 0.3
     max_iterations: int = 30
-    max_points: int = 800
+    max_points: int = 800                   # points (or arcs) ICP samples from the cloud
     degeneracy_threshold: float = 0.02
     yaw_hypotheses: int = 6
     prior_window_deg: float = 90.0
-    min_points: int = 50                    # smaller clouds are not aligned (result says converged=False)
+    min_points: int = 50                    # fewer points (arcs) are not aligned: the result says converged=False
     track: bool = True                      # start from the last trusted correction
     model_frame: str = "world"
+    # source "arcs"
+    arc_samples: int = 11                   # elevations per arc
+    spread_deg: float = 0.0                 # vertical aperture; 0: read it from the scan points (beam model)
+    window_s: float = 10.0                  # keep arcs this recent (0: all, up to max_arcs)
+    max_arcs: int = 30_000
+    align_every: int = 5                    # scans between alignments
+    max_pose_age_s: float = 0.5             # scan without a pose this close in time: dropped
 
     def __post_init__(self) -> None:
         if self.spacing_m <= 0 or self.grid_m < 0 or self.min_points < 6:
             raise ValueError("need spacing_m > 0, grid_m >= 0 and min_points >= 6")
+        if self.arc_samples < 1 or self.align_every < 1 or self.window_s < 0 or self.max_arcs < self.min_points:
+            raise ValueError("need arc_samples >= 1, align_every >= 1, window_s >= 0 and max_arcs >= min_points")
         IcpSettings(**_settings_kwargs(self))           # raises ValueError on inconsistent tuning
 
 
 def _settings_kwargs(cfg: Config) -> dict:
-    return dict(method=cfg.method, kernel=cfg.kernel, kernel_scale_m=cfg.kernel_scale_m,
+    return dict(method=cfg.method, dof=cfg.dof, kernel=cfg.kernel, kernel_scale_m=cfg.kernel_scale_m,
                 max_correspondence_m=cfg.max_correspondence_m, min_correspondence_m=cfg.min_correspondence_m,
                 max_iterations=cfg.max_iterations, max_points=cfg.max_points,
                 degeneracy_threshold=cfg.degeneracy_threshold, yaw_hypotheses=cfg.yaw_hypotheses,
@@ -63,7 +90,9 @@ def load_model(cfg: Config) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"model {cfg.model!r}: not 'tripod', 'tripod_symmetric' or an existing .ply/.obj/.yaml file")
     if path.suffix.lower() in (".yaml", ".yml"):
         scene = yaml.safe_load(path.read_text()) or {}
-        pts, nrm = sample_structures(scene.get("structures", []), cfg.spacing_m, base=path.parent)
+        floor = (scene.get("seafloor") or {}).get("z_m")
+        pts, nrm = sample_structures(scene.get("structures", []), cfg.spacing_m, base=path.parent,
+                                     seabed_z_m=None if floor is None else float(floor))
     else:
         pts, nrm = sample_mesh(*load_mesh(path), cfg.spacing_m)
     if cfg.seabed_radius_m > 0:
@@ -74,50 +103,127 @@ def load_model(cfg: Config) -> tuple[np.ndarray, np.ndarray]:
 
 
 class IcpLocalizer(Node):
-    """Input ``cloud`` (world frame, latest only); output ``correction`` (cloud -> model frame)."""
+    """Inputs ``cloud`` (source cloud) or ``scan`` + ``pose`` (source arcs); output ``correction``.
+
+    The correction maps the navigation world frame onto the model frame (apply it to the
+    navigation pose). Flags counted in ``flags``: ``waiting`` (too little data to try: before the
+    structure enters the near field), ``failed`` (tried, no fit), ``degenerate``, ``ambiguous``.
+    """
 
     Config = Config
-    inputs = {"cloud": Input(PointCloud, latest=True)}
     outputs = {"correction": IcpResult}
+
+    @classmethod
+    def ports_for(cls, config: Config):
+        if config.source == "arcs":
+            inputs = {"scan": Input(PointCloud, depth=128), "pose": Input(Pose3D, depth=128)}
+        else:
+            inputs = {"cloud": Input(PointCloud, latest=True)}
+        return inputs, cls.outputs, cls.timers
 
     def setup(self) -> None:
         self._model = IcpModel.build(*load_model(self.config), grid_m=self.config.grid_m)
         self._settings = IcpSettings(**_settings_kwargs(self.config))
         self._last = np.eye(4)
         self.runs = 0
-        self.flags = {"degenerate": 0, "ambiguous": 0, "failed": 0}
+        self.scans = 0
+        self.flags = {"waiting": 0, "failed": 0, "degenerate": 0, "ambiguous": 0, "no_pose": 0}
         self._warned: set[str] = set()
+        self._poses: deque[tuple[int, np.ndarray]] = deque(maxlen=256)
+        self._pending: deque[PointCloud] = deque()
+        self._arcs: deque[tuple[int, np.ndarray]] = deque()
+        self._n_arcs = 0
 
+    # -- source "cloud" -----------------------------------------------------------------
     def on_cloud(self, cloud: PointCloud) -> dict[str, IcpResult]:
         pts = np.asarray(cloud.points_m, float).reshape(-1, 3) if np.size(cloud.points_m) else np.zeros((0, 3))
-        n_finite = int(np.all(np.isfinite(pts), axis=1).sum())
-        if n_finite < self.config.min_points:
-            self._count("failed", f"cloud has {n_finite} finite points, need >= {self.config.min_points}")
-            return {"correction": IcpResult(stamp_ns=cloud.stamp_ns, frame_id=self.config.model_frame,
-                                            correction=Pose3D.from_matrix(self._last), cloud_size=n_finite)}
-        out = align(pts, self._model, self._last if self.config.track else None, self._settings)
+        return {"correction": self._align(pts, cloud.stamp_ns)}
+
+    # -- source "arcs" ------------------------------------------------------------------
+    def on_pose(self, pose: Pose3D) -> list[tuple[str, IcpResult]]:
+        transform = pose.matrix()
+        if np.all(np.isfinite(transform)) and abs(np.linalg.det(transform[:3, :3]) - 1) < 1e-3:
+            self._poses.append((pose.stamp_ns, transform))
+        return self._drain()
+
+    def on_scan(self, scan: PointCloud) -> list[tuple[str, IcpResult]]:
+        self._pending.append(scan)
+        return self._drain()
+
+    def _drain(self) -> list[tuple[str, IcpResult]]:
+        """Turn pending scans into arcs once a pose at or after their stamp is in (or they are too old)."""
+        out = []
+        newest = self._poses[-1][0] if self._poses else None
+        max_age = int(self.config.max_pose_age_s * 1e9)
+        while self._pending:
+            scan = self._pending[0]
+            if newest is None and len(self._pending) > 32:
+                self._pending.popleft()
+                self._count("no_pose", "dropping a scan: no navigation pose received yet")
+                continue
+            if newest is None or (newest < scan.stamp_ns and newest - scan.stamp_ns > -max_age
+                                  and len(self._pending) <= 32):
+                break                                   # its pose may still come
+            self._pending.popleft()
+            result = self._add_scan(scan)
+            if result is not None:
+                out.append(("correction", result))
+        return out
+
+    def _add_scan(self, scan: PointCloud) -> IcpResult | None:
+        cfg = self.config
+        stamp, pose = min(reversed(self._poses), key=lambda p: abs(p[0] - scan.stamp_ns))   # newest wins ties
+        if abs(stamp - scan.stamp_ns) > cfg.max_pose_age_s * 1e9:
+            self._count("no_pose", "dropping a scan: no navigation pose close enough in time to it")
+            return None
+        pts = np.asarray(scan.points_m, float).reshape(-1, 3) if np.size(scan.points_m) else np.zeros((0, 3))
+        arcs = arcs_from_scan(pts, pose, cfg.arc_samples, spread_rad=math.radians(cfg.spread_deg))
+        self._arcs.append((scan.stamp_ns, arcs.astype(np.float32)))
+        self._n_arcs += len(arcs)
+        while self._arcs and (self._n_arcs - len(self._arcs[0][1]) >= cfg.max_arcs or
+                              (cfg.window_s > 0 and self._arcs[0][0] < scan.stamp_ns - cfg.window_s * 1e9)):
+            self._n_arcs -= len(self._arcs.popleft()[1])
+        self.scans += 1
+        if self.scans % cfg.align_every:
+            return None
+        src = np.concatenate([a for _, a in self._arcs]) if self._n_arcs else np.zeros((0, cfg.arc_samples, 3))
+        return self._align(src, scan.stamp_ns)
+
+    # -- common ---------------------------------------------------------------------------
+    def _align(self, src: np.ndarray, stamp_ns: int) -> IcpResult:
+        cfg = self.config
+        n_finite = int(np.all(np.isfinite(src.reshape(len(src), -1)), axis=1).sum()) if len(src) else 0
+        if n_finite < cfg.min_points:
+            self._count("waiting", f"{n_finite} {cfg.source} to align, waiting for >= {cfg.min_points} "
+                                   "(the structure has not entered the near field yet)")
+            return IcpResult(stamp_ns=stamp_ns, frame_id=cfg.model_frame,
+                             correction=Pose3D.from_matrix(self._last, frame_id=cfg.model_frame), cloud_size=n_finite)
+        out = align(src, self._model, self._last if cfg.track else None, self._settings)
         self.runs += 1
-        if out.reason:
-            self._count("failed", out.reason)
+        if out.reason or not out.converged:
+            self._count("failed", out.reason or "ICP did not converge within max_iterations")
         if out.degenerate:
             self._count("degenerate", "degenerate geometry: some directions are not observable and were held "
                                       "at the prior (see covariance)")
         if out.ambiguous:
-            self._count("ambiguous", "ambiguous fit: a distinct pose near the prior fits as well (symmetry)")
-        if out.converged and not out.ambiguous and self.config.track:
+            self._count("ambiguous", "ambiguous fit: a distinct pose near the prior fits as well (symmetry), "
+                                     "or one the prior rules out fits clearly better")
+        if out.converged and not out.ambiguous and cfg.track:
             self._last = out.transform
-        return {"correction": IcpResult(
-            stamp_ns=cloud.stamp_ns, frame_id=self.config.model_frame,
-            correction=Pose3D.from_matrix(out.transform, frame_id=self.config.model_frame),
+        return IcpResult(
+            stamp_ns=stamp_ns, frame_id=cfg.model_frame,
+            correction=Pose3D.from_matrix(out.transform, frame_id=cfg.model_frame),
             covariance=out.covariance, converged=out.converged, degenerate=out.degenerate,
             ambiguous=out.ambiguous, min_eigenvalue=out.min_eigenvalue, rmse_m=out.rmse_m,
-            inlier_ratio=out.inlier_ratio, iterations=out.iterations, cloud_size=out.cloud_size)}
+            inlier_ratio=out.inlier_ratio, iterations=out.iterations, cloud_size=out.cloud_size)
 
     def teardown(self) -> None:
-        self.log.info("icp localizer: %d alignments, flags %s", self.runs, self.flags)
+        self.log.info("icp localizer (%s, %s): %d alignments, flags %s", self.config.source, self.config.dof,
+                      self.runs, self.flags)
 
     def _count(self, flag: str, message: str) -> None:
         self.flags[flag] += 1
-        if message not in self._warned:
-            self._warned.add(message)
+        key = message.split(" ", 1)[-1] if flag == "waiting" else message
+        if key not in self._warned:
+            self._warned.add(key)
             self.log.warning(message)

@@ -19,8 +19,13 @@ import numpy as np
 Samples = tuple[np.ndarray, np.ndarray]
 
 
-def sample_cylinder(p0: Sequence[float], p1: Sequence[float], radius_m: float, spacing_m: float = 0.1) -> Samples:
-    """Lateral surface of a finite cylinder (no caps: they sit on the seabed or in another part)."""
+def sample_cylinder(p0: Sequence[float], p1: Sequence[float], radius_m: float, spacing_m: float = 0.1, *,
+                    caps: bool = False) -> Samples:
+    """Lateral surface of a finite cylinder, plus its two end discs with ``caps``.
+
+    A cap that sits on the seabed or inside another part is removed by :func:`sample_structures`;
+    an exposed one (a column's top below the surface) is often the first thing a sonar sees.
+    """
     a, b = np.asarray(p0, float), np.asarray(p1, float)
     axis = b - a
     length = float(np.linalg.norm(axis))
@@ -36,7 +41,37 @@ def sample_cylinder(p0: Sequence[float], p1: Sequence[float], radius_m: float, s
     s = np.linspace(0.0, length, n_along)
     normals = np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v             # (A, 3)
     pts = a + s[None, :, None] * w + radius_m * normals[:, None, :]            # (A, S, 3)
-    return pts.reshape(-1, 3), np.repeat(normals, n_along, axis=0)
+    out_p, out_n = [pts.reshape(-1, 3)], [np.repeat(normals, n_along, axis=0)]
+    if caps:
+        disc = [np.zeros((1, 3))]
+        for rr in np.arange(spacing_m, radius_m, spacing_m):
+            ring = np.arange(max(6, int(np.ceil(2 * np.pi * rr / spacing_m)))) * 2 * np.pi
+            ring /= max(6, int(np.ceil(2 * np.pi * rr / spacing_m)))
+            disc.append(rr * (np.cos(ring)[:, None] * u + np.sin(ring)[:, None] * v))
+        disc = np.concatenate(disc)
+        for centre, sign in ((a, -1.0), (b, 1.0)):
+            out_p.append(centre + disc)
+            out_n.append(np.tile(sign * w, (len(disc), 1)))
+    return np.concatenate(out_p), np.concatenate(out_n)
+
+
+def inside_structure(spec: Mapping[str, Any], points: np.ndarray, margin_m: float = 1e-3) -> np.ndarray:
+    """(K,) bool: ``points`` strictly inside a cylinder or box spec (meshes: never), by ``margin_m``."""
+    p = np.asarray(points, float)
+    if spec.get("type") == "cylinder":
+        a, b = np.asarray(spec["from_m"], float), np.asarray(spec["to_m"], float)
+        length = float(np.linalg.norm(b - a))
+        w = (b - a) / length
+        rel = p - a
+        s = rel @ w
+        r2 = np.einsum("ij,ij->i", rel, rel) - s ** 2
+        return (s > margin_m) & (s < length - margin_m) & (r2 < (float(spec["radius_m"]) - margin_m) ** 2)
+    if spec.get("type") == "box":
+        yaw = np.deg2rad(float(spec.get("yaw_deg", 0.0)))
+        c, sn = np.cos(yaw), np.sin(yaw)
+        local = (p - np.asarray(spec["center_m"], float)) @ np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+        return np.all(np.abs(local) < np.asarray(spec["size_m"], float) / 2 - margin_m, axis=1)
+    return np.zeros(len(p), bool)
 
 
 def sample_box(center_m: Sequence[float], size_m: Sequence[float], yaw_rad: float = 0.0, spacing_m: float = 0.1,
@@ -217,13 +252,18 @@ def _ply_result(verts, polys, path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def sample_structures(structures: Sequence[Mapping[str, Any]], spacing_m: float = 0.1, *,
-                      base: str | Path = ".") -> Samples:
-    """Samples of a scene's ``structures`` list (see the module docstring)."""
+                      base: str | Path = ".", seabed_z_m: float | None = None) -> Samples:
+    """Samples of a scene's ``structures`` list (see the module docstring).
+
+    Cylinders are capped; samples buried inside another cylinder or box (joints, feet) or, with
+    ``seabed_z_m``, on or under the seabed are dropped: a sonar cannot see them, and a model point
+    there would pull ICP towards a surface that does not exist.
+    """
     pts, nrm = [], []
-    for spec in structures:
+    for k, spec in enumerate(structures):
         kind = spec.get("type")
         if kind == "cylinder":
-            p, n = sample_cylinder(spec["from_m"], spec["to_m"], float(spec["radius_m"]), spacing_m)
+            p, n = sample_cylinder(spec["from_m"], spec["to_m"], float(spec["radius_m"]), spacing_m, caps=True)
         elif kind == "box":
             p, n = sample_box(spec["center_m"], spec["size_m"], np.deg2rad(float(spec.get("yaw_deg", 0.0))),
                               spacing_m)
@@ -235,8 +275,14 @@ def sample_structures(structures: Sequence[Mapping[str, Any]], spacing_m: float 
             p, n = sample_mesh(v, f, spacing_m)
         else:
             raise ValueError(f"unknown structure type {kind!r}; use cylinder, box or mesh")
-        pts.append(p)
-        nrm.append(n)
+        buried = np.zeros(len(p), bool)
+        for j, other in enumerate(structures):
+            if j != k:
+                buried |= inside_structure(other, p)
+        if seabed_z_m is not None:
+            buried |= p[:, 2] <= seabed_z_m + 1e-3
+        pts.append(p[~buried])
+        nrm.append(n[~buried])
     if not pts:
         raise ValueError("no structures to sample")
     return np.concatenate(pts), np.concatenate(nrm)
@@ -268,7 +314,8 @@ def tripod_structures(*, pylons: bool = True, seabed_z_m: float = -6.0) -> list[
 def tripod_model(*, pylons: bool = True, spacing_m: float = 0.1, seabed_radius_m: float = 0.0,
                  seabed_z_m: float = -6.0) -> Samples:
     """Surface samples of :func:`tripod_structures`, plus a seabed disc when ``seabed_radius_m`` > 0."""
-    pts, nrm = sample_structures(tripod_structures(pylons=pylons, seabed_z_m=seabed_z_m), spacing_m)
+    pts, nrm = sample_structures(tripod_structures(pylons=pylons, seabed_z_m=seabed_z_m), spacing_m,
+                                 seabed_z_m=seabed_z_m)
     if seabed_radius_m > 0:
         sp, sn = sample_seabed(seabed_z_m, (0.0, 0.0), seabed_radius_m, max(spacing_m, 0.25))
         pts, nrm = np.concatenate([pts, sp]), np.concatenate([nrm, sn])
