@@ -122,7 +122,7 @@ class IrlStack:
         if grid is not None:
             costs = [o.msg for o in self.cost.feed([(t, "features", grid)])]
             t2 = time.perf_counter()
-            out = self.plan.feed([(t, "features", grid)] + [(t, "costs", c) for c in costs])
+            out = self.plan.feed([(t, "flow", flow), (t, "features", grid)] + [(t, "costs", c) for c in costs])
             cmds += [o.msg for o in out if o.output == "cmd"]
             t3 = time.perf_counter()
             ms.setdefault("flow+features", []).append((t1 - t0) * 1e3)
@@ -183,9 +183,15 @@ def _yaw_rate(xy: np.ndarray, dt: float) -> np.ndarray:
 
 
 def human_walker(scene, max_s: float) -> Episode:
-    """A social-force pedestrian sent from the robot's start to its goal at the robot's top speed."""
+    """A social-force pedestrian sent from the robot's start to its goal at the robot's top speed.
+
+    Its last waypoint is 1 m beyond the goal (a walker halts short of a 'stop' goal); it has
+    arrived when it passes within the goal tolerance.
+    """
     (sx, sy, _), (gx, gy, tol) = scene.robot_start, scene.goal
-    walker = PedestrianSpec(id=999, waypoints=np.array([[sx, sy], [gx, gy]]), speed_mps=1.0)
+    direction = np.array([gx - sx, gy - sy]) / max(np.hypot(gx - sx, gy - sy), 1e-9)
+    beyond = np.array([gx, gy]) + direction
+    walker = PedestrianSpec(id=999, waypoints=np.array([[sx, sy], beyond]), speed_mps=1.0)
     far = (scene.bounds_m[0] - 100.0, scene.bounds_m[1] - 100.0, 0.0)
     world = CrowdWorld(dataclasses.replace(scene, pedestrians=scene.pedestrians + (walker,), robot_start=far),
                        camera=sim_camera())

@@ -407,12 +407,12 @@ def steer(pose: tuple[float, float, float], target_xy: np.ndarray, *, v_max_mps:
           k_heading: float = 2.0, turn_in_place_rad: float = 1.0, stop_at_m: float | None = None,
           decel_mps2: float = 0.8) -> tuple[float, float]:
     """Unicycle command (v, w) toward a target: turn rate proportional to the bearing error,
-    speed falling with cos(error), zero beyond ``turn_in_place_rad``; if ``stop_at_m`` is given
+    speed v_max cos(error), zero beyond ``turn_in_place_rad``; if ``stop_at_m`` is given
     the target is a final goal and speed obeys v <= sqrt(2 a d) so the robot stops on it."""
     rel = to_robot(pose, target_xy)[0]
     err = float(np.arctan2(rel[1], rel[0]))
     w = float(np.clip(k_heading * err, -w_max_radps, w_max_radps))
-    v = 0.0 if abs(err) > turn_in_place_rad else v_max_mps * max(0.0, np.cos(err)) ** 2
+    v = 0.0 if abs(err) > turn_in_place_rad else v_max_mps * max(0.0, np.cos(err))
     if stop_at_m is not None:
         dist = float(np.hypot(*rel))
         v = min(v, np.sqrt(2.0 * decel_mps2 * max(dist - 0.5 * stop_at_m, 0.0)))

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.ndimage import grey_dilation
 
 from msgs.geometry import Odometry2D, Path2D, Twist2D
-from msgs.nav import CostGrid, FeatureGrid, Goal2D, PlanStatus
+from msgs.nav import CostGrid, FeatureGrid, FlowPoints, Goal2D, PlanStatus
 from msgs.sensor import Grid
 from nodes.nav.dijkstra import (GridFrame, GridGraph, backtrack, cost_from, densify, extract_waypoint, inflate, smooth_path,
                                 plan_on_map, steer, to_robot, to_world)
@@ -130,8 +130,14 @@ class SocialPlanner:
 
     # -- layer 2 ----------------------------------------------------------------------------------
     def update(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame,
-               high_density: np.ndarray, t_s: float) -> Decision:
-        """Algorithm 2 on one cost grid (robot frame, ``frame``) with its high-density mask."""
+               high_density: np.ndarray, t_s: float, predicted: np.ndarray | None = None) -> Decision:
+        """Algorithm 2 on one cost grid (robot frame, ``frame``) with its high-density mask.
+
+        ``predicted`` (optional, rows x cols bool, see :func:`predict_conflicts`) marks cells a
+        moving person is expected to reach when the robot would: they count as high density
+        for the obstacle test and cost as much as the dearest cells in view (99th percentile).
+        Cells on static obstacles of the map never count as crowd (walls are dense too).
+        """
         if self.goal is None:
             return Decision("idle", reason="no goal yet")
         if np.hypot(*(self.goal - pose[:2])) <= self.goal_tol_m:
@@ -141,8 +147,14 @@ class SocialPlanner:
         if reason:
             self.mode, self.waypoint = "unreachable", None
             return Decision("unreachable", reason=reason)
-        cost, high_density = self._remember(pose, np.asarray(cost, float), frame, np.asarray(high_density, bool), t_s)
+        cost, high_density = np.asarray(cost, float), np.asarray(high_density, bool)
+        static = self._static_mask(pose, frame)
+        cost, high_density = self._remember(pose, cost, frame, high_density & ~static, t_s)
         event = self._replan_event(pose, frame, high_density, t_s)
+        if predicted is not None and predicted.shape == cost.shape and predicted.any():
+            dear = float(np.percentile(cost[np.isfinite(cost)], 99))
+            cost = np.where(predicted & np.isfinite(cost), np.maximum(cost, dear), cost)
+            high_density = high_density | predicted
         if not event:
             return Decision(self.mode, "", self.waypoint)
         if not self._obstacle_near(frame, high_density):
@@ -241,11 +253,17 @@ class SocialPlanner:
             rim = (np.abs(cells - goal_cell).max(axis=1) <= 1)           # the goal (or next to it)
         else:
             rim = (r <= self.p.subgoal_m) & (r > self.p.subgoal_m - 2.0 * frame.resolution_m)
-        ok = rim & np.isfinite(dist.ravel())
+        reachable = np.isfinite(dist.ravel()) & (r <= self.p.subgoal_m)
+        ok = rim & reachable
+        if not ok.any():        # the rim is walled off (facing a wall, a corner): any reachable cell will do
+            ok = reachable & (np.abs(cells - np.array(start)).max(axis=1) > 0)
         if not ok.any():
-            return Decision("hold", event, None, reason="local plan: no reachable sub-goal around the robot")
+            return Decision("hold", event, None, reason="local plan: no reachable cell around the robot")
         rim_world = to_world(pose, xy[ok])
         remaining = self._remaining_m(pose, rim_world)
+        if remaining.min() >= self._remaining_m(pose, np.asarray(pose[:2])[None])[0]:
+            # nothing in view gets closer to the goal: turn toward the global path and look again
+            return Decision("global", event, self.carrot(pose), self.global_path, reason="no progress in view")
         typical = float(np.median(cost[np.isfinite(cost)]))
         score = dist.ravel()[ok] + typical * remaining / frame.resolution_m
         if self._subgoal is not None:      # commit to a side: moving the sub-goal costs like walking there
@@ -283,6 +301,35 @@ class SocialPlanner:
                      stop_at_m=self.goal_tol_m if final else None)
 
 
+def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: GridFrame, *, robot_speed_mps: float,
+                      horizon_s: float = 2.0, step_s: float = 0.25, slack_m: float = 0.5,
+                      moving_mps: float = 0.3) -> np.ndarray:
+    """Cells (rows, cols) bool where a moving point will be when the robot could be there too.
+
+    Each point moving faster than ``moving_mps`` (robot frame, N x 3 positions and
+    velocities) is extrapolated at constant velocity for ``horizon_s``; the cell it reaches
+    at time tau is marked when the robot, driving at ``robot_speed_mps``, would also be about
+    that far away then (within ``slack_m``). The Figure 3 direction features look one or two
+    cells ahead (0.25-0.5 m, half a second of walking); a person crossing the robot's path
+    must be avoided where they will be in one or two seconds, not where they are.
+    """
+    p = np.asarray(points_m, float).reshape(-1, 3)[:, :2]
+    v = np.asarray(velocity_mps, float).reshape(-1, 3)[:, :2]
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(v).all(axis=1) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
+    mask = np.zeros(frame.shape, bool)
+    p, v = p[ok], v[ok]
+    if len(p) == 0 or horizon_s <= 0:
+        return mask
+    for tau in np.arange(step_s, horizon_s + 1e-9, step_s):
+        cells = frame.cell_of(p + v * tau)
+        inside = frame.inside(cells)
+        cells = cells[inside]
+        reach = np.hypot(*frame.xy_of(cells).T)
+        hit = np.abs(reach - robot_speed_mps * tau) <= slack_m
+        mask[cells[hit, 0], cells[hit, 1]] = True
+    return mask
+
+
 def footprint_cost(cost: np.ndarray, radius_cells: float) -> np.ndarray:
     """Cost of placing the robot's disc (``radius_cells``) centred on each cell: the dearest cell under it.
 
@@ -311,6 +358,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     crowd_margin_m: float = 0.3
     commitment: float = 0.5
     memory_s: float = 1.5
+    predict_s: float = 2.0        # 0 = plan on the features alone (no flow input needed)
     fov_deg: float = 57.0
     camera_x_m: float = 0.3
     min_range_m: float = 0.4
@@ -330,14 +378,16 @@ def high_density_mask(grid: FeatureGrid, name: str, index: int) -> np.ndarray:
 
 
 class DijkstraPlanner(Node):
-    """Inputs ``odom``, ``goal``, ``map`` (occupancy, world), ``features`` and ``costs`` (robot frame).
+    """Inputs ``odom``, ``goal``, ``map`` (occupancy, world), ``features`` and ``costs`` (robot frame),
+    optionally ``flow`` (moving points: their predicted positions join the cost, ``predict_s``).
 
     Outputs ``cmd`` (velocity toward the waypoint, on every odom and decision), ``path`` (the path being
     followed, world frame) and ``status`` (mode, re-plan event, plan time) on every cost grid.
     """
 
     Config = Config
-    inputs = {"odom": Odometry2D, "goal": Goal2D, "map": Grid, "features": FeatureGrid, "costs": CostGrid}
+    inputs = {"odom": Odometry2D, "goal": Goal2D, "map": Grid, "features": FeatureGrid, "costs": CostGrid,
+              "flow": FlowPoints}
     outputs = {"cmd": Twist2D, "path": Path2D, "status": PlanStatus}
 
     def setup(self) -> None:
@@ -351,6 +401,7 @@ class DijkstraPlanner(Node):
         self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
         self._high: np.ndarray | None = None
         self._map: np.ndarray | None = None
+        self._flow: FlowPoints | None = None
         self.bad_inputs = 0
 
     def _pose_at(self, stamp_ns: int) -> tuple[float, float, float] | None:
@@ -384,6 +435,9 @@ class DijkstraPlanner(Node):
             self._map = data.copy()
             self.planner.set_map(data, frame)
 
+    def on_flow(self, msg: FlowPoints) -> None:
+        self._flow = msg
+
     def on_features(self, msg: FeatureGrid) -> None:
         self._high = high_density_mask(msg, self.config.density_feature, self.config.density_index)
 
@@ -398,7 +452,11 @@ class DijkstraPlanner(Node):
             return None
         frame = GridFrame(cost.shape, msg.resolution_m, msg.origin_x_m, msg.origin_y_m)
         high = self._high if self._high is not None and self._high.shape == cost.shape else np.zeros(cost.shape, bool)
-        d = self.planner.update(pose, cost, frame, high, msg.stamp_ns * 1e-9)
+        predicted = None
+        if self._flow is not None and self.config.predict_s > 0 and abs(self._flow.stamp_ns - msg.stamp_ns) < 0.3e9:
+            predicted = predict_conflicts(self._flow.points_m, self._flow.velocity_mps, frame,
+                                          robot_speed_mps=self.config.v_max_mps, horizon_s=self.config.predict_s)
+        d = self.planner.update(pose, cost, frame, high, msg.stamp_ns * 1e-9, predicted)
         status = PlanStatus(stamp_ns=msg.stamp_ns, state=_STATE[d.mode] if d.event or d.mode != "local" else "following",
                             reason="/".join(x for x in (d.mode, d.event, d.reason) if x), plan_ms=d.plan_ms)
         v, w = self.planner.command(self._poses[-1][1])        # steer on the fresh decision right away

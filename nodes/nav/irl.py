@@ -299,8 +299,8 @@ def learn(demos: list[Demo], *, method: str = "birl", prior: str = "laplace", la
 
 
 def action_agreement(demos: list[Demo], weights: np.ndarray, *, step_cost: float = STEP_COST) -> float:
-    """Fraction of expert moves that are optimal under ``weights`` (ties count as agreement)."""
-    hits = total = 0
+    """Expected fraction of expert moves a planner with ``weights`` repeats (ties broken at random)."""
+    hits, total = 0.0, 0
     graphs: dict[tuple[int, int], GridGraph] = {}
     for demo in (check_demo(d) for d in demos):
         if len(demo.path) < 2:
@@ -308,8 +308,10 @@ def action_agreement(demos: list[Demo], weights: np.ndarray, *, step_cost: float
         shape = demo.features.shape[:2]
         q, _, expert, _ = _q_values(demo, np.asarray(weights, float), step_cost,
                                     graphs.setdefault(shape, GridGraph.of(shape)))
-        best = q.min(axis=1)
-        hits += int(np.sum(q[np.arange(len(expert)), expert] <= best + 1e-9 * np.maximum(1.0, best)))
+        best = q.min(axis=1, keepdims=True)
+        optimal = q <= best + 1e-9 * np.maximum(1.0, best)
+        # a tie counts as 1 / (number of equally good moves): uniform costs must not score 100 %
+        hits += float(np.sum(optimal[np.arange(len(expert)), expert] / optimal.sum(axis=1)))
         total += len(expert)
     if total == 0:
         raise ValueError("no demonstration has a move to compare")

@@ -34,15 +34,16 @@ from nodes.nav.irl import CostWeights, Demo, action_agreement, expected_value_di
 
 log = logging.getLogger("nodes.nav.irl_learn")
 
-#: the robot's RGB-D camera in the simulator: 640x480 at ~100 degrees horizontal field of view.
-#: A Kinect's 57 degrees cannot see a pedestrian on a crossing collision course (constant
-#: bearing near 50 degrees) until it is too late; see bench/social_nav.py.
-CAMERA_FX_PX = 268.0
+#: the robot's RGB-D camera in the simulator: 640x480 at 130 degrees horizontal field of view.
+#: A pedestrian on a crossing collision course keeps a constant bearing - 50 to 60 degrees in
+#: the paper's crossing scene - so a Kinect (57 degrees) or even a 100 degree camera never
+#: sees it before contact (measured: both planners collide); see bench/social_nav.py.
+CAMERA_FX_PX = 149.0
 #: crowd feature thresholds for that camera: the defaults (20 / 150 points, 10 flowing) are
-#: for fx = 525 px; a point count scales with fx^2, so they shrink by (268 / 525)^2 ~ 0.26
-FEATURE_PARAMS = {"density_low_points": 5.0, "density_high_points": 40.0, "flow_points": 3}
+#: for fx = 525 px; a point count scales with fx^2, so they shrink by (149 / 525)^2 ~ 0.08
+FEATURE_PARAMS = {"density_low_points": 2.0, "density_high_points": 12.0, "flow_points": 1}
 #: the planner's view of that camera
-PLANNER_PARAMS = {"fov_deg": 100.0}
+PLANNER_PARAMS = {"fov_deg": 130.0}
 
 #: the oracle driver of --record-oracle: the paper's table, each group shifted to >= 0
 ORACLE_WEIGHTS = np.array([2.2, 0.7, 0.0, 0.0, 0.0, 0.0, 4.0, 3.5, 0.0, 0.7, 0.3, 0.0])

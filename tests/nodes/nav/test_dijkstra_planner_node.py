@@ -114,3 +114,25 @@ def test_pedestrian_leaving_the_field_of_view_is_remembered():
     later_cost, later_high = planner._remember(pose, empty_c.cost.astype(float), frame,
                                                empty_f.features[..., 0] > 0, 2.0)
     assert not later_high.any() and later_cost.max() == 2.0        # forgotten after memory_s
+
+
+def test_crossing_pedestrian_is_predicted_where_the_robot_would_meet_it():
+    from nodes.nav.dijkstra_planner import predict_conflicts
+    frame = GridFrame((ROWS, COLS), RES, ORIGIN_X, ORIGIN_Y)
+    pts = np.array([[3.0, -2.0, 1.0]] * 20)              # 3 m ahead, 2 m to the right, walking left at 1 m/s
+    vel = np.array([[0.0, 1.0, 0.0]] * 20)
+    mask = predict_conflicts(pts, vel, frame, robot_speed_mps=1.0, horizon_s=3.0)
+    hit = frame.xy_of(np.argwhere(mask))
+    assert len(hit) and np.all(np.abs(hit[:, 0] - 3.0) < 0.2)      # on the person's line ...
+    assert hit[:, 1].min() > -1.6 and hit[:, 1].max() < 1.6           # ... around where the robot gets in ~3 s
+    still = predict_conflicts(pts, np.zeros_like(vel), frame, robot_speed_mps=1.0)
+    assert not still.any()                                            # a standing person is the features' job
+    assert not predict_conflicts(np.zeros((0, 3)), np.zeros((0, 3)), frame, robot_speed_mps=1.0).any()
+
+
+def test_footprint_dilation_spreads_the_dearest_cost_over_the_robot_disc():
+    from nodes.nav.dijkstra_planner import footprint_cost
+    cost = np.full((9, 9), 2.0)
+    cost[4, 4] = 10.0
+    out = footprint_cost(cost, 2.0)
+    assert out[4, 6] == 10.0 and out[2, 4] == 10.0 and out[4, 7] == 2.0 and out[2, 2] == 2.0
