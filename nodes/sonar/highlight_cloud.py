@@ -8,6 +8,7 @@ unless given as parameters.
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from typing import Literal
 
@@ -64,6 +65,8 @@ class HighlightCloud(Node):
         self._head = 0
         self.pings = 0
         self.dropped: dict[str, int] = {}
+        self._age_ms: list[float] = []
+        self._work_ms: list[float] = []
 
     def on_pose(self, pose: Pose3D) -> None:
         transform = pose.matrix()
@@ -74,6 +77,8 @@ class HighlightCloud(Node):
         return None
 
     def on_ping(self, ping: SonarPing) -> list[tuple[str, PointCloud]] | None:
+        self._age_ms.append((self.now_ns() - ping.stamp_ns) / 1e6)
+        begin = time.perf_counter()
         pose = self._pose_at(ping.stamp_ns)
         if pose is None:
             return None
@@ -104,6 +109,7 @@ class HighlightCloud(Node):
                                            points_m=body.astype(np.float32), intensity=scan.strength)))
         if self.pings % cfg.publish_every == 0:
             out.append(("points", self.cloud(ping.stamp_ns)))
+        self._work_ms.append((time.perf_counter() - begin) * 1e3)
         return out
 
     def cloud(self, stamp_ns: int = 0) -> PointCloud:
@@ -116,6 +122,10 @@ class HighlightCloud(Node):
     def teardown(self) -> None:
         self.log.info("highlight cloud: %d pings, %d points accumulated, dropped %s", self.pings,
                       min(self._count, self.config.max_points), self.dropped or "none")
+        if self._work_ms:
+            self.log.info("highlight cloud timing: ping age on arrival median %.1f ms (p90 %.1f), work per ping "
+                          "median %.1f ms (p90 %.1f)", np.median(self._age_ms), np.percentile(self._age_ms, 90),
+                          np.median(self._work_ms), np.percentile(self._work_ms, 90))
 
     # -- helpers ------------------------------------------------------------------------
     def _pose_at(self, stamp_ns: int) -> np.ndarray | None:

@@ -263,11 +263,11 @@ def _score(src: np.ndarray, model: IcpModel, transform: np.ndarray, gate: float)
 
     Points: distance to the nearest model point. Arcs: distance of the sample that represents the arc.
     """
+    exact = model.grid is None          # the grid's match is on the same surface patch: good enough to rank
     if src.shape[1] == 1:
-        p = src[:, 0] @ transform[:3, :3].T + transform[:3, 3]
-        d, _ = model.tree.query(p, k=1, distance_upper_bound=gate)
+        d, _ = model.nearest(src[:, 0] @ transform[:3, :3].T + transform[:3, 3], gate, exact)
     else:
-        p, idx, ok = _match(src, model, transform, gate, exact=True)
+        p, idx, ok = _match(src, model, transform, gate, exact)
         d = np.full(len(src), gate)
         d[ok] = np.linalg.norm(p - model.points[idx], axis=1)
     return float(np.mean(np.minimum(np.nan_to_num(d, posinf=gate), gate) ** 2))

@@ -16,6 +16,7 @@ give z, roll and pitch; the held directions have zero variance in the 6x6 covari
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from pathlib import Path
 from typing import Literal
@@ -55,6 +56,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     prior_window_deg: float = 90.0
     min_points: int = 50                    # fewer points (arcs) are not aligned: the result says converged=False
     track: bool = True                      # start from the last trusted correction
+    recheck_every: int = 4                  # while tracking a checked pose, yaw restarts every n-th alignment only
     model_frame: str = "world"
     # source "arcs"
     arc_samples: int = 11                   # elevations per arc
@@ -67,7 +69,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     def __post_init__(self) -> None:
         if self.spacing_m <= 0 or self.grid_m < 0 or self.min_points < 6:
             raise ValueError("need spacing_m > 0, grid_m >= 0 and min_points >= 6")
-        if self.arc_samples < 1 or self.align_every < 1 or self.window_s < 0 or self.max_arcs < self.min_points:
+        if self.recheck_every < 1 or self.arc_samples < 1 or self.align_every < 1 or self.window_s < 0 or self.max_arcs < self.min_points:
             raise ValueError("need arc_samples >= 1, align_every >= 1, window_s >= 0 and max_arcs >= min_points")
         IcpSettings(**_settings_kwargs(self))           # raises ValueError on inconsistent tuning
 
@@ -102,6 +104,13 @@ def load_model(cfg: Config) -> tuple[np.ndarray, np.ndarray]:
     return pts, nrm
 
 
+def _moved(a: np.ndarray, b: np.ndarray, pivot: np.ndarray, cfg: IcpSettings) -> bool:
+    """Whether two corrections differ by a distinct pose (yaw or displacement at ``pivot``)."""
+    dyaw = abs(math.remainder(math.atan2(a[1, 0], a[0, 0]) - math.atan2(b[1, 0], b[0, 0]), 2 * math.pi))
+    moved = float(np.linalg.norm((a[:3, :3] - b[:3, :3]) @ pivot + a[:3, 3] - b[:3, 3]))
+    return dyaw > cfg.distinct_yaw_rad or moved > cfg.distinct_m
+
+
 class IcpLocalizer(Node):
     """Inputs ``cloud`` (source cloud) or ``scan`` + ``pose`` (source arcs); output ``correction``.
 
@@ -124,7 +133,10 @@ class IcpLocalizer(Node):
     def setup(self) -> None:
         self._model = IcpModel.build(*load_model(self.config), grid_m=self.config.grid_m)
         self._settings = IcpSettings(**_settings_kwargs(self.config))
+        self._tracking = IcpSettings(**{**_settings_kwargs(self.config), "yaw_hypotheses": 0})
         self._last = np.eye(4)
+        self._checked = False           # _last passed the yaw-restart ambiguity check
+        self._since_check = 0
         self.runs = 0
         self.scans = 0
         self.flags = {"waiting": 0, "failed": 0, "degenerate": 0, "ambiguous": 0, "no_pose": 0}
@@ -133,9 +145,12 @@ class IcpLocalizer(Node):
         self._pending: deque[PointCloud] = deque()
         self._arcs: deque[tuple[int, np.ndarray]] = deque()
         self._n_arcs = 0
+        self._align_ms: list[float] = []
+        self._input_age_ms: list[float] = []
 
     # -- source "cloud" -----------------------------------------------------------------
     def on_cloud(self, cloud: PointCloud) -> dict[str, IcpResult]:
+        self._input_age_ms.append((self.now_ns() - cloud.stamp_ns) / 1e6)
         pts = np.asarray(cloud.points_m, float).reshape(-1, 3) if np.size(cloud.points_m) else np.zeros((0, 3))
         return {"correction": self._align(pts, cloud.stamp_ns)}
 
@@ -147,6 +162,7 @@ class IcpLocalizer(Node):
         return self._drain()
 
     def on_scan(self, scan: PointCloud) -> list[tuple[str, IcpResult]]:
+        self._input_age_ms.append((self.now_ns() - scan.stamp_ns) / 1e6)
         self._pending.append(scan)
         return self._drain()
 
@@ -198,7 +214,9 @@ class IcpLocalizer(Node):
                                    "(the structure has not entered the near field yet)")
             return IcpResult(stamp_ns=stamp_ns, frame_id=cfg.model_frame,
                              correction=Pose3D.from_matrix(self._last, frame_id=cfg.model_frame), cloud_size=n_finite)
-        out = align(src, self._model, self._last if cfg.track else None, self._settings)
+        begin = time.perf_counter()
+        out = self._solve(src)
+        self._align_ms.append((time.perf_counter() - begin) * 1e3)
         self.runs += 1
         if out.reason or not out.converged:
             self._count("failed", out.reason or "ICP did not converge within max_iterations")
@@ -210,6 +228,8 @@ class IcpLocalizer(Node):
                                      "or one the prior rules out fits clearly better")
         if out.converged and not out.ambiguous and cfg.track:
             self._last = out.transform
+        elif cfg.track:
+            self._checked = False
         return IcpResult(
             stamp_ns=stamp_ns, frame_id=cfg.model_frame,
             correction=Pose3D.from_matrix(out.transform, frame_id=cfg.model_frame),
@@ -217,9 +237,32 @@ class IcpLocalizer(Node):
             ambiguous=out.ambiguous, min_eigenvalue=out.min_eigenvalue, rmse_m=out.rmse_m,
             inlier_ratio=out.inlier_ratio, iterations=out.iterations, cloud_size=out.cloud_size)
 
+    def _solve(self, src: np.ndarray):
+        """Align with the yaw-restart ambiguity check, or (tracking a checked pose) without it.
+
+        Between checks the result is the local optimum next to a pose that was shown unique; it is
+        kept only if it stays within ``distinct`` of it (10 deg, 0.5 m), else the full check runs.
+        """
+        cfg = self.config
+        init = self._last if cfg.track else None
+        if cfg.track and self._checked and self._since_check + 1 < cfg.recheck_every:
+            out = align(src, self._model, init, self._tracking)
+            if out.converged and not _moved(out.transform, self._last, self._model.centroid, self._settings):
+                self._since_check += 1
+                return out
+        out = align(src, self._model, init, self._settings)
+        self._checked = out.converged and not out.ambiguous and self._settings.yaw_hypotheses > 1
+        self._since_check = 0
+        return out
+
     def teardown(self) -> None:
         self.log.info("icp localizer (%s, %s): %d alignments, flags %s", self.config.source, self.config.dof,
                       self.runs, self.flags)
+        if self._align_ms:
+            ms, age = np.asarray(self._align_ms), np.asarray(self._input_age_ms)
+            self.log.info("icp localizer timing: align median %.1f ms (p90 %.1f); input age on arrival median "
+                          "%.1f ms (p90 %.1f)", np.median(ms), np.percentile(ms, 90), np.median(age),
+                          np.percentile(age, 90))
 
     def _count(self, flag: str, message: str) -> None:
         self.flags[flag] += 1

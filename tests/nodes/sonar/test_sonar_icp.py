@@ -149,3 +149,88 @@ def test_bad_settings_and_init_raise(tripod) -> None:
         IcpSettings(method="gicp")
     with pytest.raises(ValueError, match="init"):
         align(np.zeros((50, 3)), tripod[2], init=np.full((4, 4), np.nan))
+
+
+# -- restricted degrees of freedom ------------------------------------------------------------------
+
+def _held_ok(out, init=np.eye(4)) -> None:
+    """z, roll and pitch of the result equal the prior's; their covariance rows/columns are exactly zero."""
+    t = out.transform
+    np.testing.assert_allclose(t[2], init[2], atol=1e-12)          # z row: no roll, pitch or z change
+    cov = out.covariance
+    assert np.all(cov[2:5, :] == 0) and np.all(cov[:, 2:5] == 0)
+    assert np.all(np.diag(cov)[[0, 1, 5]] > 0)
+
+
+def test_xy_yaw_recovers_the_offset_and_holds_the_rest(tripod) -> None:
+    pts, nrm, model = tripod
+    off = _offset(8.0, [0.3, -0.4, 0.0])
+    cloud = _view(pts, nrm, 7) @ off[:3, :3].T + off[:3, 3]
+    out = align(cloud, model, settings=IcpSettings(dof="xy_yaw", **FAST))
+    rot, trans = _errors(out.transform, off)
+    assert out.converged and not out.degenerate and rot < 0.3 and trans < 0.03, (rot, trans)
+    _held_ok(out)
+    assert out.unobservable.shape == (6, 0) and len(out.eigenvalues) == 3
+
+
+def test_heights_distorted_six_dof_tilts_and_drifts_four_dof_holds(tripod) -> None:
+    """Heights wrong by an amount growing with range (what an elevation guess does): 6-DOF ICP
+    absorbs it into roll/pitch and drags x/y; x/y/yaw (depth and attitude measured) stays right."""
+    pts, nrm, model = tripod
+    sonar = np.array([1.0, -14.0, -1.0])
+    view = _view(pts, nrm, 0, outliers=0.0, noise_m=0.02)
+    view[:, 2] -= 0.1 * (np.hypot(*(view[:, :2] - sonar[:2]).T) - 8.0) + 0.3
+    off = _offset(4.0, [0.3, -0.2, 0.0])
+    cloud = view @ off[:3, :3].T + off[:3, 3]
+    errs = {}
+    for dof in ("all", "xy_yaw"):
+        c = align(cloud, model, settings=IcpSettings(dof=dof, **FAST)).transform @ off
+        errs[dof] = (float(np.linalg.norm(c[:2, :3] @ sonar + c[:2, 3] - sonar[:2])),
+                     float(np.degrees(np.arccos(np.clip(c[2, 2], -1, 1)))))
+    assert errs["all"][1] > 1.0 and errs["all"][0] > 0.05, errs            # tilted, and off at the sonar
+    assert errs["xy_yaw"][1] < 1e-6 and errs["xy_yaw"][0] < 0.03, errs
+
+
+def test_flat_seafloor_with_xyz_yaw_is_degenerate_in_x_y_yaw_only() -> None:
+    pts, nrm = sample_seabed(-6.0, radius_m=8.0, spacing_m=0.2)
+    rng = np.random.default_rng(2)
+    cloud = pts[rng.choice(len(pts), 800, replace=False)] + rng.normal(0, 0.02, (800, 3))
+    off = _offset(5.0, [0.4, 0.3, 0.2])
+    out = align(cloud @ off[:3, :3].T + off[:3, 3], IcpModel.build(pts, nrm), settings=IcpSettings(dof="xyz_yaw"))
+    assert out.degenerate and out.unobservable.shape == (6, 3)
+    assert np.allclose(out.unobservable[[3, 4]], 0)                  # held directions are not "unobservable"
+    assert abs(out.transform[2, 3] + 0.2) < 0.02 and np.hypot(*out.transform[:2, 3]) < 0.02
+    cov = out.covariance
+    assert cov[0, 0] > 1e3 and cov[5, 5] > 1e3 and 0 < cov[2, 2] < 1e-3 and cov[3, 3] == 0 and cov[4, 4] == 0
+
+
+def test_two_vertical_pylons_pin_x_y_yaw() -> None:
+    """Two vertical cylinders leave z free in 6-DOF, but x, y and yaw are all observable."""
+    p1, n1 = sample_cylinder([-5.2, -3.0, -6.0], [-5.2, -3.0, 2.0], 0.6, 0.1)
+    p2, n2 = sample_cylinder([5.2, -3.0, -6.0], [5.2, -3.0, 2.0], 0.6, 0.1)
+    pts, nrm = np.vstack([p1, p2]), np.vstack([n1, n2])
+    model = IcpModel.build(pts, nrm)
+    view = _view(pts, nrm, 8, n=800, outliers=0.0, noise_m=0.01)
+    off = _offset(3.0, [0.4, -0.3, 0.0])
+    full = align(view @ off[:3, :3].T + off[:3, 3], model, settings=IcpSettings(**FAST))
+    four = align(view @ off[:3, :3].T + off[:3, 3], model, settings=IcpSettings(dof="xy_yaw", **FAST))
+    assert full.degenerate and not four.degenerate
+    rot, trans = _errors(four.transform, off, pivot=(0.0, -3.0, -2.0))
+    assert rot < 0.2 and trans < 0.02, (rot, trans)
+
+
+def test_a_pose_the_prior_rules_out_is_never_chosen_and_flags_the_fit(tripod) -> None:
+    pts, nrm, model = tripod
+    off = _offset(120.0, [0.0, 0.0, 0.0])                   # the pylons make 120 deg off distinguishable
+    cloud = _view(pts, nrm, 9) @ off[:3, :3].T
+    out = align(cloud, model, settings=IcpSettings(dof="xy_yaw", prior_window_rad=np.radians(45.0)))
+    yaw = np.degrees(np.arctan2(out.transform[1, 0], out.transform[0, 0]))
+    assert abs(yaw) <= 45.0 and out.ambiguous                 # stays where the prior allows, says it is unsure
+    wide = align(cloud, model, settings=IcpSettings(dof="xy_yaw", prior_window_rad=np.radians(180.0)))
+    rot, trans = _errors(wide.transform, off)
+    assert not wide.ambiguous and rot < 0.5 and trans < 0.03, (rot, trans)
+
+
+def test_bad_dof_raises() -> None:
+    with pytest.raises(ValueError, match="dof"):
+        IcpSettings(dof="xy")

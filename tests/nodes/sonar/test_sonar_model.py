@@ -86,3 +86,22 @@ def test_tripod_without_pylons_is_three_fold_symmetric() -> None:
     d2, _ = cKDTree(with_pylons).query(with_pylons @ rot.T)
     assert np.percentile(d2, 99) > 1.0
     assert len(tripod_structures()) == len(tripod_structures(pylons=False)) + 2
+
+
+def test_tripod_model_has_the_exposed_column_top_and_no_buried_samples() -> None:
+    pts, nrm = tripod_model(spacing_m=0.1)
+    top = (np.abs(pts[:, 2] + 2.0) < 1e-9) & (np.hypot(pts[:, 0], pts[:, 1]) < 0.55)
+    assert top.sum() > 50 and np.allclose(nrm[top], [0, 0, 1])         # the column's cap, facing up
+    assert pts[:, 2].min() > -6.0 + 1e-3                                # nothing on or under the seabed
+    inside_mat = (np.abs(pts[:, 0]) < 0.85) & (np.abs(pts[:, 1] - 6.0) < 0.85) & (pts[:, 2] < -5.61)
+    assert not inside_mat.any()                                         # the north leg's foot is inside its mat
+    apex = np.linalg.norm(pts - [0.0, 0.0, -2.5], axis=1) < 0.3
+    assert not apex.any()                                               # the legs' upper ends are inside the column
+
+
+def test_capped_cylinder_caps_face_outwards() -> None:
+    p, n = sample_cylinder([0, 0, 0], [0, 0, 2], 0.5, 0.1, caps=True)
+    cap = np.abs(n[:, 2]) > 0.5
+    assert cap.sum() > 40
+    np.testing.assert_allclose(n[cap, 2], np.sign(p[cap, 2] - 1.0))
+    assert np.all(np.hypot(p[cap, 0], p[cap, 1]) < 0.5)
