@@ -60,6 +60,7 @@ def _stop(procs: list[subprocess.Popen]) -> None:
 
 def tether_rtt(tmp: Path, count: int) -> np.ndarray:
     out = tmp / "rtt.json"
+    out.unlink(missing_ok=True)   # never read a previous repeat's result
     ping_ep, pong_ep = f"ipc://{tmp}/ping", f"ipc://{tmp}/pong"
     echo = RunSpec(graph="bench", node_id="echo", node="nodes.std.perf:Echo", binds=[pong_ep],
                    inputs={"ping": Source(topic="pinger/ping", endpoint=ping_ep)})
@@ -76,6 +77,7 @@ def tether_rtt(tmp: Path, count: int) -> np.ndarray:
 
 def tether_throughput(tmp: Path, count: int) -> tuple[float, int]:
     out = tmp / "blob.json"
+    out.unlink(missing_ok=True)   # never read a previous repeat's result
     ep = f"ipc://{tmp}/blob"
     sink = RunSpec(graph="bench", node_id="sink", node="nodes.std.perf:BlobSink",
                    params={"count": count, "result_path": str(out)},
@@ -168,6 +170,7 @@ def raw_sink(ep: str, count: int, out: str) -> None:
 
 def raw_rtt(tmp: Path, count: int) -> np.ndarray:
     out = tmp / "raw_rtt.json"
+    out.unlink(missing_ok=True)   # never read a previous repeat's result
     ping_ep, pong_ep = f"ipc://{tmp}/rping", f"ipc://{tmp}/rpong"
     me = str(Path(__file__).resolve())
     procs = [_spawn([me, "--role", "raw-echo", ping_ep, pong_ep]),
@@ -180,6 +183,7 @@ def raw_rtt(tmp: Path, count: int) -> np.ndarray:
 
 def raw_throughput(tmp: Path, count: int) -> tuple[float, int]:
     out = tmp / "raw_blob.json"
+    out.unlink(missing_ok=True)   # never read a previous repeat's result
     ep = f"ipc://{tmp}/rblob"
     me = str(Path(__file__).resolve())
     procs = [_spawn([me, "--role", "raw-sink", ep, str(count), str(out)])]

@@ -29,6 +29,7 @@ log = logging.getLogger("tether.runtime")
 
 STATS_PERIOD_NS = 1_000_000_000
 ERROR_LOG_PERIOD_NS = 5_000_000_000
+READ_AHEAD = 16
 
 
 @dataclass
@@ -160,8 +161,13 @@ class NodeRuntime(Context):
             self._accept(state, frames, next(order))
 
     def _drain(self, sock: zmq.Socket, order: itertools.count) -> None:
+        # Bounded read-ahead: holding hundreds of large received frames at once costs more (cold
+        # memory, allocator churn) than handling as we go; ZeroMQ's own queue holds the rest.
+        # Latest-only inputs keep at most one message, so they still see the newest.
         while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
             self._route(*self._recv(sock, zmq.NOBLOCK), order)
+            if sum(len(st.queue) for st in self.inputs.values() if st.maxlen > 1) >= READ_AHEAD:
+                return
 
     def _wait_and_drain(self, timeout_ms: int, poller: zmq.Poller, order: itertools.count) -> None:
         if len(self.subs) == 1:
