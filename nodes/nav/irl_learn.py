@@ -308,7 +308,8 @@ def collect_demos(args: argparse.Namespace) -> tuple[DemoSet, set[str]]:
         scenes[name] = read_log_demos(path, horizon_s=args.horizon_s)
         oracle |= {name} if name.startswith("oracle-") else set()
         log.info("%s: %d demos", path, len(scenes[name]))
-    for k, dataset in enumerate(args.tracks + [h for h in args.holdout if h not in args.tracks and not h.endswith(".mcap")]):
+    from sim.pedestrian_data import ROW_PERIOD_S
+    for k, dataset in enumerate(args.tracks + [h for h in args.holdout if h not in args.tracks and h in ROW_PERIOD_S]):
         scenes[dataset] = pedestrian_demos(dataset, args.peds, horizon_s=args.horizon_s, seed=k)
     demos = DemoSet({k: v for k, v in scenes.items() if v})
     if not demos.scenes:
@@ -332,6 +333,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="first drive these sim scenes with the oracle driver and record logs into --log-dir")
     ap.add_argument("--log-dir", default="out/irl_logs")
     ap.add_argument("--cache", default="", help="npz file to save / reuse the extracted demos")
+    ap.add_argument("--use", nargs="*", default=[], help="only these scenes (log stems / data sets) of the cache")
     ap.add_argument("-o", "--output", required=True)
     ap.add_argument("--debug", action="store_true")
     args = ap.parse_args(argv)
@@ -341,6 +343,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"irl_learn: {exc}", file=sys.stderr)
         return 2
+    if args.use:
+        demos = DemoSet({k: v for k, v in demos.scenes.items() if k in set(args.use) | set(args.holdout)})
     held = set(args.holdout) or {n for n in list(demos.scenes)[-max(1, len(demos.scenes) // 5):]}
     train_names = [n for n in demos.scenes if n not in held]
     train = demos.pick(train_names)
