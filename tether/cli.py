@@ -117,7 +117,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: runtime.stop())
     if args.duration:
-        threading.Timer(args.duration, runtime.stop).start()
+        timer = threading.Timer(args.duration, runtime.stop)
+        timer.daemon = True          # a node stopped by a signal must not wait out its duration
+        timer.start()
     try:
         return runtime.serve()
     finally:

@@ -43,7 +43,7 @@ class SonarEvaluation(Node):
         self._latency_ms: list[float] = []
         self._image: FanImage | None = None
         self._cloud: PointCloud | None = None
-        self._last: IcpResult | None = None
+        self._last_trusted: IcpResult | None = None
 
     def on_ping(self, ping: SonarPing) -> None:
         self._ping_stamps.append(ping.stamp_ns)
@@ -61,8 +61,10 @@ class SonarEvaluation(Node):
         self._nav[pose.stamp_ns] = pose.matrix()
 
     def on_correction(self, result: IcpResult) -> None:
-        self._latency_ms.append((time.time_ns() - result.stamp_ns) / 1e6)
-        self._last = result
+        if result.iterations > 0:      # an alignment was run (not "waiting for data"): its latency counts
+            self._latency_ms.append((time.time_ns() - result.stamp_ns) / 1e6)
+        if result.converged and not result.degenerate and not result.ambiguous:
+            self._last_trusted = result
         self._rows.append({"stamp_ns": result.stamp_ns, "C": result.correction.matrix(), "converged": result.converged,
                            "degenerate": result.degenerate, "ambiguous": result.ambiguous, "rmse": result.rmse_m,
                            "cloud_size": result.cloud_size})
@@ -125,8 +127,8 @@ class SonarEvaluation(Node):
             model, _ = sample_structures(load_scene(self.config.scene), spacing_m=self.config.model_spacing_m)
             cloud = np.asarray(self._cloud.points_m, dtype=float)
             corrected = None
-            if self._last is not None and self._last.converged:
-                c = self._last.correction.matrix()
+            if self._last_trusted is not None:
+                c = self._last_trusted.correction.matrix()
                 corrected = cloud @ c[:3, :3].T + c[:3, 3]
             save_cloud_png(out / "cloud.png", cloud, model, corrected,
                            title=f"{len(cloud)} cloud points over the {self.config.scene} model")
