@@ -272,3 +272,32 @@ def test_random_frames_on_the_live_accept_path_never_raise(runtime_env: dict) ->
     feed()
     assert state.stats["received"] == state.stats["decode_errors"] + state.stats["handled"] + len(state.queue)
     runtime.close()
+
+
+def test_run_attaches_one_node_to_a_running_graph(runtime_env: dict) -> None:
+    launch = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", "launch/counter.yaml",
+                               "--param", "counter.rate_hz=20"], cwd=REPO, env=runtime_env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while "counter/value" not in tether("topic", "list", env=runtime_env).stdout:
+            assert time.monotonic() < deadline
+        res = tether("run", "nodes.std.demo:Printer", "--id", "lone", "--input", "value=counter/value",
+                     "--duration", "2", env=runtime_env)
+        assert res.returncode == 0, res.stderr
+        seen = [line for line in res.stderr.splitlines() if "tether.lone: value" in line]
+        assert len(seen) >= 20                                  # ~20 Hz for 2 s
+        values = [float(line.split("value ")[1].split()[0]) for line in seen]
+        assert values == sorted(values) and all(b - a == 1.0 for a, b in zip(values, values[1:]))
+        # a node stopped by SIGTERM exits promptly, whatever its --duration
+        lone = subprocess.Popen([sys.executable, "-m", "tether.cli", "run", "nodes.std.demo:Printer", "--id", "lone2",
+                                 "--input", "value=counter/value", "--duration", "60"], cwd=REPO, env=runtime_env,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        while "lone2" not in tether("topic", "list", "--all", env=runtime_env).stdout:
+            assert time.monotonic() < deadline + 30
+        t0 = time.monotonic()
+        lone.terminate()
+        assert lone.wait(20) == 0 and time.monotonic() - t0 < 15
+    finally:
+        launch.send_signal(signal.SIGINT)
+        launch.wait(30)
