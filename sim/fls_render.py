@@ -103,6 +103,9 @@ def _intervals(t: np.ndarray, echo: np.ndarray, labels: np.ndarray, valid: np.nd
     return (np.concatenate(lo), np.concatenate(hi), np.concatenate(w), np.concatenate(c))
 
 
+_CAST_BEYOND = 3.0     # rays are cast to this multiple of the maximum range (see render_ping)
+
+
 def _accumulate(lo, hi, w, col, n_ranges: int, n_beams: int, res: float) -> np.ndarray:
     """Mean echo per metre of range over each (bin, beam): each interval's energy spread evenly along it.
 
@@ -156,16 +159,20 @@ def render_ping(scene: Scene, pose: np.ndarray, settings: PingSettings = PingSet
                                           np.sin(phi)[:, None]), axis=-1)                      # (E, B, 3)
     rot, origin = np.asarray(pose, float)[:3, :3], np.asarray(pose, float)[:3, 3]
     dirs = d_head.reshape(-1, 3) @ rot.T
-    t, normals, labels = cast_rays(scene, origin, dirs, max_range_m=range_m)
-    valid = np.isfinite(t) & (t < range_m)
+    # Cast past the maximum range: the echo between the last ray inside it and the first ray beyond is
+    # spread over its interval and clipped at the edge by _accumulate, instead of being lost (which left
+    # the fan's far edge stair-stepped at the elevation-ray spacing). Ground truth keeps in-range hits only.
+    t, normals, labels = cast_rays(scene, origin, dirs, max_range_m=_CAST_BEYOND * range_m)
+    hit = np.isfinite(t)
+    valid = hit & (t < range_m)
     refl = np.array([s.reflectivity if s is not None else 0.0 for s in scene.surfaces()] + [0.0])
     cos_inc = np.abs(np.einsum("ij,ij->i", normals, dirs))
     pattern = np.repeat(2.0 ** (-(2 * phi / vert) ** 2), settings.n_beams)       # -3 dB at the aperture edges
-    absorb = 10.0 ** (-2 * mode["absorption_db_per_m"] * np.where(valid, t, 0.0) / 10)
-    echo = np.where(valid, refl[labels] * cos_inc * pattern * absorb * (vert / max(n_el - 1, 1)), 0.0)
+    absorb = 10.0 ** (-2 * mode["absorption_db_per_m"] * np.where(hit, t, 0.0) / 10)
+    echo = np.where(hit, refl[labels] * cos_inc * pattern * absorb * (vert / max(n_el - 1, 1)), 0.0)
     shape = (n_el, settings.n_beams)
-    tt = np.where(valid, t, 0.0).reshape(shape)
-    lo, hi, w, col = _intervals(tt, echo.reshape(shape), labels.reshape(shape), valid.reshape(shape),
+    tt = np.where(hit, t, 0.0).reshape(shape)
+    lo, hi, w, col = _intervals(tt, echo.reshape(shape), labels.reshape(shape), hit.reshape(shape),
                                 settings.point_extent_m)
     level = _accumulate(lo, hi, w, col, n_ranges, settings.n_beams, res) * np.float32(sonar.level_scale)
     gain = np.float32(10.0 ** (0.4 * (settings.gain_percent - 50.0) / 10.0))
