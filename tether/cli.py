@@ -289,7 +289,6 @@ def _echo(args: argparse.Namespace) -> int:
 def _rate(args: argparse.Namespace) -> int:
     """hz/bw from the publisher's seq and stamps, so a slow terminal never under-reports."""
     import msgspec
-    import zmq
 
     class Head(msgspec.Struct):
         stamp_ns: int = 0

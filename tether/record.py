@@ -17,7 +17,7 @@ import zmq
 from tether.codec import wire_to_inline
 from tether.errors import DecodeError
 from tether.log import LogWriter
-from tether.transport import CurveKeys, connect_sub, make_sub
+from tether.transport import CurveKeys, Subscriptions
 
 log = logging.getLogger("tether.record")
 
@@ -48,21 +48,10 @@ class Recorder:
         return self
 
     def _sockets(self) -> list[zmq.Socket]:
-        plain, secure = None, None
-        connected: set[tuple[str, bool]] = set()
+        subs = Subscriptions(self.ctx, self.curve)
         for topic, endpoint in self.topics.items():
-            use_curve = self.curve is not None and topic in self.secure
-            if use_curve:
-                secure = secure or make_sub(self.ctx)
-                sock = secure
-            else:
-                plain = plain or make_sub(self.ctx)
-                sock = plain
-            if (endpoint, use_curve) not in connected:
-                connect_sub(sock, endpoint, self.curve if use_curve else None)
-                connected.add((endpoint, use_curve))
-            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
-        return [s for s in (plain, secure) if s is not None]
+            subs.add(topic, endpoint, secure=topic in self.secure)
+        return subs.sockets
 
     def _run(self) -> None:
         socks = self._sockets()

@@ -23,7 +23,7 @@ from tether.codec import Codec
 from tether.errors import DecodeError
 from tether.message import Message
 from tether.node import Context, Node, Tick
-from tether.transport import CurveKeys, connect_sub, make_pub, make_sub, start_authenticator
+from tether.transport import CurveKeys, Subscriptions, make_pub, start_authenticator
 
 log = logging.getLogger("tether.runtime")
 
@@ -102,7 +102,7 @@ class NodeRuntime(Context):
         self.inputs: dict[str, _InputState] = {}
         self.routes: dict[bytes, list[_InputState]] = {}
         self.timers: dict[str, int] = dict(ports.timers)
-        plain, secure = None, None
+        subs = Subscriptions(self.ctx, self.curve)
         for name, port in ports.inputs.items():
             src = self.spec.inputs.get(name)
             if src is not None and src.timer_ns:
@@ -115,16 +115,8 @@ class NodeRuntime(Context):
             state = _InputState(name, src.topic, port.type, port.maxlen)
             self.inputs[name] = state
             self.routes.setdefault(src.topic.encode(), []).append(state)
-            needs_curve = self.curve is not None and src.secure
-            if needs_curve:
-                secure = secure or make_sub(self.ctx)
-                sock = secure
-            else:
-                plain = plain or make_sub(self.ctx)
-                sock = plain
-            connect_sub(sock, src.endpoint, self.curve if needs_curve else None)
-            sock.setsockopt(zmq.SUBSCRIBE, src.topic.encode())
-        self.subs = [s for s in (plain, secure) if s is not None]
+            subs.add(src.topic, src.endpoint, secure=src.secure)
+        self.subs = subs.sockets
         self._rcvtimeo = -1
 
     # -- Context ----------------------------------------------------------------------

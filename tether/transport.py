@@ -111,6 +111,35 @@ def connect_sub(sock: zmq.Socket, endpoint: str, curve: CurveKeys | None) -> Non
     sock.connect(endpoint)
 
 
+class Subscriptions:
+    """SUB sockets for a set of topics: one plain, one for Curve-server publishers (Curve is per socket).
+
+    Each endpoint is connected once per socket, each topic subscribed exactly.
+    """
+
+    def __init__(self, ctx: zmq.Context, curve: CurveKeys | None = None) -> None:
+        self.ctx, self.curve = ctx, curve
+        self._plain: zmq.Socket | None = None
+        self._secure: zmq.Socket | None = None
+        self._connected: set[tuple[str, bool]] = set()
+
+    def add(self, topic: str, endpoint: str, *, secure: bool = False) -> zmq.Socket:
+        use_curve = self.curve is not None and secure
+        if use_curve:
+            self._secure = sock = self._secure or make_sub(self.ctx)
+        else:
+            self._plain = sock = self._plain or make_sub(self.ctx)
+        if (endpoint, use_curve) not in self._connected:
+            connect_sub(sock, endpoint, self.curve if use_curve else None)
+            self._connected.add((endpoint, use_curve))
+        sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        return sock
+
+    @property
+    def sockets(self) -> list[zmq.Socket]:
+        return [s for s in (self._plain, self._secure) if s is not None]
+
+
 def start_authenticator(ctx: zmq.Context, curve: CurveKeys) -> Any:
     """ZAP handler accepting only the graph's client key (authentication, not just encryption)."""
     from zmq.auth.thread import ThreadAuthenticator
