@@ -41,7 +41,8 @@ class SonarEvaluation(Node):
         self._nav: dict[int, np.ndarray] = {}
         self._rows: list[dict] = []
         self._latency_ms: list[float] = []
-        self._image: FanImage | None = None
+        self._images: dict[int, FanImage] = {}     # every 10th fan, by stamp (a few MB)
+        self._image_count = 0
         self._cloud: PointCloud | None = None
         self._last_trusted: IcpResult | None = None
 
@@ -49,7 +50,9 @@ class SonarEvaluation(Node):
         self._ping_stamps.append(ping.stamp_ns)
 
     def on_image(self, image: FanImage) -> None:
-        self._image = image
+        if self._image_count % 10 == 0:
+            self._images[image.stamp_ns] = image
+        self._image_count += 1
 
     def on_cloud(self, cloud: PointCloud) -> None:
         self._cloud = cloud
@@ -116,9 +119,18 @@ class SonarEvaluation(Node):
         if self.config.png:
             self._pictures(out)
 
+    def _fan_to_show(self) -> FanImage | None:
+        """The kept fan nearest the middle of the trusted corrections (structure in view), else the last."""
+        if not self._images:
+            return None
+        stamps = np.array(sorted(self._images))
+        trusted = sorted(e["stamp_ns"] for e in self._errors() if e["trusted"])
+        target = trusted[len(trusted) // 2] if trusted else int(stamps[-1])
+        return self._images[int(stamps[nearest(stamps, target)])]
+
     def _pictures(self, out: Path) -> None:
-        if self._image is not None:
-            im = self._image
+        im = self._fan_to_show()
+        if im is not None:
             save_fan_png(out / "fan.png", np.asarray(im.image), im.m_per_px, im.origin_row_px, im.origin_col_px,
                          title=f"sonar fan, ping {im.ping_id}")
         if self._cloud is not None and len(self._cloud.points_m):
