@@ -209,154 +209,17 @@ def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: An
     return 0
 
 
-# -- topic / node ---------------------------------------------------------------------------
-def _subscribe(topic: str) -> Any:
-    import zmq
-
-    from tether import registry
-    from tether.transport import make_sub
-
-    from tether.transport import CurveKeys, connect_sub
-
-    info = registry.find_topic(topic)
-    sock = make_sub(zmq.Context.instance())
-    sock.rcvhwm = 100000
-    connect_sub(sock, info.endpoint, CurveKeys.from_json(info.curve) if info.curve else None)
-    sock.subscribe(topic.encode())
-    return info, sock
-
-
-def _describe(value: Any, indent: str = "") -> str:
-    import numpy as np
-    import msgspec
-
-    if isinstance(value, np.ndarray):
-        preview = np.array2string(value.reshape(-1)[:6], precision=4, separator=", ")
-        return f"<array {value.dtype} {'x'.join(map(str, value.shape)) or 'scalar'} {preview}{'...' if value.size > 6 else ''}>"
-    if isinstance(value, msgspec.Struct):
-        lines = [f"{type(value).__name__}"]
-        for name in value.__struct_fields__:
-            lines.append(f"{indent}  {name}: {_describe(getattr(value, name), indent + '  ')}")
-        return "\n".join(lines)
-    if isinstance(value, (bytes, bytearray)):
-        return f"<{len(value)} bytes {bytes(value[:16]).hex()}{'...' if len(value) > 16 else ''}>"
-    return repr(value)
-
-
+# -- topic / node (tether/introspect.py) ------------------------------------------------------
 def cmd_topic(args: argparse.Namespace) -> int:
-    from tether import registry
+    from tether.introspect import cmd_topic as run
 
-    if args.action == "list":
-        found = registry.topics()
-        if not found:
-            print("no graph is running")
-        for topic, info in sorted(found.items()):
-            if args.all or not topic.endswith("/_stats"):
-                print(f"{topic:40s} {info.type_name:28s} {info.graph}")
-        return 0
-    if not args.topic:
-        raise ConfigError(f"tether topic {args.action} needs a TOPIC")
-    if args.action == "echo":
-        return _echo(args)
-    return _rate(args)
-
-
-def _echo(args: argparse.Namespace) -> int:
-    import msgpack
-
-    from tether.codec import Codec
-    from tether.message import message_type
-
-    info, sock = _subscribe(args.topic)
-    codec, tp = Codec(), message_type(info.type_name)
-    shown = 0
-    while args.count is None or shown < args.count:
-        frames = sock.recv_multipart(copy=False)
-        if frames[0].bytes != args.topic.encode():
-            continue
-        if args.raw:
-            print(msgpack.unpackb(frames[1].bytes, raw=False, strict_map_key=False))
-        else:
-            try:
-                print(_describe(codec.decode(tp, frames[1:])))
-            except TetherError as exc:
-                print(f"<undecodable: {exc}>")
-        print("---", flush=True)
-        shown += 1
-    return 0
-
-
-def _rate(args: argparse.Namespace) -> int:
-    """hz/bw from the publisher's seq and stamps, so a slow terminal never under-reports."""
-    import msgspec
-
-    class Head(msgspec.Struct):
-        stamp_ns: int = 0
-        seq: int = 0
-
-    head_decoder = msgspec.msgpack.Decoder(Head)
-    info, sock = _subscribe(args.topic)
-    samples: list[tuple[float, int, int, int]] = []   # (receive time, stamp, seq, bytes)
-    t_end = time.monotonic() + args.duration if args.duration else None
-    next_report = time.monotonic() + 1.0
-    while t_end is None or time.monotonic() < t_end:
-        if sock.poll(200):
-            frames = sock.recv_multipart(copy=False)
-            if frames[0].bytes == args.topic.encode():
-                h = head_decoder.decode(frames[1].buffer)
-                samples.append((time.monotonic(), h.stamp_ns, h.seq, sum(len(f.buffer) for f in frames)))
-        now = time.monotonic()
-        if now >= next_report:
-            next_report = now + 1.0
-            samples = [s for s in samples if now - s[0] <= args.window]
-            print(_rate_line(args.action, samples), flush=True)
-    return 0
-
-
-def _rate_line(action: str, samples: list[tuple[float, int, int, int]]) -> str:
-    if len(samples) < 2:
-        return "no messages yet"
-    (_, s0, q0, _), (_, s1, q1, _) = samples[0], samples[-1]
-    published = q1 - q0
-    span_s = (s1 - s0) / 1e9
-    rate = published / span_s if span_s > 0 and published > 0 else float("nan")
-    seen = len(samples) - 1
-    size = sum(s[3] for s in samples) / len(samples)
-    lost = f", {published - seen} not seen here" if published > seen else ""
-    if action == "hz":
-        return f"rate {rate:9.2f} Hz  (from stamps and seq over {len(samples)} msgs{lost})"
-    return f"bw {rate * size / 1e6:9.2f} MB/s  mean {size / 1e3:.1f} kB x {rate:.2f} Hz"
+    return run(args)
 
 
 def cmd_node(args: argparse.Namespace) -> int:
-    from tether import registry
+    from tether.introspect import cmd_node as run
 
-    graphs = registry.running()
-    if args.action == "list":
-        for g in graphs:
-            for node_id, n in g.get("nodes", {}).items():
-                print(f"{node_id:20s} {n.get('class', ''):50s} pid {n.get('pid', 0):<8d} graph {g['name']}")
-        if not graphs:
-            print("no graph is running")
-        return 0
-    if not args.id:
-        raise ConfigError("tether node info needs a node ID")
-    from tether.codec import Codec
-    from msgs.std import NodeStats
-
-    _, sock = _subscribe(f"{args.id}/_stats")
-    if not sock.poll(3000):
-        raise TetherError(f"node {args.id!r} published no statistics within 3 s")
-    frames = sock.recv_multipart(copy=False)
-    st = Codec().decode(NodeStats, frames[1:])
-    print(f"{st.node_id}  [{st.node_class}]  pid {st.pid}  up {st.uptime_s:.1f} s  errors {st.errors}")
-    for i in st.inputs:
-        print(f"  <- {i.name:12s} {i.topic:28s} recv {i.received:8d} handled {i.handled:8d} "
-              f"gap-drops {i.dropped_seq_gap:6d} queue-drops {i.dropped_queue:6d} decode-err {i.decode_errors:4d} "
-              f"handler-err {i.handler_errors:4d} {i.handler_ms_mean:7.3f} ms mean {i.handler_ms_max:7.2f} ms max")
-    for out, n in sorted(st.published.items()):
-        print(f"  -> {out:12s} published {n:8d}  subscribers {st.subscribers.get(f'{st.node_id}/{out}', 0)}")
-    return 0
+    return run(args)
 
 
 # -- logs -----------------------------------------------------------------------------------

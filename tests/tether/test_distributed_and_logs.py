@@ -210,7 +210,7 @@ def test_cli_attaches_echo_hz_and_node_info_to_a_running_graph(runtime_env: dict
 
 
 def test_hz_is_computed_from_publisher_seq_and_stamps_not_from_what_arrived() -> None:
-    from tether.cli import _rate_line
+    from tether.introspect import _rate_line
 
     # 1000 Hz publisher, but the slow terminal only saw every 10th message.
     samples = [(i * 0.01, i * 10 * 1_000_000, 1 + i * 10, 1 << 20) for i in range(100)]
