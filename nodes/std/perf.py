@@ -96,10 +96,12 @@ class BlobSink(Node):
 
     Config = BlobConfig
     inputs = {"image": Input(Image, depth=1000)}
+    timers = {"tick": 2.0}
 
     def setup(self) -> None:
         self._times: list[int] = []
         self._checksum = 0
+        self._written = False
 
     def on_image(self, msg: Image) -> None:
         self._times.append(time.perf_counter_ns())
@@ -107,11 +109,17 @@ class BlobSink(Node):
         if len(self._times) == self.config.count:
             self._flush()
 
+    def on_tick(self, tick) -> None:
+        # Some messages were dropped at a high-water mark: report what arrived once it goes quiet.
+        if self._times and not self._written and time.perf_counter_ns() - self._times[-1] > 1.5e9:
+            self._flush()
+
     def _flush(self) -> None:
+        self._written = True
         _write_result(self.config.result_path, {"recv_ns": self._times, "checksum": self._checksum})
 
     def teardown(self) -> None:
-        if len(self._times) < self.config.count:
+        if not self._written:
             self._flush()
 
 
