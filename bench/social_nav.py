@@ -44,8 +44,8 @@ from tether.testing import Harness  # noqa: E402
 
 DT = 1.0 / 15.0
 TURN_RADPS = 0.3
-SCENES = ["toward", "crossing", "group", "hallway"]
-REAL = [("students003", 1.0), ("crowds_zara03", 1.0)]     # data set, max mean speed of the reference (m/s)
+SCENES = ["toward", "crossing", "group", "hallway", "students003", "zara03"]    # sim/scenes/crowd_<name>.yaml
+QUICK = ["toward", "crossing", "group", "students003"]
 
 
 @dataclasses.dataclass
@@ -59,6 +59,7 @@ class Episode:
     goal_t: float | None
     collisions: int
     stage_ms: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    by_robot: int | None = None          # contacts where the robot drove into the person (None = not known)
 
 
 def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
@@ -74,7 +75,29 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
     return {"closest_m": None if closest is None else round(closest, 3),
             "avoidance_m": round(float(d[turning[0]]), 3) if len(turning) else None,
             "time_s": None if ep.goal_t is None else round(ep.goal_t, 2), "path_m": round(length, 2),
-            "collisions": int(ep.collisions), "success": bool(ep.goal_t is not None and ep.collisions == 0)}
+            "collisions": int(ep.collisions),
+            "collisions_robot": None if ep.by_robot is None else int(ep.by_robot),
+            "collisions_pedestrian": None if ep.by_robot is None else int(ep.collisions - ep.by_robot),
+            "success": bool(ep.goal_t is not None and ep.collisions == 0)}
+
+
+def contact_onsets(t: np.ndarray, xy: np.ndarray, robot_vel: np.ndarray, peds: list[tuple[np.ndarray, np.ndarray]], *,
+                   radius_m: float = 0.65, fault_mps: float = 0.1) -> list[tuple[float, int, bool]]:
+    """Contacts (t_s, pedestrian id, robot drove in) from a sampled episode, as ``sim.crowd`` attributes them:
+    at the onset the robot's velocity (n, 2) toward the person exceeds ``fault_mps`` -> the robot drove in."""
+    out, touching = [], set()
+    for k, (ids, p) in enumerate(peds):
+        if not len(ids):
+            touching = set()
+            continue
+        d = np.hypot(*(p - xy[k]).T)
+        now = {int(i) for i in ids[d < radius_m]}
+        for j in np.flatnonzero(d < radius_m):
+            if int(ids[j]) not in touching:
+                u = (p[j] - xy[k]) / max(d[j], 1e-9)
+                out.append((float(t[k]), int(ids[j]), bool(robot_vel[k] @ u > fault_mps)))
+        touching = now
+    return out
 
 
 # -- robot methods ----------------------------------------------------------------------------------
@@ -129,7 +152,7 @@ class IrlStack:
             ms.setdefault("cost", []).append((t2 - t1) * 1e3)
             ms.setdefault("plan", []).append((t3 - t2) * 1e3)
         cmd = cmds[-1] if cmds else Twist2D()
-        safe = [o.msg for o in self.guard.feed([(t, "rgbd", frame), (t, "cmd", cmd)]) if o.output == "cmd"]
+        safe = [o.msg for o in self.guard.feed([(t, "odom", odom), (t, "rgbd", frame), (t, "cmd", cmd)]) if o.output == "cmd"]
         return (safe[-1].vx_mps, safe[-1].wz_radps) if safe else (0.0, 0.0)
 
 
@@ -152,7 +175,7 @@ class DwaStack:
         ms.setdefault("dwa", []).append((time.perf_counter() - t0) * 1e3)
         cmds = [o.msg for o in out if o.output == "cmd"]
         cmd = cmds[-1] if cmds else Twist2D()
-        safe = [o.msg for o in self.guard.feed([(t, "rgbd", frame), (t, "cmd", cmd)]) if o.output == "cmd"]
+        safe = [o.msg for o in self.guard.feed([(t, "odom", odom), (t, "rgbd", frame), (t, "cmd", cmd)]) if o.output == "cmd"]
         return (safe[-1].vx_mps, safe[-1].wz_radps) if safe else (0.0, 0.0)
 
 
@@ -170,7 +193,8 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float) -> Episode:
             break
         v, w = stack.step(world, t, ms)
         world.step(v, w, DT)
-    return Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms)
+    return Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms,
+                   by_robot=world.collisions_by_robot)
 
 
 # -- human references -------------------------------------------------------------------------------
@@ -205,13 +229,17 @@ def human_walker(scene, max_s: float) -> Episode:
             break
         world.step(0.0, 0.0, DT)
     xy_a = np.array(xy)
-    collisions = sum(1 for (_, o), a, b in zip(peds[1:], xy_a[1:], xy_a[:-1]) if len(o) and
-                     np.hypot(*(o - a).T).min() < 0.65 <= np.hypot(*(o - b).T).min())
-    return Episode(np.array(ts), np.column_stack([xy_a, np.zeros(len(xy_a))]), _yaw_rate(xy_a, DT), peds, goal_t, collisions)
+    onsets = contact_onsets(np.array(ts), xy_a, np.gradient(xy_a, DT, axis=0), peds)
+    return Episode(np.array(ts), np.column_stack([xy_a, np.zeros(len(xy_a))]), _yaw_rate(xy_a, DT), peds, goal_t,
+                   len(onsets), by_robot=sum(b for *_, b in onsets))
 
 
-def pick_reference(tracks, max_mean_mps: float, min_len_m: float = 8.0) -> int:
-    """The pedestrian (index) at wheelchair pace that walks far through the most company."""
+def pick_reference(tracks, max_mean_mps: float = 1.0, min_len_m: float = 8.0) -> int:
+    """The pedestrian (index) at wheelchair pace that walks far through the most company.
+
+    How the real-crowd scenes (``sim/scenes/crowd_students003.yaml``, ``crowd_zara03.yaml``)
+    chose the walker whose place the robot takes (their ``replay.exclude_ids``).
+    """
     best, best_n = -1, -1
     for i, (t, xy) in enumerate(zip(tracks.t_s, tracks.xy_m)):
         if len(t) < 5:
@@ -231,35 +259,55 @@ def pick_reference(tracks, max_mean_mps: float, min_len_m: float = 8.0) -> int:
     return best
 
 
-def real_case(dataset: str, max_mean_mps: float):
-    """A scene where the robot replaces a recorded pedestrian; returns (make_world, human Episode, max_s, scene)."""
-    from sim.pedestrian_data import Tracks, load_tracks
+def replay_reference(scene) -> Episode:
+    """The human reference of a real-crowd scene: the recorded walk of the pedestrian the robot replaces
+    (``replay.exclude_ids[0]``) among the others. Contacts at 0.6 m (two people's radii)."""
+    from sim.pedestrian_data import load_tracks
 
-    tracks = load_tracks(dataset)
-    i = pick_reference(tracks, max_mean_mps)
-    keep = [j for j in range(len(tracks.ids)) if j != i]
-    others = Tracks(tracks.name, tracks.ids[keep], tuple(tracks.t_s[j] for j in keep), tuple(tracks.xy_m[j] for j in keep),
-                    tracks.row_period_s)
-    t, xy = tracks.t_s[i] - tracks.t_s[i][0], tracks.xy_m[i]
-    lo, hi = xy.min(axis=0) - 6.0, xy.max(axis=0) + 6.0
-    yaw0 = float(np.arctan2(*(xy[1] - xy[0])[::-1]))
-    scene = load_scene({"name": f"{dataset}#{tracks.ids[i]}", "bounds_m": [float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])],
-                        "robot": {"x_m": float(xy[0, 0]), "y_m": float(xy[0, 1]), "yaw_rad": yaw0},
-                        "goal": {"x_m": float(xy[-1, 0]), "y_m": float(xy[-1, 1]), "tolerance_m": 0.5},
-                        "replay": {"dataset": dataset, "t0_s": float(tracks.t_s[i][0])}})
-    tt = np.arange(0.0, t[-1] + 1e-9, DT)
+    rep = scene.replay
+    if rep is None or not rep.exclude_ids:
+        raise ValueError(f"scene {scene.name!r} replays no crowd with a left-out walker (replay.exclude_ids)")
+    tracks = load_tracks(rep.dataset)
+    i = int(np.flatnonzero(tracks.ids == rep.exclude_ids[0])[0])
+    t, xy = tracks.t_s[i] - rep.t0_s, rep.to_world(tracks.xy_m[i])
+    tt = np.arange(max(t[0], 0.0), t[-1] + 1e-9, DT)
     hx = np.column_stack([np.interp(tt, t, xy[:, 0]), np.interp(tt, t, xy[:, 1])])
+    world = CrowdWorld(scene, tracks=tracks, camera=sim_camera())
     peds = []
     for tk in tt:
-        ids, pos, _ = others.state_at(tracks.t_s[i][0] + tk)
+        world.walkers.t_s = tk
+        ids, pos, *_ = world.walkers.replayed()
         peds.append((ids, pos))
-    goal_k = int(np.argmax(np.hypot(*(hx - xy[-1]).T) <= 0.5))
-    human = Episode(tt[:goal_k + 1], np.column_stack([hx, np.zeros(len(tt))])[:goal_k + 1], _yaw_rate(hx, DT)[:goal_k + 1],
-                    peds[:goal_k + 1], float(tt[goal_k]), 0)
-    return (lambda: CrowdWorld(scene, tracks=others, camera=sim_camera())), human, 2.0 * float(t[-1]) + 10.0, scene
+    gx, gy, tol = scene.goal
+    goal_k = int(np.argmax(np.hypot(hx[:, 0] - gx, hx[:, 1] - gy) <= tol))
+    n = goal_k + 1
+    onsets = contact_onsets(tt[:n], hx[:n], np.gradient(hx, DT, axis=0)[:n], peds[:n], radius_m=0.6)
+    return Episode(tt[:n], np.column_stack([hx, np.zeros(len(tt))])[:n], _yaw_rate(hx, DT)[:n], peds[:n], float(tt[goal_k]),
+                   len(onsets), by_robot=sum(b for *_, b in onsets))
+
+
+def human_reference(scene) -> Episode:
+    """The recorded walker on a real crowd, a social-force walker on a synthetic scene."""
+    return replay_reference(scene) if scene.replay is not None else human_walker(scene, scene.duration_s)
 
 
 # -- report -----------------------------------------------------------------------------------------
+def _cell(v: object) -> str:
+    return "-" if v is None else str(v)
+
+
+def print_table(report: dict, goals: dict) -> None:
+    """Metrics per scenario and method; 'coll' = contacts (robot drove in / person walked in)."""
+    print(f"{'scenario':<13}{'method':<7}{'closest m':>10}{'avoid m':>9}{'time s':>8}{'path m':>8}{'coll (robot/ped)':>18}{'ok':>5}")
+    for name, r in report.items():
+        for m, v in r.items():
+            split = f"({_cell(v['collisions_robot'])}/{_cell(v['collisions_pedestrian'])})"
+            print(f"{name:<13}{m:<7}{_cell(v['closest_m']):>10}{_cell(v['avoidance_m']):>9}{_cell(v['time_s']):>8}"
+                  f"{v['path_m']:>8}{v['collisions']:>8} {split:<9}{'yes' if v['success'] else 'no':>5}")
+        g = goals[name]
+        print(f"{'':<13}goals: closest >= DWA {g['closest_ge_dwa']}, time <= 1.15 x human {g['time_within_15pct']}")
+
+
 def plan_ms_100x100(repeats: int = 41) -> float:
     rng = np.random.default_rng(0)
     cost = rng.uniform(2.0, 12.0, (100, 100))
@@ -320,29 +368,17 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="the three paper scenes and one real crowd")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--weights", default="", help="weights file for the IRL cost ('' = shipped default)")
+    ap.add_argument("--scenes", nargs="*", default=[], help=f"scenes to run (default: {' '.join(SCENES)})")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
-    scenes = SCENES[:3] if args.quick else SCENES
-    real = REAL[:1] if args.quick else REAL
-    cases, runs, stage_ms = {}, {}, {}
-    for name in scenes:
-        scene = load_scene(name)
-        make = (lambda s=scene: CrowdWorld(s))
-        cases[name] = scene
-        runs[name] = {"human": human_walker(scene, scene.duration_s)}
-    for dataset, vmax in real:
-        make, human, max_s, scene = real_case(dataset, vmax)
-        cases[scene.name] = scene
-        runs[scene.name] = {"human": human}
+    names = args.scenes or (QUICK if args.quick else SCENES)
+    cases = {name: load_scene(name) for name in names}
+    runs: dict[str, dict[str, Episode]] = {name: {"human": human_reference(scene)} for name, scene in cases.items()}
+    stage_ms: dict[str, list[float]] = {}
     for name, scene in cases.items():
-        make = (lambda s=scene: CrowdWorld(s, camera=sim_camera())) if name in scenes else None
-        if make is None:
-            ds = next(d for d, v in real if name.startswith(d))
-            make, _, max_s, _ = real_case(ds, dict(real)[ds])
-        else:
-            max_s = scene.duration_s
+        make = (lambda s=scene: CrowdWorld(s, camera=sim_camera()))
         for stack in (IrlStack, DwaStack):
-            ep = run_robot(make, stack, args.weights, max_s)
+            ep = run_robot(make, stack, args.weights, scene.duration_s)
             runs[name][stack.name] = ep
             for k, v in ep.stage_ms.items():
                 stage_ms.setdefault(k, []).extend(v)
@@ -363,13 +399,7 @@ def main() -> None:
     if args.json:
         print(json.dumps(out))
         return
-    print(f"{'scenario':<22}{'method':<7}{'closest m':>10}{'avoid m':>9}{'time s':>8}{'path m':>8}{'coll':>6}{'ok':>5}")
-    for name, r in report.items():
-        for m, v in r.items():
-            print(f"{name:<22}{m:<7}{v['closest_m'] if v['closest_m'] is not None else '-':>10}"
-                  f"{v['avoidance_m'] if v['avoidance_m'] is not None else '-':>9}{v['time_s'] if v['time_s'] is not None else '-':>8}"
-                  f"{v['path_m']:>8}{v['collisions']:>6}{'yes' if v['success'] else 'no':>5}")
-        print(f"{'':<22}goals: closest >= DWA {goals[name]['closest_ge_dwa']}, time <= 1.15 x human {goals[name]['time_within_15pct']}")
+    print_table(report, goals)
     print(f"pipeline (flow+features+cost+plan, 640x480): {out['pipeline_hz']} Hz; stages (median ms) {out['stage_ms_median']}")
     print(f"local plan 100x100: {out['plan_ms_100x100']} ms (median); plot {png}")
 

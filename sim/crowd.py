@@ -11,6 +11,8 @@ In-process API (no sockets; what ``bench/social_nav.py`` drives)::
     peds = world.pedestrians()                  # PedestrianState: ids (N,), xy_m (N, 2), vel_mps (N, 2), radius_m (N,)
     world.goal, world.goal_reached              # (x_m, y_m, tolerance_m) of the scene; bool
     world.collisions, world.blocked_steps       # pedestrian contacts (counted once per contact); steps stopped by a wall
+    world.contacts                              # ContactEvent per contact: who closed the gap (see below)
+    world.goal_t_s                              # sim time the goal was first reached (None before)
     world.min_clearance_m                       # smallest centre-to-centre robot-pedestrian distance so far
     world.occupancy(0.1)                        # OccupancyGrid of walls and obstacles (rows = y, cols = x)
     world.t_s, world.scene.duration_s
@@ -33,12 +35,18 @@ A closed loop in-process (sim -> perception -> planner -> sim), as ``bench/socia
 
 The robot is a unicycle: speed and yaw rate follow the commands within acceleration
 limits; a step that would put its disc (``radius_m``) into a wall or obstacle is refused
-(the robot stops there). Pedestrian contact is counted, not prevented. Simulated
+(the robot stops there). Pedestrian contact is counted, not prevented, and attributed: at the
+onset of a contact the robot's own speed toward the pedestrian is compared with the
+pedestrian's speed toward the robot (:class:`ContactEvent`); ``by_robot`` means the robot was
+driving into the person (faster than ``robot_fault_mps``), otherwise the person walked into
+a robot that was stopped or moving away. Simulated
 pedestrians avoid the robot only when the scene says ``pedestrians_see_robot: true``;
 replayed pedestrians never react (they are recordings).
 
 Node ``sim.crowd:CrowdSim``: input ``cmd`` (geometry.Twist2D; a watchdog stops the robot
-when commands stop for ``watchdog_s``); outputs ``rgbd`` (sensor.RgbdFrame, frame
+when commands stop for ``watchdog_s``). The world holds still (pedestrians too) until the
+first command arrives, for at most ``wait_for_cmd_s``: in a launched pipeline the planner's
+processes start in their own time, and a scenario's timing must not depend on that; outputs ``rgbd`` (sensor.RgbdFrame, frame
 ``camera``: x right, y down, z forward, mounted ``camera_x_m`` ahead of the robot centre at
 ``camera_z_m`` height), ``odom`` (geometry.Odometry2D, pose in ``world``, twist in the
 body frame), ``pedestrians`` (nav.Pedestrians, ground truth, ``world``), ``goal``
@@ -72,6 +80,19 @@ class RobotLimits:
     max_accel_mps2: float = 0.8
     max_yaw_accel_radps2: float = 2.5
     radius_m: float = 0.35
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    """Onset of a robot-pedestrian contact: sim time, pedestrian id, centre distance (m), and the
+    closing speeds (m/s) of the robot toward the pedestrian and of the pedestrian toward the robot."""
+
+    t_s: float
+    ped_id: int
+    distance_m: float
+    robot_closing_mps: float
+    ped_closing_mps: float
+    by_robot: bool
 
 
 @dataclass(frozen=True)
@@ -114,7 +135,9 @@ class CrowdWorld:
     """Scene + pedestrians + robot + camera, stepped by hand (see the module docstring)."""
 
     def __init__(self, scene: Scene | str | Path | Mapping[str, Any], *, camera: CameraModel = CameraModel(),
-                 limits: RobotLimits = RobotLimits(), tracks: Any = None, max_substep_s: float = 0.05) -> None:
+                 limits: RobotLimits = RobotLimits(), tracks: Any = None, max_substep_s: float = 0.05,
+                 robot_fault_mps: float = 0.1) -> None:
+        self.robot_fault_mps = float(robot_fault_mps)
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self.camera = camera
         self.limits = limits
@@ -134,6 +157,8 @@ class CrowdWorld:
         self.collisions = 0
         self.blocked_steps = 0
         self.min_clearance_m = float("inf")
+        self.contacts: list[ContactEvent] = []
+        self.goal_t_s: float | None = None
         self._in_contact: set[int] = set()
         self.walkers.reset()
         self._update_contacts()
@@ -169,6 +194,8 @@ class CrowdWorld:
         self.walkers.step(self.t_s, dt, robot if self.scene.pedestrians_see_robot else None)
         self.t_s += dt
         self._update_contacts()
+        if self.goal_t_s is None and self.goal_reached:
+            self.goal_t_s = self.t_s
 
     def _hits_static(self, xy: tuple[float, float]) -> bool:
         p = np.asarray(xy, float)[None, :]
@@ -188,9 +215,26 @@ class CrowdWorld:
             return
         dist = np.hypot(peds.xy_m[:, 0] - self.pose[0], peds.xy_m[:, 1] - self.pose[1])
         self.min_clearance_m = min(self.min_clearance_m, float(dist.min()))
-        touching = {int(i) for i in peds.ids[dist < peds.radius_m + self.limits.radius_m]}
-        self.collisions += len(touching - self._in_contact)
+        touch = dist < peds.radius_m + self.limits.radius_m
+        touching = {int(i) for i in peds.ids[touch]}
+        new = touching - self._in_contact
+        self.collisions += len(new)
         self._in_contact = touching
+        if new:
+            x, y, yaw = self.pose
+            v_robot = self.twist[0] * np.array([np.cos(yaw), np.sin(yaw)])
+            for k in np.flatnonzero(touch):
+                if int(peds.ids[k]) not in new:
+                    continue
+                u = (peds.xy_m[k] - (x, y)) / max(dist[k], 1e-9)          # robot -> pedestrian
+                robot_mps, ped_mps = float(v_robot @ u), float(-peds.vel_mps[k] @ u)
+                self.contacts.append(ContactEvent(self.t_s, int(peds.ids[k]), float(dist[k]), robot_mps, ped_mps,
+                                                  robot_mps > self.robot_fault_mps))
+
+    @property
+    def collisions_by_robot(self) -> int:
+        """Contacts where the robot drove into the pedestrian (see :class:`ContactEvent`)."""
+        return sum(c.by_robot for c in self.contacts)
 
     def pedestrians(self) -> PedestrianState:
         """Pedestrians present at ``t_s`` (world frame)."""
@@ -231,6 +275,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     map_period_s: float = 2.0          # map and goal are re-published this often (late subscribers)
     map_resolution_m: float = 0.1
     watchdog_s: float = 0.5            # no cmd for this long -> the robot brakes to a stop
+    wait_for_cmd_s: float = 10.0       # the world holds still until the first cmd, at most this long (0 = start at once)
     max_step_s: float = 1.0            # a clock jump longer than this is not simulated (logged)
     max_speed_mps: float = 1.0
     min_speed_mps: float = -0.3
@@ -288,6 +333,8 @@ class CrowdSim(Node):
         self._cmd_ns: int | None = None
         self._next_map_ns = 0
         self._stopped_by_watchdog = False
+        self._first_ns: int | None = None
+        self._started = cfg.wait_for_cmd_s <= 0
 
     def on_cmd(self, msg: Twist2D) -> None:
         if not (np.isfinite(msg.vx_mps) and np.isfinite(msg.wz_radps)):
@@ -296,6 +343,15 @@ class CrowdSim(Node):
         self._cmd, self._cmd_ns = (float(msg.vx_mps), float(msg.wz_radps)), self.now_ns()
 
     def _advance(self, now_ns: int) -> None:
+        if not self._started:
+            self._first_ns = now_ns if self._first_ns is None else self._first_ns
+            if self._cmd_ns is None and now_ns - self._first_ns < self.config.wait_for_cmd_s * 1e9:
+                return
+            self._started = True
+            if self._cmd_ns is None:
+                self.log.warning("no cmd within %.1f s: starting the world anyway", self.config.wait_for_cmd_s)
+            else:
+                self.log.info("first cmd after %.2f s: the world clock starts", (now_ns - self._first_ns) / 1e9)
         if self._t0_ns is None:
             self._t0_ns = now_ns - int(round(self.world.t_s * 1e9))
         dt = (now_ns - self._t0_ns) / 1e9 - self.world.t_s
@@ -345,6 +401,11 @@ class CrowdSim(Node):
 
     def teardown(self) -> None:
         w = self.world
-        self.log.info("crowd sim '%s' t=%.1f s: goal reached=%s, collisions=%d, blocked steps=%d, "
-                      "min clearance=%.2f m", w.scene.name, w.t_s, w.goal_reached, w.collisions, w.blocked_steps,
-                      w.min_clearance_m)
+        goal = "never" if w.goal_t_s is None else f"at {w.goal_t_s:.2f} s"
+        self.log.info("crowd sim '%s' t=%.1f s: goal reached %s, collisions=%d (robot drove into %d), blocked steps=%d, "
+                      "min clearance=%.2f m", w.scene.name, w.t_s, goal, w.collisions, w.collisions_by_robot,
+                      w.blocked_steps, w.min_clearance_m)
+        for c in w.contacts:
+            self.log.info("contact t=%.2f s with %d at %.2f m: robot closing %.2f m/s, pedestrian closing %.2f m/s (%s)",
+                          c.t_s, c.ped_id, c.distance_m, c.robot_closing_mps, c.ped_closing_mps,
+                          "robot drove in" if c.by_robot else "pedestrian walked in")

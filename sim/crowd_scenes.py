@@ -19,7 +19,7 @@ A scene is a YAML file ``sim/scenes/crowd_<name>.yaml`` (or a dict with the same
       - {id: 1, waypoints: [[11, 0.15], [-1.5, 0.15]], speed_mps: 1.1, start_s: 0.0, at_goal: stop}
       - {id: 2, waypoints: [[3, 1]], speed_mps: 0}        # standing still
     replay:                             # optional: real ETH/UCY tracks (sim.pedestrian_data)
-      {dataset: students003, t0_s: 40, x_m: 0, y_m: 0, yaw_rad: 0}
+      {dataset: students003, t0_s: 40, x_m: 0, y_m: 0, yaw_rad: 0, exclude_ids: [129]}
 
 ``at_goal`` is ``stop`` (stand at the last waypoint), ``loop`` (walk the waypoints back and
 forth) or ``respawn`` (reappear at the first waypoint). A pedestrian with ``speed_mps: 0``
@@ -66,6 +66,10 @@ class ReplaySpec:
     radius_m: float = 0.3
     height_m: float = 1.75
     id_offset: int = 10000
+    exclude_ids: tuple[int, ...] = ()    # data-set ids left out (the pedestrian whose place the robot takes)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "exclude_ids", tuple(int(i) for i in self.exclude_ids))
 
     def to_world(self, xy: np.ndarray) -> np.ndarray:
         """Data-set coordinates (N, 2) -> scene coordinates (N, 2) (rotate by yaw, then shift)."""
@@ -408,6 +412,9 @@ class Walkers:
             empty = np.zeros(0)
             return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), empty, empty
         ids, xy, vel = self.tracks.state_at(rep.t0_s + self.t_s)
+        if rep.exclude_ids:
+            keep = ~np.isin(ids, rep.exclude_ids)
+            ids, xy, vel = ids[keep], xy[keep], vel[keep]
         xy = rep.to_world(xy)
         vel = rep.to_world(vel) - rep.to_world(np.zeros((1, 2)))
         x0, y0, x1, y1 = self.scene.bounds_m

@@ -1,24 +1,43 @@
-"""Collision guard (layer 3): pass velocity commands through, but stop when anything is within 1 m.
+"""Collision guard (layer 3): pass velocity commands through, but never let the robot drive into anything.
 
-It sits between a planner's ``cmd`` and the robot and overrides whatever the planners
-say: when the nearest obstacle point (from the depth image and/or 3D points, robot
-frame, horizontal distance from the robot centre, floor and ceiling excluded) is closer
-than ``stop_distance_m``, forward motion is zeroed (turning in place stays allowed unless
-``allow_turn_in_place`` is false). It releases only after ``release_s`` of continuous
-clearance (a person inside the camera's minimum range shows as a depth hole, not as a
-near point, so a single clear frame is not trusted). A depth frame with almost no valid
-pixels counts as blind and stops the robot; so do a silent sensor (``sensor_timeout_s``)
-and a silent planner (``cmd_timeout_s``, checked on a timer).
+It sits between a planner's ``cmd`` and the robot and overrides whatever the planners say.
+Obstacles are the depth image's points (and/or 3D points) between ``z_min_m`` and
+``z_max_m``, thinned to one per 5 cm. For each command it follows the path the robot
+centre would take with that (v, w) (:mod:`nodes.nav.clearance`) and finds the first place
+where the robot's disc plus ``margin_m`` would close in on a point:
+
+- an obstacle on that path nearer than ``stop_distance_m`` to the robot centre (the paper's
+  1 m rule, applied to what the robot is driving toward, so it may pass beside a wall or a
+  standing person) zeroes forward motion; turning in place stays allowed unless
+  ``allow_turn_in_place`` is false. It releases only after ``release_s`` of continuous
+  clearance on the commanded path;
+- otherwise the forward speed is capped so the robot can still brake (``decel_mps2``) to a
+  stop before the conflict, counting ``latency_s`` plus the age of the data as time spent
+  at the current speed: a 1 m rule alone is not enough at 1 m/s with 0.8 m/s^2 brakes
+  (0.63 m of braking plus the delay of a live pipeline).
+
+With odometry (input ``odom``) the points are kept in the world frame: they are moved with
+the robot between frames, and points that leave the camera's view (outside its field of
+view or nearer than ``min_range_m`` to it, where a depth camera reports holes) are
+remembered for ``memory_s``. A depth frame with almost no valid pixels counts as blind and
+stops the robot; so do a silent sensor (``sensor_timeout_s``) and a silent planner
+(``cmd_timeout_s``, checked on a timer). Reversing is refused unless ``allow_reverse`` (the
+camera looks ahead). What the guard cannot prevent is a person walking into a robot that
+has stopped; the simulator counts those contacts separately (``sim.crowd.ContactEvent``).
 """
 from __future__ import annotations
+
+from collections import deque
 
 import msgspec
 import numpy as np
 
-from msgs.geometry import Twist2D
+from msgs.geometry import Odometry2D, Twist2D
 from msgs.nav import FlowPoints, PlanStatus
 from msgs.sensor import RgbdFrame
-from nodes.nav.dwa_core import depth_to_robot
+from nodes.nav.clearance import braking_speed_mps, free_distance_m, unseen_mask
+from nodes.nav.dijkstra import to_robot, to_world
+from nodes.nav.dwa_core import depth_to_robot, thin_points
 from tether import Node
 
 
@@ -29,13 +48,29 @@ def nearest_obstacle_m(points_m: np.ndarray, *, z_min_m: float = 0.1, z_max_m: f
     return float(np.hypot(p[:, 0], p[:, 1]).min()) if len(p) else float("inf")
 
 
+def obstacle_xy(points_m: np.ndarray, *, z_min_m: float, z_max_m: float, reach_m: float, cell_m: float = 0.05) -> np.ndarray:
+    """Robot-frame points (N, 3) -> obstacle points (M, 2) in the height band, within ``reach_m``, one per ``cell_m``."""
+    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1) & (p[:, 2] >= z_min_m) & (p[:, 2] <= z_max_m)]
+    p = p[np.hypot(p[:, 0], p[:, 1]) <= reach_m]
+    return thin_points(p[:, :2], cell_m)
+
+
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    stop_distance_m: float = 1.0
+    stop_distance_m: float = 1.0      # an obstacle on the path ahead nearer than this (centre distance) stops the robot
+    robot_radius_m: float = 0.35
+    margin_m: float = 0.1             # kept free around the robot's disc
+    decel_mps2: float = 0.8           # braking the robot can do (sim.crowd max_accel_mps2)
+    latency_s: float = 0.15           # sensor -> wheels delay, on top of the measured age of the data
+    check_m: float = 2.5              # how far along the path to look
     release_s: float = 0.5
     allow_turn_in_place: bool = True
+    allow_reverse: bool = False
     camera_x_m: float = 0.3
     camera_y_m: float = 0.0
     camera_z_m: float = 1.0
+    min_range_m: float = 0.4          # the depth camera reports holes nearer than this
+    memory_s: float = 1.0             # unseen points are remembered this long (needs odom)
     stride_px: int = 4
     z_min_m: float = 0.1
     z_max_m: float = 2.0
@@ -46,75 +81,138 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
 
 
 class CollisionGuard(Node):
-    """Inputs ``cmd`` (planner), ``rgbd`` and/or ``points`` (robot-frame FlowPoints); outputs ``cmd``, ``status``."""
+    """Inputs ``cmd`` (planner), ``rgbd`` and/or ``points`` (robot-frame FlowPoints), optional ``odom``;
+    outputs ``cmd`` (the safe command) and ``status`` (why it was changed)."""
 
     Config = Config
-    inputs = {"cmd": Twist2D, "rgbd": RgbdFrame, "points": FlowPoints}
+    inputs = {"cmd": Twist2D, "rgbd": RgbdFrame, "points": FlowPoints, "odom": Odometry2D}
     outputs = {"cmd": Twist2D, "status": PlanStatus}
     timers = {"tick": "watchdog_hz"}
 
     def setup(self) -> None:
         self.nearest_m = float("inf")
-        self.blocked_reason = "no sensor data yet"
-        self._clear_since_ns: int | None = None
+        self.blind = False
+        self.stops = 0
+        self.capped = 0
+        self._hold_until_ns: int | None = None      # forward motion refused until then (release_s)
+        self._obstacle_ns: int | None = None        # last time an obstacle stopped the robot
         self._sensor_ns: int | None = None
         self._cmd_ns: int | None = None
         self._last = Twist2D()
-        self._sent_zero = False
-        self.stops = 0
+        self._sent: tuple[float, float] | None = None
+        self._stopped = False
+        self._points = np.zeros((0, 2))             # world frame with odometry, else robot frame of the frame
+        self._points_ns = 0
+        self._memory: deque[tuple[int, np.ndarray]] = deque()
+        self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
+        self._half_fov = np.pi / 2
 
     # -- sensing ------------------------------------------------------------------------------
-    def _update(self, nearest: float, blind: bool, stamp_ns: int) -> list[tuple[str, object]]:
-        now = self.now_ns()
-        self._sensor_ns = now
-        self.nearest_m = nearest
-        was = bool(self.blocked_reason)
-        if blind or nearest < self.config.stop_distance_m:
-            self.blocked_reason = "depth blind" if blind else f"obstacle at {nearest:.2f} m"
-            self._clear_since_ns = None
+    def on_odom(self, msg: Odometry2D) -> None:
+        pose = (msg.pose.x_m, msg.pose.y_m, msg.pose.yaw_rad)
+        if np.all(np.isfinite(pose)) and (not self._poses or msg.stamp_ns >= self._poses[-1][0]):
+            self._poses.append((msg.stamp_ns, pose))
+
+    def _pose_at(self, stamp_ns: int) -> tuple[float, float, float] | None:
+        if not self._poses:
+            return None
+        stamp, pose = min(self._poses, key=lambda sp: abs(sp[0] - stamp_ns))
+        return pose if abs(stamp - stamp_ns) <= 0.2e9 else None
+
+    def _sense(self, points_m: np.ndarray, blind: bool, stamp_ns: int) -> list[tuple[str, object]]:
+        c = self.config
+        self._sensor_ns = self.now_ns()
+        self.blind = blind
+        self.nearest_m = nearest_obstacle_m(points_m, z_min_m=c.z_min_m, z_max_m=c.z_max_m)
+        xy = obstacle_xy(points_m, z_min_m=c.z_min_m, z_max_m=c.z_max_m, reach_m=c.check_m + c.robot_radius_m + 1.0)
+        pose = self._pose_at(stamp_ns)
+        if pose is not None and c.memory_s > 0:
+            xy = to_world(pose, xy)
+            self._memory.append((stamp_ns, xy))
+            while self._memory and stamp_ns - self._memory[0][0] > c.memory_s * 1e9:
+                self._memory.popleft()
         else:
-            self._clear_since_ns = self._clear_since_ns if self._clear_since_ns is not None else now
-            if (now - self._clear_since_ns) * 1e-9 >= self.config.release_s or self.blocked_reason == "no sensor data yet":
-                self.blocked_reason = ""
-        if self.blocked_reason and not was:
-            self.stops += 1
-            self.log.info("stop: %s", self.blocked_reason)
-            return self._emit(self._last, stamp_ns)
-        return []
+            self._memory.clear()
+        self._points, self._points_ns = xy, stamp_ns
+        return self._emit(self._last, stamp_ns, resend=False)
 
     def on_rgbd(self, msg: RgbdFrame) -> list[tuple[str, object]]:
-        i = msg.info
+        i, c = msg.info, self.config
         depth = np.asarray(msg.depth_m)
         if depth.ndim != 2 or i.fx_px <= 0 or i.fy_px <= 0:
             self.log.error("RGB-D frame without depth or intrinsics: treated as blind")
-            return self._update(float("inf"), True, msg.stamp_ns)
-        c = self.config
+            return self._sense(np.zeros((0, 3)), True, msg.stamp_ns)
+        self._half_fov = float(np.arctan2(max(i.cx_px, i.width_px - 1 - i.cx_px) + 0.5, i.fx_px))
         pts, valid = depth_to_robot(depth, i.fx_px, i.fy_px, i.cx_px, i.cy_px, stride=max(1, c.stride_px),
                                     mount_xyz_m=(c.camera_x_m, c.camera_y_m, c.camera_z_m))
-        nearest = nearest_obstacle_m(pts, z_min_m=c.z_min_m, z_max_m=c.z_max_m)
-        return self._update(nearest, valid < c.min_valid_fraction, msg.stamp_ns)
+        return self._sense(pts, valid < c.min_valid_fraction, msg.stamp_ns)
 
     def on_points(self, msg: FlowPoints) -> list[tuple[str, object]]:
-        nearest = nearest_obstacle_m(np.asarray(msg.points_m), z_min_m=self.config.z_min_m, z_max_m=self.config.z_max_m)
-        return self._update(nearest, False, msg.stamp_ns)
+        return self._sense(np.asarray(msg.points_m), False, msg.stamp_ns)
+
+    def obstacles_now(self) -> tuple[np.ndarray, float]:
+        """Obstacle points (N, 2) in the robot frame now, and the age (s) of the pose they were placed with."""
+        now = self.now_ns()
+        if not self._memory or not self._poses:
+            return self._points, max(now - self._points_ns, 0) * 1e-9
+        stamp, pose = self._poses[-1]
+        current = to_robot(pose, self._points)
+        old = [to_robot(pose, xy) for t, xy in list(self._memory)[:-1]]
+        if old:
+            old_xy = np.vstack(old)
+            cfg = self.config
+            old_xy = old_xy[unseen_mask(old_xy, camera_x_m=cfg.camera_x_m, half_fov_rad=self._half_fov,
+                                        min_range_m=cfg.min_range_m)]
+            current = np.vstack([current, old_xy])
+        return current, max(now - stamp, 0) * 1e-9
 
     # -- commands -----------------------------------------------------------------------------
     def _stale(self, since_ns: int | None, timeout_s: float) -> bool:
         return since_ns is None or (self.now_ns() - since_ns) * 1e-9 > timeout_s
 
-    def _emit(self, cmd: Twist2D, stamp_ns: int) -> list[tuple[str, object]]:
-        reason = self.blocked_reason
-        if not reason and self._stale(self._sensor_ns, self.config.sensor_timeout_s):
-            reason = "sensor silent"
-        v, w = cmd.vx_mps, cmd.wz_radps
+    def limit(self, v: float, w: float) -> tuple[float, float, str]:
+        """The safe version of the command (v, w) and why it was changed ('' = unchanged)."""
+        c = self.config
         if not (np.isfinite(v) and np.isfinite(w)):
-            reason, v, w = "non-finite command", 0.0, 0.0
+            return 0.0, 0.0, "non-finite command"
+        if self.blind:
+            return 0.0, 0.0, "depth blind"
+        if self._stale(self._sensor_ns, c.sensor_timeout_s):
+            return 0.0, 0.0, "sensor silent"
+        if v < 0 and not c.allow_reverse:
+            return 0.0, w, "reverse refused (blind behind)"
+        if v <= 0:
+            return v, w, ""
+        now = self.now_ns()
+        points, age_s = self.obstacles_now()
+        free, near = free_distance_m(points, v, w, radius_m=c.robot_radius_m + c.margin_m, length_m=c.check_m)
+        turn = w if c.allow_turn_in_place else 0.0
+        if near < c.stop_distance_m:
+            self._obstacle_ns = now
+            self._hold_until_ns = now + int(c.release_s * 1e9)
+            return 0.0, turn, f"obstacle at {near:.2f} m on the path"
+        if self._hold_until_ns is not None and now < self._hold_until_ns:
+            return 0.0, turn, "waiting for the path to stay clear"
+        cap = braking_speed_mps(free, decel_mps2=c.decel_mps2, latency_s=c.latency_s + age_s)
+        if v > cap:
+            return cap, w, f"slowed to {cap:.2f} m/s: {free:.2f} m free on the path"
+        return v, w, ""
+
+    def _emit(self, cmd: Twist2D, stamp_ns: int, *, resend: bool = True) -> list[tuple[str, object]]:
+        v, w, reason = self.limit(cmd.vx_mps, cmd.wz_radps)
+        stopped = v == 0.0 and cmd.vx_mps > 0 and reason.startswith(("obstacle", "depth", "sensor"))
+        if stopped and not self._stopped:
+            self.stops += 1
+            self.log.info("stop: %s", reason)
+        self._stopped = stopped
+        if not resend and (self._cmd_ns is None or self._sent == (v, w)):
+            return []          # a sensor frame re-sends the command only when it changes it
         out: list[tuple[str, object]] = []
         if reason:
-            v = 0.0
-            w = w if self.config.allow_turn_in_place and reason.startswith("obstacle") else 0.0
-            out.append(("status", PlanStatus(stamp_ns=stamp_ns, state="stopped", reason=reason)))
-        self._sent_zero = v == 0.0 and w == 0.0
+            self.capped += reason.startswith("slowed")
+            out.append(("status", PlanStatus(stamp_ns=stamp_ns, state="stopped" if v == 0.0 else "following",
+                                             reason=reason)))
+        self._sent = (v, w)
         out.append(("cmd", Twist2D(stamp_ns=stamp_ns, frame_id=cmd.frame_id or "base", vx_mps=float(v), wz_radps=float(w))))
         return out
 
@@ -124,11 +222,13 @@ class CollisionGuard(Node):
         return self._emit(msg, msg.stamp_ns)
 
     def on_tick(self, msg: object) -> list[tuple[str, object]] | None:
-        if self._cmd_ns is not None and self._stale(self._cmd_ns, self.config.cmd_timeout_s) and not self._sent_zero:
+        if self._cmd_ns is not None and self._stale(self._cmd_ns, self.config.cmd_timeout_s) and self._sent != (0.0, 0.0):
             self._last = Twist2D()
-            out = self._emit(self._last, self.now_ns())
-            return [("status", PlanStatus(stamp_ns=self.now_ns(), state="stopped", reason="planner silent"))] + out
+            self._sent = (0.0, 0.0)
+            return [("status", PlanStatus(stamp_ns=self.now_ns(), state="stopped", reason="planner silent")),
+                    ("cmd", Twist2D(stamp_ns=self.now_ns(), frame_id="base"))]
         return None
 
     def teardown(self) -> None:
-        self.log.info("collision guard: %d stops, nearest obstacle last seen at %.2f m", self.stops, self.nearest_m)
+        self.log.info("collision guard: %d stops, %d slowed commands, nearest obstacle last seen at %.2f m",
+                      self.stops, self.capped, self.nearest_m)

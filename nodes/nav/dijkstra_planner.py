@@ -381,7 +381,7 @@ class DijkstraPlanner(Node):
     """Inputs ``odom``, ``goal``, ``map`` (occupancy, world), ``features`` and ``costs`` (robot frame),
     optionally ``flow`` (moving points: their predicted positions join the cost, ``predict_s``).
 
-    Outputs ``cmd`` (velocity toward the waypoint, on every odom and decision), ``path`` (the path being
+    Outputs ``cmd`` (velocity toward the waypoint, on every odom and decision, from the first decision on), ``path`` (the path being
     followed, world frame) and ``status`` (mode, re-plan event, plan time) on every cost grid.
     """
 
@@ -416,6 +416,8 @@ class DijkstraPlanner(Node):
             self.log.error("odometry with a non-finite pose dropped (%d so far)", self.bad_inputs)
             return None
         self._poses.append((msg.stamp_ns, pose))
+        if self.planner.mode == "idle":
+            return None         # nothing decided yet (no goal or no cost grid): say nothing, the robot waits
         v, w = self.planner.command(pose)
         return {"cmd": Twist2D(stamp_ns=msg.stamp_ns, frame_id="base", vx_mps=v, wz_radps=w)}
 

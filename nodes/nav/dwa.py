@@ -61,6 +61,7 @@ class Dwa(Node):
         self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
         self._graph: GridGraph | None = None
         self._occupied_raw: np.ndarray | None = None
+        self._sensed = False
 
     def on_goal(self, msg: Goal2D) -> None:
         self.goal = (msg.x_m, msg.y_m, msg.tolerance_m)
@@ -92,6 +93,7 @@ class Dwa(Node):
         c = self.config
         p = points_robot[(points_robot[:, 2] >= c.z_min_m) & (points_robot[:, 2] <= c.z_max_m)]
         self._seen = to_world(pose, thin_points(p[:, :2]))
+        self._sensed = True
 
     def on_rgbd(self, msg: RgbdFrame) -> None:
         i, c = msg.info, self.config
@@ -125,8 +127,8 @@ class Dwa(Node):
             return None
         self._poses.append((msg.stamp_ns, pose))
         stop = Twist2D(stamp_ns=msg.stamp_ns, frame_id="base")
-        if self.goal is None:
-            return [("cmd", stop)]
+        if self.goal is None or not self._sensed:
+            return None         # no goal or nothing seen yet: say nothing, the robot waits
         dist = float(np.hypot(self.goal[0] - pose[0], self.goal[1] - pose[1]))
         if dist <= self.goal[2]:
             return [("cmd", stop), ("status", PlanStatus(stamp_ns=msg.stamp_ns, state="reached"))]

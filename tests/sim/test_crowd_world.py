@@ -81,7 +81,8 @@ def test_depth_noise_and_dropout():
 
 
 def test_node_publishes_map_goal_odom_pedestrians_and_frames_with_consistent_stamps():
-    with Harness(CrowdSim, params={"scene": "crossing", "rate_hz": 20, "camera_hz": 10, **SMALL_PARAMS}) as h:
+    with Harness(CrowdSim, params={"scene": "crossing", "rate_hz": 20, "camera_hz": 10, "wait_for_cmd_s": 0,
+                                   **SMALL_PARAMS}) as h:
         h.feed([(0.05 * i, "cmd", Twist2D(vx_mps=0.5)) for i in range(20)], until_s=1.0)
         assert len(h.of("map")) == 1 and len(h.of("goal")) == 1
         grid = h.of("map")[0]
@@ -108,3 +109,27 @@ def test_node_watchdog_brakes_when_commands_stop_and_drops_non_finite_commands()
         h.advance_to(4.0)
         assert speed_at_2s > 0.7
         assert h.of("odom")[-1].twist.vx_mps == 0.0
+
+
+def test_node_world_holds_still_until_the_first_command_then_counts_who_closed_each_contact():
+    with Harness(CrowdSim, params={"scene": "toward", "rate_hz": 20, "camera_hz": 1, "wait_for_cmd_s": 5.0,
+                                   **SMALL_PARAMS}) as h:
+        h.advance_to(2.0)                                              # the pipeline is still starting
+        still = h.of("pedestrians")[-1].positions_m.copy()
+        assert h.node.world.t_s == 0.0 and np.allclose(still, h.of("pedestrians")[0].positions_m)
+        h.feed([(2.0 + 0.05 * i, "cmd", Twist2D(vx_mps=1.0)) for i in range(140)])   # drive at the walker
+        w = h.node.world
+        assert w.t_s == pytest.approx(6.95, abs=0.06)                  # the clock started with the first cmd
+        assert w.collisions == 1 and len(w.contacts) == 1
+        c = w.contacts[0]
+        assert c.by_robot and c.robot_closing_mps > 0.5 and c.ped_closing_mps > 0.5 and w.collisions_by_robot == 1
+
+
+def test_world_blames_the_pedestrian_who_walks_into_a_stopped_robot():
+    w = CrowdWorld(room(pedestrians=[{"id": 7, "waypoints": [[3.0, 0.0], [-3.0, 0.0]], "speed_mps": 1.0}],
+                        pedestrian_model="linear", pedestrians_see_robot=False),
+                   camera=SMALL)
+    for _ in range(60):
+        w.step(0.0, 0.0, 0.1)
+    assert w.collisions == 1 and w.collisions_by_robot == 0
+    assert w.contacts[0].ped_id == 7 and w.contacts[0].ped_closing_mps > 0.5 and w.contacts[0].robot_closing_mps == 0.0
