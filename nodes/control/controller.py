@@ -56,10 +56,12 @@ def _finite(*values: float) -> bool:
 class DoubleAckermannController(Node):
     """Inputs ``reference``, ``state`` (latest only) and timer ``tick``; output ``cmd`` every tick.
 
-    The command is always finite.  Until both a reference and a state have arrived, and
-    whenever either is older than ``stale_s`` (arrival time), the command is zero wheel
-    speed with the steering held.  The reference is extrapolated from its stamp to the tick
-    with its own derivatives (at most ``stale_s`` ahead).
+    The command is always finite.  Nothing is commanded before the first state (the
+    steering to hold is unknown: the drives stay disabled).  Until a reference has arrived
+    too, and whenever either is older than ``stale_s`` (arrival time), the command is zero
+    wheel speed with the steering held where it is.  The reference is extrapolated from its
+    stamp to the tick with its own derivatives (at most ``stale_s`` ahead).  On every
+    (re)start the law is seeded from the measured wheels (see ``Controller``).
     """
 
     Config = Config
@@ -72,7 +74,7 @@ class DoubleAckermannController(Node):
         self._ref: tuple[int, TrajectoryPoint] | None = None
         self._state: tuple[int, VehicleState] | None = None
         self.bad_inputs = self.stale_ticks = self.singular_ticks = self.ticks = 0
-        self._was_stale = False
+        self._was_stale = self._was_fresh = False
 
     def on_reference(self, msg: TrajectoryPoint) -> None:
         if not _finite(msg.x_m, msg.y_m, msg.theta_rad, msg.dx_mps, msg.dy_mps, msg.dtheta_radps,
@@ -92,8 +94,10 @@ class DoubleAckermannController(Node):
         self.bad_inputs += 1
         self.log.error("non-finite %s dropped (%d bad inputs so far): %r", what, self.bad_inputs, msg)
 
-    def on_tick(self, tick: Tick) -> dict[str, WheelCommand]:
+    def on_tick(self, tick: Tick) -> dict[str, WheelCommand] | None:
         now = self.now_ns()
+        if self._state is None:
+            return None                     # steering position unknown: command nothing
         self.ticks += 1
         dt = tick.period_ns * 1e-9 if tick.period_ns > 0 else 1.0 / self.config.rate_hz
         stale_ns = int(self.config.stale_s * 1e9)
@@ -101,12 +105,14 @@ class DoubleAckermannController(Node):
         if (self._ref is None or self._state is None or now - self._ref[0] > stale_ns
                 or now - self._state[0] > stale_ns):
             self.stale_ticks += 1
-            if not self._was_stale and (self._ref is not None or self._state is not None):
+            if not self._was_stale and self._was_fresh:
                 self.log.warning("reference or state stale (> %.3f s): commanding zero speed, steering held",
                                  self.config.stale_s)
+            elif not self._was_stale:
+                self.log.info("waiting for a reference: commanding zero speed, steering held")
             self._was_stale = True
             return {"cmd": self._msg(self.ctrl.stop(wheels, "stale"), now)}
-        self._was_stale = False
+        self._was_stale, self._was_fresh = False, True
         st = self._state[1]
         age = min(max((now - st.stamp_ns) * 1e-9, 0.0), self.config.stale_s)    # dead-reckoned by the law
         cmd = self.ctrl.step(self._ref_at(now), (st.x_m, st.y_m, st.theta_rad), wheels, dt, state_age_s=age)

@@ -149,6 +149,11 @@ class Controller:
     ``step(ref, pose, wheels, dt)`` returns the next per-axle command.  ``wheels`` are the
     achieved (measured) wheel speeds and steer angles.  Anything non-finite in or out gives
     a stop: zero speed with the steering held, and ``status`` says why.
+
+    On the first step, and on the first after :meth:`reset` or :meth:`stop`, the previous
+    command is *seeded from the measured wheels*: rate limits and steer branches start from
+    where the wheels really are (after a stop, or before the drives were enabled, the last
+    command says nothing about that), and from standstill the forward branch is taken.
     """
 
     def __init__(self, *, wheelbase_m: float = 1.0, limits: Limits = Limits(), k_p: float = 3.0,
@@ -159,13 +164,14 @@ class Controller:
             raise ValueError("steer_limit_rad must be >= pi/2, or some wheel directions are unreachable")
         self.wheelbase_m, self.limits, self.k_p, self.k_s, self.lead_s = wheelbase_m, limits, k_p, k_s, lead_s
         self.prev: Wheels | None = None
+        self._seed = True                                 # next step: prev <- measured wheels
         self._aim: tuple[float, float] | None = None     # last steer targets (branch hysteresis)
         self._fresh = True                                # at standstill: next motion picks the forward branch
         self.status = "idle"
         self.u: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
 
     def reset(self) -> None:
-        self.prev, self._aim, self._fresh, self.status = None, None, True, "idle"
+        self.prev, self._aim, self._fresh, self._seed, self.status = None, None, True, True, "idle"
 
     def lead(self, dt: float) -> float:
         """Lead time T: half a zero-order-hold period plus the modelled lag and latency."""
@@ -176,12 +182,13 @@ class Controller:
         if not (_finite(ref.p, ref.dp, ref.ddp, pose, wheels) and math.isfinite(dt) and dt > 0
                 and math.isfinite(state_age_s)):
             return self.stop(wheels, "non-finite input")
+        if self._seed:
+            self.prev, self._aim, self._seed = Wheels(*map(float, wheels)), None, False
         pose = predict_pose(tuple(pose), wheels, state_age_s, self.wheelbase_m)
         desired = self.desired(ref, pose, wheels, dt)
         if desired is None or not _finite(*desired):
             return self.stop(wheels, "singular")
-        prev = self.prev if self.prev is not None else Wheels(0.0, 0.0, 0.0, 0.0)
-        aim = self._aim if self._aim is not None else (prev.delta_front, prev.delta_rear)
+        aim = self._aim if self._aim is not None else (self.prev.delta_front, self.prev.delta_rear)
         if self._fresh:     # starting from standstill: take the forward branch (see kinematics.initial_wheels)
             fwd = initial_wheels(desired[0], self.limits.steer_limit_rad)
             aim = (fwd.delta_front if fwd.v_front else aim[0], fwd.delta_rear if fwd.v_rear else aim[1])
@@ -200,6 +207,7 @@ class Controller:
         df = hold.delta_front if hold is not None and math.isfinite(hold.delta_front) else 0.0
         db = hold.delta_rear if hold is not None and math.isfinite(hold.delta_rear) else 0.0
         self.prev, self._aim, self._fresh, self.status = Wheels(0.0, df, 0.0, db), (df, db), True, why
+        self._seed = True
         return self.prev
 
     def desired(self, ref: RefPoint, pose: Vec3, wheels: Wheels, dt: float):

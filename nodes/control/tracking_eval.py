@@ -85,7 +85,7 @@ def plot_tracking(path: str, ref_pose: np.ndarray, pose: np.ndarray, t: np.ndarr
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.legend(loc="best")
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.14), ncol=2, fontsize=8)
     ax.set_title(title)
     bx.plot(t, pos_err_m * 1e3, "C3", lw=1)
     bx.set_xlabel("t (s)")
@@ -147,15 +147,18 @@ class TrackingEval(Node):
     def teardown(self) -> None:
         self.summary, _, _, _, _ = self.evaluate()
         s = self.summary
-        self.log.info("tracking after %.1f s: %d states, position RMS %.1f mm max %.1f mm, heading RMS %.2f deg "
-                      "max %.2f deg", self.config.skip_s, s["n"], s["rms_mm"], s["max_mm"], s["rms_heading_deg"],
-                      s["max_heading_deg"])
         full, ref, st, keep, pos = self.evaluate(0.0)
+        self.log.info("tracking over the whole run (from the first reference, start-up included): %d states, "
+                      "position RMS %.2f mm max %.2f mm, heading RMS %.3f deg max %.3f deg", full["n"],
+                      full["rms_mm"], full["max_mm"], full["rms_heading_deg"], full["max_heading_deg"])
         if self.config.skip_s > 0:
-            self.log.info("tracking over the whole run (start-up included): position RMS %.1f mm max %.1f mm",
-                          full["rms_mm"], full["max_mm"])
+            self.log.info("tracking after %.1f s: %d states, position RMS %.2f mm max %.2f mm, heading RMS %.3f deg "
+                          "max %.3f deg", self.config.skip_s, s["n"], s["rms_mm"], s["max_mm"], s["rms_heading_deg"],
+                          s["max_heading_deg"])
         if self.config.png and len(st) and len(ref):
             t0 = ref[0, 0]
-            plot_tracking(self.config.png, ref[:, 1:], st[:, 1:], st[keep, 0] - t0, pos,
-                          f"{self.config.title}: RMS {s['rms_mm']:.1f} mm after {self.config.skip_s:g} s")
+            title = f"{self.config.title}: RMS {full['rms_mm']:.2f} mm, max {full['max_mm']:.1f} mm (whole run)"
+            if self.config.skip_s > 0:
+                title += f"\nRMS {s['rms_mm']:.2f} mm after {self.config.skip_s:g} s"
+            plot_tracking(self.config.png, ref[:, 1:], st[:, 1:], st[keep, 0] - t0, pos, title)
             self.log.info("tracking plot written to %s", self.config.png)

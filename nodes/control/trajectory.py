@@ -165,6 +165,46 @@ def ramp_time(t: np.ndarray | float, ramp_s: float) -> tuple[np.ndarray, np.ndar
     return tau, dtau, ddtau
 
 
+def resume(traj: Callable[[np.ndarray | float], Reference], s0_s: float, t_s: np.ndarray | float,
+           ramp_s: float) -> tuple[Reference, np.ndarray]:
+    """``traj`` (re)started from rest at its own time ``s0_s``, ``t_s`` seconds ago.
+
+    The trajectory's time runs ``s = s0 + tau(t)`` with the raised-cosine ramp of
+    :func:`ramp_time` (``ramp_s = 0``: full speed at once), and the chain rule gives the
+    derivatives: ``dp = p'(s) tau'``, ``ddp = p''(s) tau'^2 + p'(s) tau''``.
+
+    Returns
+    -------
+    (Reference, s) : the reference (N, 3) arrays and the trajectory times ``s`` (N,), s
+    """
+    tau, d1, d2 = ramp_time(t_s, ramp_s)
+    s = s0_s + tau
+    r = traj(s)
+    return Reference(r.p, r.dp * d1[:, None], r.ddp * (d1 * d1)[:, None] + r.dp * d2[:, None]), s
+
+
+def anchor(ref: Reference, start: tuple[float, float, float], at: tuple[float, float, float]) -> Reference:
+    """Move a reference rigidly (SE(2)) so that the pose ``start`` lands on the pose ``at``.
+
+    Positions are rotated by ``at[2] - start[2]`` about ``start`` and shifted to ``at``; the
+    headings turn by the same angle (wrapped to [-pi, pi)); velocities and accelerations
+    rotate with the path, heading rates are unchanged. Used to start a trajectory where the
+    vehicle actually stands.
+    """
+    dth = at[2] - start[2]
+    c, s = math.cos(dth), math.sin(dth)
+
+    def rot(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return c * x - s * y, s * x + c * y
+
+    px, py = rot(ref.p[:, 0] - start[0], ref.p[:, 1] - start[1])
+    th = (ref.p[:, 2] + dth + np.pi) % (2 * np.pi) - np.pi
+    p = np.stack([px + at[0], py + at[1], th], axis=1)
+    dp = np.stack([*rot(ref.dp[:, 0], ref.dp[:, 1]), ref.dp[:, 2]], axis=1)
+    ddp = np.stack([*rot(ref.ddp[:, 0], ref.ddp[:, 1]), ref.ddp[:, 2]], axis=1)
+    return Reference(p, dp, ddp)
+
+
 def make_trajectory(kind: str, *, ramp_s: float = 0.0, **params: object) -> Callable[[np.ndarray | float], Reference]:
     """``t -> Reference`` for a named generator (circle, figure8, crab, spin, focus) and its parameters.
 
@@ -182,8 +222,9 @@ def make_trajectory(kind: str, *, ramp_s: float = 0.0, **params: object) -> Call
     if ramp_s == 0:
         return lambda t: gen(t, **params)
 
+    def base(t: np.ndarray | float) -> Reference:
+        return gen(t, **params)
+
     def ramped(t: np.ndarray | float) -> Reference:
-        tau, d1, d2 = ramp_time(t, ramp_s)
-        r = gen(tau, **params)
-        return Reference(r.p, r.dp * d1[:, None], r.ddp * (d1 * d1)[:, None] + r.dp * d2[:, None])
+        return resume(base, 0.0, t, ramp_s)[0]
     return ramped

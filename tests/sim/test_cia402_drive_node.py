@@ -17,15 +17,15 @@ def test_sim_node_answers_and_reports_achieved_motion():
     channel = f"sim-node-{os.getpid()}"
     h = Harness(Cia402DriveSim, params={"interface": "virtual", "channel": channel,
                                         "sim": {"rear_steer": {"vendor_bits": 256, "junk_hex": "8faf8faf"}}})
-    runner = threading.Thread(target=h.node.run, daemon=True)
-    runner.start()
     master = Cia402Master(open_bus("virtual", channel), Config(interface="virtual", channel=channel))
     master.start()
     try:
         sp = {"front_wheel": 32_595, "front_steer": 16_297, "rear_wheel": 32_595, "rear_steer": -16_297}
-        end = time.monotonic() + 5.0
+        t0 = time.monotonic()
+        end = t0 + 5.0
         while time.monotonic() < end:
             master.step(time.monotonic(), sp)
+            h.advance_to(time.monotonic() - t0)                   # publishes at its timer rate
             got = h.of("achieved")
             if got and abs(got[-1].v_front_mps - 0.5) < 0.01 and abs(got[-1].delta_rear_rad + 0.5) < 0.01:
                 break
@@ -36,7 +36,5 @@ def test_sim_node_answers_and_reports_achieved_motion():
         assert master.drives["rear_steer"].statusword & 0x0100          # vendor bit configured by param
     finally:
         master.close()
-        h.node.stopping.set()
-        runner.join(timeout=5)
         h.close()
-    assert not runner.is_alive()
+    assert not any(t.name == "sim-cia402" and t.is_alive() for t in threading.enumerate())

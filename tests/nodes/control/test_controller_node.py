@@ -16,11 +16,15 @@ def point(t: float, **kw) -> TrajectoryPoint:
     return TrajectoryPoint(stamp_ns=int(round(t * 1e9)), t_s=t, **kw)
 
 
-def test_commands_zero_speed_until_inputs_arrive():
+def test_nothing_before_a_state_then_zero_speed_with_the_measured_steering_held():
     with Harness(DoubleAckermannController, params={"rate_hz": 50}) as h:
         h.advance_to(0.1)
+        assert h.of("cmd") == []                 # steering position unknown: the drives stay disabled
+        st = VehicleState(delta_front_rad=1.1, delta_rear_rad=-0.4)
+        h.feed([(0.11, "state", st)], until_s=0.2)
         cmds = h.of("cmd")
-        assert len(cmds) == 6 and all(c.v_front_mps == 0.0 and c.v_rear_mps == 0.0 for c in cmds)
+        assert len(cmds) == 5 and all(c.v_front_mps == 0.0 and c.v_rear_mps == 0.0 for c in cmds)
+        assert all(c.delta_front_rad == 1.1 and c.delta_rear_rad == -0.4 for c in cmds)
 
 
 def test_tracks_then_watchdog_stops_with_steering_held():
@@ -28,9 +32,11 @@ def test_tracks_then_watchdog_stops_with_steering_held():
         st = VehicleState(v_front_mps=0.3, v_rear_mps=0.3, delta_front_rad=0.2, delta_rear_rad=0.2)
         ref = dict(x_m=0.0, y_m=0.0, dx_mps=0.3 * math.cos(0.2), dy_mps=0.3 * math.sin(0.2))
         h.feed([(0.0, "state", st), (0.0, "reference", point(0.0, **ref))], until_s=0.05)
-        moving = h.of("cmd")[-1]
-        # first tick (t=0) came before the inputs: a stop; from there the speed ramps at the accel limit
-        assert moving.v_front_mps == pytest.approx(0.04 * 2) and moving.delta_front_rad == pytest.approx(0.12)
+        # the first tick (t=0) came before the inputs: nothing; then the law starts from the measured
+        # wheels, already rolling at 0.3 m/s and 0.2 rad: no drop to zero, no steering jump
+        assert [c.stamp_ns for c in h.of("cmd")] == [int(0.02e9), int(0.04e9)]
+        for moving in h.of("cmd"):
+            assert moving.v_front_mps == pytest.approx(0.3, abs=2e-3) and moving.delta_front_rad == pytest.approx(0.2, abs=2e-3)
         fresh = [(0.06 + 0.02 * k, "state", st) for k in range(10)]
         fresh += [(0.06 + 0.02 * k, "reference", point(0.0, **ref)) for k in range(10)]   # stamp 0: extrapolated
         h.feed(fresh, until_s=0.26)
@@ -54,9 +60,9 @@ def test_stale_state_alone_stops():
 
 def test_non_finite_inputs_are_dropped_and_counted():
     with Harness(DoubleAckermannController, params={"rate_hz": 50}) as h:
-        h.feed([(0.0, "state", VehicleState(x_m=math.nan)), (0.0, "reference", point(0.0, dx_mps=math.inf))],
-               until_s=0.1)
-        assert h.node.bad_inputs == 2
+        h.feed([(0.0, "state", VehicleState(x_m=math.nan)), (0.0, "reference", point(0.0, dx_mps=math.inf)),
+                (0.05, "state", VehicleState())], until_s=0.1)
+        assert h.node.bad_inputs == 2 and len(h.of("cmd")) == 3
         assert all(np.isfinite([c.v_front_mps, c.delta_front_rad, c.v_rear_mps, c.delta_rear_rad]).all()
                    and c.v_front_mps == 0.0 for c in h.of("cmd"))
 
@@ -106,7 +112,7 @@ def test_three_nodes_in_lockstep_track_crab_motion_from_rest(law):
         sent = len(cmds)
         ref, st = traj.of("reference")[-1], veh.of("state")[-1]
         errs.append(math.hypot(ref.x_m - st.x_m, ref.y_m - st.y_m))
-        assert isinstance(ctrl.of("cmd")[-1], WheelCommand)
+    assert all(isinstance(c, WheelCommand) for c in ctrl.of("cmd")) and len(ctrl.of("cmd")) >= 249
     # starts at rest with wheels straight while the reference leaves sideways at 0.5 m/s: a transient
     # of ~0.1 m while the wheels turn to pi/2, then sub-millimetre tracking through the reversals
     assert max(errs[-50:]) < 1e-3 and ctrl.node.stale_ticks <= 1

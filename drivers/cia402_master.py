@@ -1,0 +1,287 @@
+"""CANopen master for CiA 402 drives (the ``canopen`` package on any python-can bus).
+
+:class:`Cia402Master` brings each drive up (NMT reset communication, boot-up, device
+type check, heartbeat producer / consumer, PDO mapping by SDO, mode, ramps, NMT start),
+then runs the power state machine cyclically over RPDO1 (controlword + target) from
+TPDO1 (statusword, mode display) and TPDO2 (position, velocity). Wheels run in profile
+velocity, steering in profile position.
+
+Safety: the master quick-stops **every** drive when commands go stale (watchdog), a
+heartbeat is lost, a drive reboots, an EMCY arrives or a drive faults in service; those
+latch until :meth:`Cia402Master.reset`. Faults already present at start are reset (rising
+edge of controlword bit 7) a bounded number of times. The master also produces its own
+heartbeat *from the cyclic step*, and each drive is told to consume it, so a stalled or
+killed master makes the drives fault and stop by themselves.
+
+Time comes from ``clock`` (seconds; ``time.monotonic`` by default, the node's clock in a
+pipeline), so the master also runs in virtual time. Bring-up runs in a background thread
+(:meth:`Cia402Master.start`), or inside :meth:`Cia402Master.step` on a synchronous bus.
+"""
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+from typing import Callable
+
+import can
+import canopen
+
+from drivers import cia402 as p
+from drivers.cia402_bringup import Drive, bring_up
+from drivers.cia402_config import Config, check_config, check_object_dictionary
+from tether import DriverError
+
+log = logging.getLogger("drivers.canopen402")      # one logger for the whole driver
+
+
+class Cia402Master:
+    """CANopen master for a set of CiA 402 drives on one bus (no tether dependency)."""
+
+    def __init__(self, bus: can.BusABC, cfg: Config, *, on_trip: Callable[[str], None] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        check_config(cfg)
+        self.cfg = cfg
+        self._clock = clock
+        self.bus = bus
+        self.network = canopen.Network(bus)
+        self.drives: dict[str, Drive] = {}
+        self.latched = ""                # why every drive is held in quick stop ('' = not)
+        self.errors = 0
+        self._on_trip = on_trip
+        self._stop = threading.Event()
+        self._next_master_hb = 0.0
+        self._thread: threading.Thread | None = None
+        self._inline = False             # bring-up inside step() (synchronous bus, virtual time)
+        self._skip: dict[str, set[int]] = {}
+        for spec in cfg.drives:
+            od = canopen.ObjectDictionary()
+            if spec.eds or cfg.eds:
+                od = canopen.import_od(spec.eds or cfg.eds, node_id=spec.node_id)
+                problems, self._skip[spec.name] = check_object_dictionary(od, spec.role)
+                if problems:
+                    raise ValueError(f"drive {spec.name!r}: {spec.eds or cfg.eds} cannot serve as a {spec.role} "
+                                     f"drive: {'; '.join(problems)}")
+            node = canopen.RemoteNode(spec.node_id, od)
+            node.sdo.RESPONSE_TIMEOUT = cfg.sdo_timeout_s
+            self.network.add_node(node)
+            d = Drive(spec, node)
+            self.drives[spec.name] = d
+            n = spec.node_id
+            self.network.unsubscribe(p.EMCY + n)                      # ours decodes short frames too
+            self.network.subscribe(p.EMCY + n, self._emcy_cb(d))
+            self.network.subscribe(p.TPDO_BASE[0] + n, self._tpdo1_cb(d))
+            self.network.subscribe(p.TPDO_BASE[1] + n, self._tpdo2_cb(d))
+            node.nmt.add_heartbeat_callback(self._hb_cb(d))
+
+    # -- bus callbacks (notifier thread) ---------------------------------------------
+    def _hb_cb(self, d: Drive) -> Callable[[int], None]:
+        def cb(state: int) -> None:
+            d.last_hb = self._clock()
+            d.nmt_state = p.NMT_STATES.get(state, f"0x{state:02X}")
+            if state == 0:
+                d.booted.set()
+                if d.configured:       # rebooted in service: it lost its configuration
+                    d.configured = False
+                    self.trip(f"{d.name} rebooted")
+        return cb
+
+    def _emcy_cb(self, d: Drive) -> Callable[[int, bytes, float], None]:
+        def cb(can_id: int, data: bytes, ts: float) -> None:
+            try:
+                e = p.parse_emcy(data)
+            except ValueError as exc:
+                self.errors += 1
+                log.error("%s: %s", d.name, exc)
+                return
+            if e.is_reset:
+                d.emcy_code, d.fault = 0, ""
+                return
+            d.emcy_code, d.fault = e.code, f"EMCY 0x{e.code:04X} {e.text}"
+            log.warning("%s: %s (register 0x%02X)", d.name, d.fault, e.register)
+            if d.configured and d.was_enabled:
+                self.trip(f"{d.name}: {d.fault}")
+        return cb
+
+    def _tpdo1_cb(self, d: Drive) -> Callable[[int, bytes, float], None]:
+        def cb(can_id: int, data: bytes, ts: float) -> None:
+            if len(data) < 2:
+                self.errors += 1
+                return
+            was_enabled = d.was_enabled
+            d.set_statusword(struct.unpack_from("<H", data)[0])
+            d.mode = struct.unpack_from("<b", data, 2)[0] if len(data) >= 3 else d.mode
+            if d.state in (p.FAULT, p.FAULT_REACTION_ACTIVE) and was_enabled and d.configured:
+                self.trip(f"{d.name} faulted in service (statusword 0x{d.statusword:04X})")
+        return cb
+
+    def _tpdo2_cb(self, d: Drive) -> Callable[[int, bytes, float], None]:
+        def cb(can_id: int, data: bytes, ts: float) -> None:
+            if len(data) < 8:
+                self.errors += 1
+                return
+            raw_pos, d.velocity = struct.unpack_from("<ii", data)
+            d.position = p.unwrap_int32(d.position, raw_pos)
+        return cb
+
+    # -- bring-up ----------------------------------------------------------------------
+    def start(self) -> None:
+        """Connect and start bringing drives up in a background thread.
+
+        On a synchronous bus (``bus.synchronous``: frames answered inside ``send``, as on
+        :class:`sim.cia402_bank.SyncCanBus`) frames are dispatched as they arrive, with no
+        notifier thread, and bring-up runs inside :meth:`step`: everything in the caller's thread.
+        """
+        if getattr(self.bus, "synchronous", False):
+            if self.cfg.sync_hz > 0:
+                raise ValueError("sync_hz > 0 needs a real bus (SYNC is produced by a thread); use 0 in lockstep")
+            self.bus.receivers.append(self._dispatch)
+            self._inline = True
+            return
+        self.network.connect()
+        if self.cfg.sync_hz > 0:
+            self.network.sync.start(1.0 / self.cfg.sync_hz)
+        self._thread = threading.Thread(target=self._bring_up_loop, name="cia402-bring-up", daemon=True)
+        self._thread.start()
+
+    def _dispatch(self, msg: can.Message) -> None:
+        for listener in list(self.network.listeners):
+            listener.on_message_received(msg)
+
+    def _bring_up_loop(self) -> None:
+        while not self._stop.is_set():
+            self.bring_up_pending()
+            self._stop.wait(0.02)
+
+    def bring_up_pending(self) -> None:
+        """Try to bring up every drive that is not configured and not waiting for its retry time."""
+        for d in self.drives.values():
+            if d.configured or self._clock() < d.next_try or self._stop.is_set():
+                continue
+            try:
+                self.bring_up(d)
+            except (DriverError, canopen.SdoAbortedError, canopen.SdoCommunicationError, can.CanError) as exc:
+                d.next_try = self._clock() + self.cfg.retry_s
+                log.error("%s (node %d): bring-up failed: %s; retrying in %.1f s",
+                          d.name, d.spec.node_id, exc, self.cfg.retry_s)
+            except Exception:  # noqa: BLE001 - the bring-up thread must outlive any surprise
+                d.next_try = self._clock() + self.cfg.retry_s
+                log.exception("%s (node %d): bring-up failed unexpectedly", d.name, d.spec.node_id)
+
+    def bring_up(self, d: Drive) -> None:
+        """Configure one drive and start it (raises DriverError with the step that failed)."""
+        bring_up(self.network, d, self.cfg, skip=self._skip.get(d.name, set()), now_s=self._clock())
+
+    # -- cyclic ------------------------------------------------------------------------
+    def trip(self, reason: str) -> None:
+        """Hold every drive in quick stop until :meth:`reset`."""
+        if not self.latched:
+            self.latched = reason
+            log.error("quick stop of all drives: %s", reason)
+            if self._on_trip is not None:
+                self._on_trip(reason)
+
+    def reset(self) -> None:
+        """Clear the latch; faulted drives get fault resets again."""
+        if self.latched:
+            log.warning("reset after: %s", self.latched)
+        self.latched = ""
+        for d in self.drives.values():
+            d.fault_resets = 0
+            d.was_enabled = False
+            if d.state not in (p.FAULT, p.FAULT_REACTION_ACTIVE):
+                d.fault, d.emcy_code = "", 0
+
+    def ready(self) -> bool:
+        """Every drive is configured (it may still be disabled)."""
+        return all(d.configured for d in self.drives.values())
+
+    def enabled(self) -> bool:
+        """Every drive is configured, OPERATION ENABLED with a live heartbeat, and nothing is latched:
+        the vehicle is under command (what a trajectory may wait for before it starts)."""
+        return not self.latched and all(d.configured and d.state == p.OPERATION_ENABLED and d.nmt_state != "LOST"
+                                        for d in self.drives.values())
+
+    def step(self, now_s: float, setpoints: dict[str, int] | None) -> None:
+        """One cycle: master heartbeat, heartbeat check, controlword + target per drive.
+
+        ``setpoints`` (counts/s for wheels, counts for steering) is None when commands
+        are stale or absent; the drives are then quick-stopped.
+        """
+        cfg = self.cfg
+        if self._inline:
+            self.bring_up_pending()
+        if cfg.master_node_id and now_s >= self._next_master_hb:
+            self._next_master_hb = now_s + cfg.master_heartbeat_ms / 1000.0
+            self._send(p.HEARTBEAT + cfg.master_node_id, b"\x05")
+        lost_after = cfg.heartbeat_ms * cfg.heartbeat_loss_factor / 1000.0
+        for d in self.drives.values():
+            if d.configured and d.last_hb is not None and self._clock() - d.last_hb > lost_after:
+                d.nmt_state = "LOST"
+                self.trip(f"heartbeat of {d.name} lost")
+        faulted = any(d.state in (p.FAULT, p.FAULT_REACTION_ACTIVE) for d in self.drives.values())
+        run = setpoints is not None and not self.latched and self.ready() and not faulted
+        for d in self.drives.values():
+            if d.configured:
+                self._command(d, setpoints if run else None)
+
+    def _command(self, d: Drive, setpoints: dict[str, int] | None) -> None:
+        wheel = d.spec.role == "wheel"
+        if setpoints is not None:
+            target_state = p.OPERATION_ENABLED
+        elif d.state == p.FAULT and not d.was_enabled and d.fault_resets < self.cfg.max_fault_resets:
+            target_state = p.SWITCH_ON_DISABLED          # reset a fault we inherited; never powers up
+        else:
+            target_state = p.QUICK_STOP_ACTIVE
+        cw = p.next_controlword(d.state, target_state, d.cw_prev)
+        if cw == p.CW_FAULT_RESET:
+            d.fault_resets += 1
+            if d.fault_resets == self.cfg.max_fault_resets:
+                log.error("%s: fault persists after %d resets", d.name, d.fault_resets)
+        enabled = d.state == p.OPERATION_ENABLED and setpoints is not None
+        if wheel:
+            d.target = setpoints[d.name] if enabled and setpoints is not None else 0
+            self._rpdo(d, cw, d.target)
+            return
+        if setpoints is not None:
+            d.target = setpoints[d.name]
+        if not enabled:
+            d.latched_target = None
+            self._rpdo(d, cw, d.target)
+        elif d.latched_target != d.target:
+            # Profile position: a rising edge of bit 4 latches 0x607A; bit 5 replaces the running move.
+            self._rpdo(d, cw | p.CW_NEW_SET_POINT | p.CW_CHANGE_IMMEDIATELY, d.target)
+            self._rpdo(d, cw | p.CW_CHANGE_IMMEDIATELY, d.target)
+            d.latched_target = d.target
+        else:
+            self._rpdo(d, cw | p.CW_CHANGE_IMMEDIATELY, d.target)
+
+    def _rpdo(self, d: Drive, cw: int, target: int) -> None:
+        d.cw_prev = cw
+        target = max(-2**31, min(2**31 - 1, int(target)))
+        self._send(p.RPDO_BASE[0] + d.spec.node_id, struct.pack("<Hi", cw, target))
+
+    def _send(self, can_id: int, data: bytes) -> None:
+        try:
+            self.network.send_message(can_id, data)
+        except can.CanError as exc:
+            self.errors += 1
+            log.error("CAN send 0x%03X failed: %s", can_id, exc)
+
+    def close(self) -> None:
+        """Quick-stop enabled drives, stop threads, release the bus (safe to call twice)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        if self.network.bus is None:
+            return
+        for d in self.drives.values():
+            if d.configured and d.state in (p.OPERATION_ENABLED, p.QUICK_STOP_ACTIVE):
+                self._rpdo(d, p.CW_QUICK_STOP, 0 if d.spec.role == "wheel" else d.target)
+        try:
+            self.network.sync.stop()
+        except Exception:  # noqa: BLE001 - stopping a never-started SYNC is fine
+            pass
+        self.network.disconnect()
