@@ -32,8 +32,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple, Sequence
 
-from nodes.control.kinematics import (Limits, Wheels, initial_wheels, predict_pose, s_from_wheels, shape_command, steer_targets,
-                                      wheel_rates, world_from_s, wrap_angle)
+from nodes.control.kinematics import (Limits, Wheels, initial_wheels, predict_pose, s_from_wheels, s_from_world,
+                                      shape_command, steer_targets, wheel_rates, world_from_s, wrap_angle)
 
 Vec3 = Sequence[float]
 
@@ -190,16 +190,33 @@ class Controller:
             return self.stop(wheels, "singular")
         aim = self._aim if self._aim is not None else (self.prev.delta_front, self.prev.delta_rear)
         if self._fresh:     # starting from standstill: take the forward branch (see kinematics.initial_wheels)
-            fwd = initial_wheels(desired[0], self.limits.steer_limit_rad)
+            way, ref_speed = self._start_direction(ref, pose[2], desired[0])
+            fwd = initial_wheels(way, self.limits.steer_limit_rad)
             aim = (fwd.delta_front if fwd.v_front else aim[0], fwd.delta_rear if fwd.v_rear else aim[1])
-            self._fresh = math.hypot(desired[0][0], max(abs(desired[0][1]), abs(desired[0][2]))) \
-                < self.limits.v_gate_mps
-        self._aim = steer_targets(desired[0], desired[1], aim, self.limits)
-        cmd = shape_command(desired[0], desired[1], self.prev, self.limits, dt, aim=self._aim)
+            self._fresh = (ref_speed if ref_speed is not None else _speed(desired[0])) < self.limits.v_gate_mps
+        # branches follow the path itself: feedback on a small error never swings a wheel half a turn
+        s_path = s_from_world(pose[2], *ref.dp, self.wheelbase_m)
+        self._aim = steer_targets(desired[0], desired[1], aim, self.limits, s_path=s_path)
+        cmd = shape_command(desired[0], desired[1], self.prev, self.limits, dt, targets=self._aim)
         if not _finite(cmd):
             return self.stop(wheels, "non-finite output")
         self.prev, self.status = cmd, "ok"
         return cmd
+
+    def _start_direction(self, ref: RefPoint, theta: float, s_cmd: Vec3) -> tuple[Vec3, float | None]:
+        """Body velocities whose forward branch a start from standstill takes, and the reference's speed.
+
+        The reference's own velocity (else, for a ramped start at rest, its acceleration) in
+        the body frame: at walking pace the command is dominated by feedback on millimetre
+        errors, whose direction says nothing about where the path goes, and a wheel started on
+        the wrong branch must flip half a turn later.  Without a moving reference: the command
+        itself (and None for the speed).
+        """
+        ff = s_from_world(theta, *ref.dp, self.wheelbase_m)
+        if _speed(ff) > 1e-9:
+            return ff, _speed(ff)
+        acc = s_from_world(theta, *ref.ddp, self.wheelbase_m)
+        return (acc, 0.0) if _speed(acc) > 1e-9 else (s_cmd, None)
 
     def stop(self, wheels: Wheels | None = None, why: str = "stop") -> Wheels:
         """Zero speed, steering held at the last command (else the measured, else straight)."""
@@ -253,6 +270,11 @@ class FblinController(Controller):
         vb = vf * math.cos(df) / math.cos(db)      # the seed's constraint, solved for v_b: 1/cos d_b
         s_cmd = (vf * math.cos(df), vf * math.sin(df), vb * math.sin(db))
         return s_cmd, (0.0, 0.0, 0.0)
+
+
+def _speed(s: Vec3) -> float:
+    """The larger axle speed of body velocities ``s = (v_tan, v_lat_f, v_lat_b)``."""
+    return math.hypot(s[0], max(abs(s[1]), abs(s[2])))
 
 
 def _finite(*groups: Sequence[float]) -> bool:

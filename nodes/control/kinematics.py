@@ -162,13 +162,29 @@ class Limits(NamedTuple):
 
 
 def _axle_angle(tan: float, lat: float, hint_tan: float, hint_lat: float, prev_delta: float,
-                limits: Limits) -> float:
-    """Desired steer angle of one axle (before rate limiting), gated at low speed."""
+                limits: Limits, path: tuple[float, float] | None = None) -> float:
+    """Desired steer angle of one axle (before rate limiting), gated at low speed.
+
+    With the path's own wheel vector ``path`` (moving), the branch is chosen on it (flips
+    only where the path needs them) and the command's angle is taken on that branch,
+    clamped at the stops: feedback on a small error may turn the wheel, reverse it, push it
+    against a stop -- but never make it swing half a turn.
+    """
+    lim, margin = limits.steer_limit_rad, limits.clamp_margin_rad
+    if path is not None and math.hypot(*path) > 1e-9:
+        branch = choose_steer(path[0], path[1], prev_delta, lim, clamp_margin_rad=margin)[0]
+        if math.hypot(tan, lat) >= limits.v_gate_mps:
+            base = math.atan2(lat, tan)
+        elif math.hypot(hint_tan, hint_lat) > 1e-9:
+            base = math.atan2(hint_lat, hint_tan)
+        else:
+            return branch
+        cand = base + math.pi * round((branch - base) / math.pi)
+        return max(-lim, min(lim, cand))
     if math.hypot(tan, lat) >= limits.v_gate_mps:
-        return choose_steer(tan, lat, prev_delta, limits.steer_limit_rad, clamp_margin_rad=limits.clamp_margin_rad)[0]
+        return choose_steer(tan, lat, prev_delta, lim, clamp_margin_rad=margin)[0]
     if math.hypot(hint_tan, hint_lat) > 1e-9:      # about to move: pre-steer along the acceleration
-        return choose_steer(hint_tan, hint_lat, prev_delta, limits.steer_limit_rad,
-                            clamp_margin_rad=limits.clamp_margin_rad)[0]
+        return choose_steer(hint_tan, hint_lat, prev_delta, lim, clamp_margin_rad=margin)[0]
     return prev_delta                               # at rest: hold the steering
 
 
@@ -182,20 +198,25 @@ def _interval(lo: float, hi: float, n: float) -> tuple[float, float]:
 
 
 def steer_targets(s_cmd: tuple[float, float, float], s_hint: tuple[float, float, float],
-                  aim: tuple[float, float], limits: Limits) -> tuple[float, float]:
+                  aim: tuple[float, float], limits: Limits, *,
+                  s_path: tuple[float, float, float] | None = None) -> tuple[float, float]:
     """Wanted (front, rear) steer angles before rate limiting: the branch nearest ``aim`` (rad).
 
     Aiming at the previous *targets* rather than the previous (slewed) angles adds
     hysteresis: a wheel turning from 0 toward a sideways direction whose forward component
     flickers in sign keeps turning the same way instead of hunting between +-pi/2.
+    ``s_path``: body velocities of the reference path alone (no feedback); when given, the
+    branches follow the path and the command only moves the angle within them.
     """
-    return (_axle_angle(s_cmd[0], s_cmd[1], s_hint[0], s_hint[1], aim[0], limits),
-            _axle_angle(s_cmd[0], s_cmd[2], s_hint[0], s_hint[2], aim[1], limits))
+    pf = (s_path[0], s_path[1]) if s_path is not None else None
+    pb = (s_path[0], s_path[2]) if s_path is not None else None
+    return (_axle_angle(s_cmd[0], s_cmd[1], s_hint[0], s_hint[1], aim[0], limits, pf),
+            _axle_angle(s_cmd[0], s_cmd[2], s_hint[0], s_hint[2], aim[1], limits, pb))
 
 
 def shape_command(s_cmd: tuple[float, float, float], s_hint: tuple[float, float, float],
                   prev: Wheels | None, limits: Limits, dt: float, *,
-                  aim: tuple[float, float] | None = None) -> Wheels:
+                  aim: tuple[float, float] | None = None, targets: tuple[float, float] | None = None) -> Wheels:
     """Turn desired body velocities into feasible per-axle commands that satisfy the constraint.
 
     Parameters
@@ -212,6 +233,8 @@ def shape_command(s_cmd: tuple[float, float, float], s_hint: tuple[float, float,
     aim : (2,), rad, optional
         Angles the steer branches are chosen nearest to (see :func:`steer_targets`);
         default the previous command's.
+    targets : (2,), rad, optional
+        Wanted steer angles already chosen (by :func:`steer_targets`); used as given.
 
     Returns
     -------
@@ -224,7 +247,8 @@ def shape_command(s_cmd: tuple[float, float, float], s_hint: tuple[float, float,
     v_tan, lat_f, lat_b = s_cmd
     pf = prev.delta_front if prev is not None else 0.0
     pb = prev.delta_rear if prev is not None else 0.0
-    df, db = steer_targets(s_cmd, s_hint, aim if aim is not None else (pf, pb), limits)
+    df, db = targets if targets is not None else steer_targets(s_cmd, s_hint, aim if aim is not None else (pf, pb),
+                                                               limits)
     vmax = limits.wheel_speed_mps
     if prev is not None and dt > 0.0:
         step = limits.steer_rate_radps * dt

@@ -84,3 +84,28 @@ def test_generator_names():
     assert set(GENERATORS) == {"circle", "figure8", "crab", "spin", "focus"}
     with pytest.raises(ValueError, match="finite"):
         circle(np.array([np.nan]))
+
+
+def test_resume_restarts_from_rest_at_the_held_point_and_anchor_moves_the_path_rigidly():
+    from nodes.control.trajectory import anchor, resume
+    base = make_trajectory("figure8")
+    t = np.linspace(0.0, 6.0, 6001)
+    ref, s = resume(base, 7.5, t, 2.0)
+    assert s[0] == 7.5 and np.allclose(ref.p[0], base(7.5).p[0]) and np.allclose(ref.dp[0], 0.0)
+    assert np.allclose(ref.dp[-1], base(s[-1]).dp[0]) and s[-1] == pytest.approx(7.5 + 6.0 - 1.0)   # full speed
+    dt = t[1] - t[0]
+    assert np.abs(np.gradient(np.unwrap(ref.p, axis=0), dt, axis=0) - ref.dp)[3:-3].max() < 1e-5
+    # anchored at (1, 2, 0.5): the start lands on that pose, the path keeps its shape and speed
+    start, at = tuple(base(0.0).p[0]), (1.0, 2.0, 0.5)
+    moved = anchor(base(t), start, at)
+    orig = base(t)
+    assert np.allclose(moved.p[0], at)
+    assert np.allclose(np.hypot(*(moved.p[:, :2] - moved.p[:1, :2]).T), np.hypot(*(orig.p[:, :2] - orig.p[:1, :2]).T))
+    assert np.allclose(np.hypot(moved.dp[:, 0], moved.dp[:, 1]), np.hypot(orig.dp[:, 0], orig.dp[:, 1]))
+    dth = at[2] - start[2]
+    assert np.allclose((moved.p[:, 2] - orig.p[:, 2] - dth + np.pi) % (2 * np.pi) - np.pi, 0.0)
+    assert np.abs(np.gradient(np.unwrap(moved.p, axis=0), dt, axis=0) - moved.dp)[3:-3].max() < 1e-5
+    assert np.abs(np.gradient(moved.dp, dt, axis=0) - moved.ddp)[3:-3].max() < 1e-5
+    # body-frame velocities (what the wheels see) are unchanged by the move
+    for k in (0, 2500, 6000):
+        assert np.allclose(s_from_world(moved.p[k, 2], *moved.dp[k], 1.0), s_from_world(orig.p[k, 2], *orig.dp[k], 1.0))
