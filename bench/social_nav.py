@@ -28,6 +28,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
 
 from msgs.geometry import Odometry2D, Pose2D, Twist2D  # noqa: E402
 from msgs.nav import Goal2D  # noqa: E402
@@ -38,7 +39,7 @@ from nodes.nav.dijkstra_planner import DijkstraPlanner  # noqa: E402
 from nodes.nav.dwa import Dwa  # noqa: E402
 from nodes.nav.irl_cost import IrlCost  # noqa: E402
 from nodes.nav.irl_learn import PLANNER_PARAMS, FeaturePipeline, sim_camera  # noqa: E402
-from sim.crowd import CrowdWorld  # noqa: E402
+from sim.crowd import CrowdWorld, robot_drove_in  # noqa: E402
 from sim.crowd_scenes import PedestrianSpec, load_scene  # noqa: E402
 from tether.testing import Harness  # noqa: E402
 
@@ -86,17 +87,18 @@ def contact_onsets(t: np.ndarray, xy: np.ndarray, robot_vel: np.ndarray, peds: l
     """Contacts (t_s, pedestrian id, robot drove in) from a sampled episode, as ``sim.crowd`` attributes them:
     at the onset the robot's velocity (n, 2) toward the person exceeds ``fault_mps`` -> the robot drove in."""
     out, touching = [], set()
+    prev: dict[int, tuple[float, np.ndarray]] = {}
     for k, (ids, p) in enumerate(peds):
-        if not len(ids):
-            touching = set()
-            continue
-        d = np.hypot(*(p - xy[k]).T)
+        d = np.hypot(*(p - xy[k]).T) if len(ids) else np.zeros(0)
         now = {int(i) for i in ids[d < radius_m]}
         for j in np.flatnonzero(d < radius_m):
             if int(ids[j]) not in touching:
                 u = (p[j] - xy[k]) / max(d[j], 1e-9)
-                out.append((float(t[k]), int(ids[j]), bool(robot_vel[k] @ u > fault_mps)))
+                t_prev, p_prev = prev.get(int(ids[j]), (t[k], p[j]))
+                ped_vel = (p[j] - p_prev) / (t[k] - t_prev) if t[k] > t_prev else np.zeros(2)
+                out.append((float(t[k]), int(ids[j]), robot_drove_in(float(robot_vel[k] @ u), float(-ped_vel @ u), fault_mps)))
         touching = now
+        prev = {int(i): (t[k], q) for i, q in zip(ids, p)}
     return out
 
 
@@ -152,7 +154,8 @@ class IrlStack:
             ms.setdefault("cost", []).append((t2 - t1) * 1e3)
             ms.setdefault("plan", []).append((t3 - t2) * 1e3)
         cmd = cmds[-1] if cmds else Twist2D()
-        safe = [o.msg for o in self.guard.feed([(t, "odom", odom), (t, "rgbd", frame), (t, "cmd", cmd)]) if o.output == "cmd"]
+        sensed = [(t, "odom", odom), (t, "rgbd", frame)] + ([(t, "points", flow)] if flow is not None else [])
+        safe = [o.msg for o in self.guard.feed(sensed + [(t, "cmd", cmd)]) if o.output == "cmd"]
         return (safe[-1].vx_mps, safe[-1].wz_radps) if safe else (0.0, 0.0)
 
 
@@ -322,7 +325,7 @@ def plan_ms_100x100(repeats: int = 41) -> float:
     return float(np.median(times))
 
 
-def plot(cases: dict, runs: dict) -> Path:
+def plot(cases: dict, runs: dict, filename: str = "social_nav.png") -> Path:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -358,9 +361,42 @@ def plot(cases: dict, runs: dict) -> Path:
     fig.tight_layout()
     out = ROOT / "out"
     out.mkdir(exist_ok=True)
-    fig.savefig(out / "social_nav.png", dpi=100)
+    fig.savefig(out / filename, dpi=100)
     plt.close(fig)
-    return out / "social_nav.png"
+    return out / filename
+
+
+def goal_checks(report: dict) -> dict:
+    goals = {}
+    for name, r in report.items():
+        irl, dwa, hum = r["irl"], r["dwa"], r["human"]
+        goals[name] = {"closest_ge_dwa": irl["closest_m"] is not None and (dwa["closest_m"] is None or irl["closest_m"] >= dwa["closest_m"]),
+                       "time_within_15pct": irl["time_s"] is not None and hum["time_s"] is not None and irl["time_s"] <= 1.15 * hum["time_s"]}
+    return goals
+
+
+def live_main(args: argparse.Namespace, cases: dict, runs: dict) -> None:
+    """``--live``: every scenario through ``tether launch`` (see bench/social_nav_live.py)."""
+    from social_nav_live import episode_from_log, run_live
+
+    out_dir = ROOT / "out" / "social_nav_live"
+    info = {}
+    for name, scene in cases.items():
+        for method in ("irl", "dwa"):
+            log, text = run_live(name, method, duration_s=scene.duration_s + 5.0, out_dir=out_dir, params=args.param)
+            runs[name][method], info[f"{name}/{method}"] = episode_from_log(log, scene.goal)
+            if not args.json:
+                print(f"{name} {method}: {info[f'{name}/{method}']}", file=sys.stderr)
+                print("\n".join(line for line in text.splitlines() if "crowd sim" in line or "contact" in line), file=sys.stderr)
+    report = {name: {m: metrics(e) for m, e in r.items()} for name, r in runs.items()}
+    goals = goal_checks(report)
+    png = plot(cases, runs, "social_nav_live.png")
+    out = {"live": True, "scenarios": report, "goals": goals, "runs": info, "plot": str(png.relative_to(ROOT))}
+    if args.json:
+        print(json.dumps(out))
+        return
+    print_table(report, goals)
+    print(f"plot {png}")
 
 
 def main() -> None:
@@ -369,12 +405,17 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--weights", default="", help="weights file for the IRL cost ('' = shipped default)")
     ap.add_argument("--scenes", nargs="*", default=[], help=f"scenes to run (default: {' '.join(SCENES)})")
+    ap.add_argument("--live", action="store_true",
+                    help="run the launch files (tether launch, one process per node, wall clock) instead of in-process")
+    ap.add_argument("--param", action="append", default=[], help="live: extra launch override NODE.KEY=VALUE")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
     names = args.scenes or (QUICK if args.quick else SCENES)
     cases = {name: load_scene(name) for name in names}
     runs: dict[str, dict[str, Episode]] = {name: {"human": human_reference(scene)} for name, scene in cases.items()}
     stage_ms: dict[str, list[float]] = {}
+    if args.live:
+        return live_main(args, cases, runs)
     for name, scene in cases.items():
         make = (lambda s=scene: CrowdWorld(s, camera=sim_camera()))
         for stack in (IrlStack, DwaStack):
@@ -387,11 +428,7 @@ def main() -> None:
     report = {name: {m: metrics(e) for m, e in r.items()} for name, r in runs.items()}
     med = {k: float(np.median(v)) for k, v in stage_ms.items()}
     pipeline_ms = med.get("flow+features", np.nan) + med.get("cost", np.nan) + med.get("plan", np.nan)
-    goals = {}
-    for name, r in report.items():
-        irl, dwa, hum = r["irl"], r["dwa"], r["human"]
-        goals[name] = {"closest_ge_dwa": irl["closest_m"] is not None and (dwa["closest_m"] is None or irl["closest_m"] >= dwa["closest_m"]),
-                       "time_within_15pct": irl["time_s"] is not None and hum["time_s"] is not None and irl["time_s"] <= 1.15 * hum["time_s"]}
+    goals = goal_checks(report)
     png = plot(cases, runs)
     out = {"scenarios": report, "goals": goals, "pipeline_hz": round(1000.0 / pipeline_ms, 1),
            "stage_ms_median": {k: round(v, 2) for k, v in med.items()}, "plan_ms_100x100": round(plan_ms_100x100(), 3),

@@ -38,8 +38,9 @@ limits; a step that would put its disc (``radius_m``) into a wall or obstacle is
 (the robot stops there). Pedestrian contact is counted, not prevented, and attributed: at the
 onset of a contact the robot's own speed toward the pedestrian is compared with the
 pedestrian's speed toward the robot (:class:`ContactEvent`); ``by_robot`` means the robot was
-driving into the person (faster than ``robot_fault_mps``), otherwise the person walked into
-a robot that was stopped or moving away. Simulated
+driving into the person (faster than ``robot_fault_mps`` and at least half as fast as the person
+closed in, :func:`robot_drove_in`), otherwise the person walked into a robot that was stopped,
+braking or moving away. Simulated
 pedestrians avoid the robot only when the scene says ``pedestrians_see_robot: true``;
 replayed pedestrians never react (they are recordings).
 
@@ -104,6 +105,14 @@ class PedestrianState:
     vel_mps: np.ndarray
     radius_m: np.ndarray
     height_m: np.ndarray
+
+
+def robot_drove_in(robot_closing_mps: float, ped_closing_mps: float, fault_mps: float = 0.1) -> bool:
+    """Attribute a contact: the robot drove into the person when, at the onset, it was closing the
+    gap faster than ``fault_mps`` and at least half as fast as the person was. Head-on at walking
+    pace, or into someone standing, is the robot's doing; a robot nearly stopped (still braking)
+    that someone walks into at full pace is not."""
+    return bool(robot_closing_mps > fault_mps and robot_closing_mps >= 0.5 * ped_closing_mps)
 
 
 def _approach(value: float, target: float, max_delta: float) -> float:
@@ -191,6 +200,7 @@ class CrowdWorld:
         self.pose, self.twist = pose, twist
         robot = (self.pose[0], self.pose[1], self.twist[0] * np.cos(self.pose[2]),
                  self.twist[0] * np.sin(self.pose[2]), self.limits.radius_m)
+        self.walkers.keep_clear = (self.pose[0], self.pose[1], self.limits.radius_m)
         self.walkers.step(self.t_s, dt, robot if self.scene.pedestrians_see_robot else None)
         self.t_s += dt
         self._update_contacts()
@@ -229,7 +239,7 @@ class CrowdWorld:
                 u = (peds.xy_m[k] - (x, y)) / max(dist[k], 1e-9)          # robot -> pedestrian
                 robot_mps, ped_mps = float(v_robot @ u), float(-peds.vel_mps[k] @ u)
                 self.contacts.append(ContactEvent(self.t_s, int(peds.ids[k]), float(dist[k]), robot_mps, ped_mps,
-                                                  robot_mps > self.robot_fault_mps))
+                                                  robot_drove_in(robot_mps, ped_mps, self.robot_fault_mps)))
 
     @property
     def collisions_by_robot(self) -> int:

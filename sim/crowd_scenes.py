@@ -326,6 +326,7 @@ class Walkers:
         self.speed = np.array([p.speed_mps for p in specs], float)
         self.start_s = np.array([p.start_s for p in specs], float)
         self.tracks = tracks
+        self.keep_clear: tuple[float, float, float] | None = None   # (x, y, radius) no respawn may land on
         if scene.replay is not None and tracks is None:
             from sim.pedestrian_data import load_tracks
             self.tracks = load_tracks(scene.replay.dataset)
@@ -399,11 +400,20 @@ class Walkers:
                 self.direction[i] *= -1
                 self.target[i] += self.direction[i]
             elif spec.at_goal == "respawn":
+                if self._spawn_blocked(wps[0], self.radius[i]):
+                    self.vel[i] = 0.0            # wait at the goal: nobody appears inside the robot
+                    continue
                 self.xy[i], self.vel[i] = wps[0], 0.0
                 self.target[i], self.direction[i] = min(1, len(wps) - 1), 1
             else:
                 self.v0[i], self.vel[i] = 0.0, 0.0        # stand at the goal, and stay there
                 self.static[i] = True
+
+    def _spawn_blocked(self, xy: np.ndarray, radius_m: float) -> bool:
+        if self.keep_clear is None:
+            return False
+        x, y, r = self.keep_clear
+        return bool(np.hypot(xy[0] - x, xy[1] - y) < r + radius_m + 0.5)
 
     def replayed(self) -> tuple[np.ndarray, ...]:
         """Replayed pedestrians inside the scene bounds now: ids, xy (M, 2), vel (M, 2), radius, height."""

@@ -16,7 +16,11 @@ where the robot's disc plus ``margin_m`` would close in on a point:
   at the current speed: a 1 m rule alone is not enough at 1 m/s with 0.8 m/s^2 brakes
   (0.63 m of braking plus the delay of a live pipeline).
 
-With odometry (input ``odom``) the points are kept in the world frame: they are moved with
+Moving points (input ``points`` carrying velocities, e.g. the flow node's ``FlowPoints``,
+next to ``rgbd``) are extrapolated at constant velocity over the time the robot needs to
+stop (``latency_s`` + v_max / ``decel_mps2``, at most ``predict_s``) and join the obstacles
+along their way: a person walking into the robot's path counts from where they will be,
+not only where they are. With odometry (input ``odom``) the points are kept in the world frame: they are moved with
 the robot between frames, and points that leave the camera's view (outside its field of
 view or nearer than ``min_range_m`` to it, where a depth camera reports holes) are
 remembered for ``memory_s``. A depth frame with almost no valid pixels counts as blind and
@@ -70,7 +74,10 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     camera_y_m: float = 0.0
     camera_z_m: float = 1.0
     min_range_m: float = 0.4          # the depth camera reports holes nearer than this
-    memory_s: float = 1.0             # unseen points are remembered this long (needs odom)
+    memory_s: float = 3.0             # unseen points are remembered this long (needs odom)
+    predict_s: float = 0.7            # moving points are extrapolated this far ahead at most (0 = off)
+    moving_mps: float = 0.3           # slower points are not extrapolated
+    v_max_mps: float = 1.0            # the robot's top speed (sets the extrapolation horizon)
     stride_px: int = 4
     z_min_m: float = 0.1
     z_max_m: float = 2.0
@@ -101,11 +108,16 @@ class CollisionGuard(Node):
         self._last = Twist2D()
         self._sent: tuple[float, float] | None = None
         self._stopped = False
-        self._points = np.zeros((0, 2))             # world frame with odometry, else robot frame of the frame
+        self._points = np.zeros((0, 2))             # world frame with odometry (_world), else the frame's robot frame
+        self._points_t = np.zeros(0, np.int64)      # when each point was last seen
         self._points_ns = 0
-        self._memory: deque[tuple[int, np.ndarray]] = deque()
+        self._world = False
         self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
         self._half_fov = np.pi / 2
+        self._rgbd = False
+        self._movers = np.zeros((0, 2))             # robot frame at _movers_ns, or world with odometry
+        self._movers_ns = 0
+        self._movers_world = False
 
     # -- sensing ------------------------------------------------------------------------------
     def on_odom(self, msg: Odometry2D) -> None:
@@ -127,13 +139,21 @@ class CollisionGuard(Node):
         xy = obstacle_xy(points_m, z_min_m=c.z_min_m, z_max_m=c.z_max_m, reach_m=c.check_m + c.robot_radius_m + 1.0)
         pose = self._pose_at(stamp_ns)
         if pose is not None and c.memory_s > 0:
-            xy = to_world(pose, xy)
-            self._memory.append((stamp_ns, xy))
-            while self._memory and stamp_ns - self._memory[0][0] > c.memory_s * 1e9:
-                self._memory.popleft()
+            # one world-frame set: what is seen now, plus what was seen within memory_s where the
+            # camera cannot look now (outside its view, or too near it to measure)
+            seen_t = np.full(len(xy), stamp_ns, np.int64)
+            if self._world and len(self._points):
+                rel = to_robot(pose, self._points)
+                keep = ((stamp_ns - self._points_t <= c.memory_s * 1e9)
+                        & unseen_mask(rel, camera_x_m=c.camera_x_m, half_fov_rad=self._half_fov, min_range_m=c.min_range_m)
+                        & (np.hypot(rel[:, 0], rel[:, 1]) <= c.check_m + c.robot_radius_m + 1.0))
+                xy = np.vstack([xy, rel[keep]])
+                seen_t = np.concatenate([seen_t, self._points_t[keep]])
+            xy, first = thin_points(xy, 0.05, return_index=True)
+            self._points, self._points_t, self._world = to_world(pose, xy), seen_t[first], True
         else:
-            self._memory.clear()
-        self._points, self._points_ns = xy, stamp_ns
+            self._points, self._points_t, self._world = xy, np.full(len(xy), stamp_ns, np.int64), False
+        self._points_ns = stamp_ns
         return self._emit(self._last, stamp_ns, resend=False)
 
     def on_rgbd(self, msg: RgbdFrame) -> list[tuple[str, object]]:
@@ -145,26 +165,49 @@ class CollisionGuard(Node):
         self._half_fov = float(np.arctan2(max(i.cx_px, i.width_px - 1 - i.cx_px) + 0.5, i.fx_px))
         pts, valid = depth_to_robot(depth, i.fx_px, i.fy_px, i.cx_px, i.cy_px, stride=max(1, c.stride_px),
                                     mount_xyz_m=(c.camera_x_m, c.camera_y_m, c.camera_z_m))
+        self._rgbd = True
         return self._sense(pts, valid < c.min_valid_fraction, msg.stamp_ns)
 
     def on_points(self, msg: FlowPoints) -> list[tuple[str, object]]:
-        return self._sense(np.asarray(msg.points_m), False, msg.stamp_ns)
+        pts = np.asarray(msg.points_m, dtype=np.float64).reshape(-1, 3)
+        vel = np.asarray(msg.velocity_mps, dtype=np.float64).reshape(-1, 3)
+        self._predict(pts, vel if len(vel) == len(pts) else np.zeros_like(pts), msg.stamp_ns)
+        if self._rgbd:
+            return self._emit(self._last, msg.stamp_ns, resend=False)   # the depth image is the geometry
+        return self._sense(pts, False, msg.stamp_ns)
+
+    def _predict(self, pts: np.ndarray, vel: np.ndarray, stamp_ns: int) -> None:
+        """Where moving points (robot frame, with velocities) will be while the robot stops."""
+        c = self.config
+        horizon = min(c.predict_s, c.latency_s + c.v_max_mps / c.decel_mps2)
+        ok = (np.isfinite(pts).all(axis=1) & np.isfinite(vel).all(axis=1) & (pts[:, 2] >= c.z_min_m)
+              & (pts[:, 2] <= c.z_max_m) & (np.hypot(vel[:, 0], vel[:, 1]) >= c.moving_mps))
+        if horizon <= 0 or not ok.any():
+            self._movers = np.zeros((0, 2))
+            return
+        taus = np.arange(0.1, horizon + 1e-9, 0.1)
+        ahead = (pts[ok, None, :2] + vel[ok, None, :2] * taus[None, :, None]).reshape(-1, 2)
+        ahead = thin_points(ahead[np.hypot(ahead[:, 0], ahead[:, 1]) <= c.check_m + 1.0], 0.05)
+        pose = self._pose_at(stamp_ns)
+        self._movers_world = pose is not None
+        self._movers = to_world(pose, ahead) if pose is not None else ahead
+        self._movers_ns = stamp_ns
 
     def obstacles_now(self) -> tuple[np.ndarray, float]:
-        """Obstacle points (N, 2) in the robot frame now, and the age (s) of the pose they were placed with."""
+        """Obstacle points (N, 2) in the robot frame now (seen, remembered and predicted), and the
+        age (s) of the pose they were placed with."""
+        points, age = self._seen_now()
+        if len(self._movers) and (self.now_ns() - self._movers_ns) * 1e-9 <= self.config.sensor_timeout_s:
+            movers = to_robot(self._poses[-1][1], self._movers) if self._movers_world and self._poses else self._movers
+            points = np.vstack([points, movers])
+        return points, age
+
+    def _seen_now(self) -> tuple[np.ndarray, float]:
         now = self.now_ns()
-        if not self._memory or not self._poses:
+        if not self._world or not self._poses:
             return self._points, max(now - self._points_ns, 0) * 1e-9
         stamp, pose = self._poses[-1]
-        current = to_robot(pose, self._points)
-        old = [to_robot(pose, xy) for t, xy in list(self._memory)[:-1]]
-        if old:
-            old_xy = np.vstack(old)
-            cfg = self.config
-            old_xy = old_xy[unseen_mask(old_xy, camera_x_m=cfg.camera_x_m, half_fov_rad=self._half_fov,
-                                        min_range_m=cfg.min_range_m)]
-            current = np.vstack([current, old_xy])
-        return current, max(now - stamp, 0) * 1e-9
+        return to_robot(pose, self._points), max(now - stamp, 0) * 1e-9
 
     # -- commands -----------------------------------------------------------------------------
     def _stale(self, since_ns: int | None, timeout_s: float) -> bool:

@@ -48,6 +48,7 @@ class PlannerParams:
     v_max_mps: float = 1.0
     w_max_radps: float = 1.2
     crowd_margin_m: float = 0.3   # the cost grid is dilated by robot radius + this (personal space)
+    person_cost: float = 8.0      # cells with people (high density, predicted crossings) cost at least this x the median
     commitment: float = 0.5       # cost of moving the sub-goal between re-plans, x typical cost per cell
     memory_s: float = 1.5         # unseen cells keep what was seen there this long
     fov_deg: float = 57.0         # the camera's horizontal field of view
@@ -83,6 +84,7 @@ class SocialPlanner:
         self._graphs: dict[tuple[int, int], GridGraph] = {}
         self._event = "new_goal"
         self._subgoal: np.ndarray | None = None
+        self._path: np.ndarray | None = None           # local path being followed (world, m)
         self._memory: list[tuple] = []
 
     # -- inputs -----------------------------------------------------------------------------------
@@ -134,9 +136,10 @@ class SocialPlanner:
         """Algorithm 2 on one cost grid (robot frame, ``frame``) with its high-density mask.
 
         ``predicted`` (optional, rows x cols bool, see :func:`predict_conflicts`) marks cells a
-        moving person is expected to reach when the robot would: they count as high density
-        for the obstacle test and cost as much as the dearest cells in view (99th percentile).
-        Cells on static obstacles of the map never count as crowd (walls are dense too).
+        moving person is expected to reach when the robot would: they count as high density.
+        Cells with people (high density or predicted) cost at least ``person_cost`` times the
+        median cell (:meth:`_person_cost`). Cells on static obstacles of the map never count as
+        crowd (walls are dense too).
         """
         if self.goal is None:
             return Decision("idle", reason="no goal yet")
@@ -150,11 +153,10 @@ class SocialPlanner:
         cost, high_density = np.asarray(cost, float), np.asarray(high_density, bool)
         static = self._static_mask(pose, frame)
         cost, high_density = self._remember(pose, cost, frame, high_density & ~static, t_s)
-        event = self._replan_event(pose, frame, high_density, t_s)
         if predicted is not None and predicted.shape == cost.shape and predicted.any():
-            dear = float(np.percentile(cost[np.isfinite(cost)], 99))
-            cost = np.where(predicted & np.isfinite(cost), np.maximum(cost, dear), cost)
-            high_density = high_density | predicted
+            high_density = high_density | (predicted & ~static)
+        cost = self._person_cost(cost, high_density)
+        event = self._replan_event(pose, frame, high_density, t_s)
         if not event:
             return Decision(self.mode, "", self.waypoint)
         if not self._obstacle_near(frame, high_density):
@@ -164,7 +166,39 @@ class SocialPlanner:
         decision = self._local(pose, cost, frame, event)
         decision.plan_ms = (time.perf_counter() - t0) * 1e3
         self.mode, self.waypoint, self.waypoint_t_s = decision.mode, decision.waypoint, t_s
+        self._path = decision.path_xy if decision.mode == "local" else None
         return decision
+
+    def _person_cost(self, cost: np.ndarray, people: np.ndarray) -> np.ndarray:
+        """Cells with people cost at least ``person_cost`` x the median cell.
+
+        The learnt weights price a crowded cell only a little above a free one (see
+        nodes/nav/weights/default.json: density_high ~0.2 against a step cost ~2): the path then
+        grazes people, which a replayed or inattentive walker turns into contact. The paper's
+        Algorithm 2 treats a high-density cell as an obstacle for its decision; this makes the
+        local plan treat it as (nearly) one too, while still finite, so a plan exists in a crowd.
+        """
+        if self.p.person_cost <= 0 or not people.any():
+            return cost
+        finite = np.isfinite(cost)
+        floor = self.p.person_cost * float(np.median(cost[finite])) if finite.any() else 0.0
+        return np.where(people & finite, np.maximum(cost, floor), cost)
+
+    def _path_blocked(self, pose: tuple[float, float, float], frame: GridFrame, people: np.ndarray) -> bool:
+        """Does the local path being followed now pass within the robot's footprint of a person?"""
+        if self._path is None or len(self._path) < 2 or not people.any():
+            return False
+        seg = np.diff(self._path, axis=0)
+        n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / (0.5 * frame.resolution_m)).astype(int), 1)
+        pts = np.vstack([a + np.outer(np.arange(k) / k, b - a) for a, b, k in zip(self._path[:-1], self._path[1:], n)])
+        rel = to_robot(pose, pts)
+        rel = rel[rel[:, 0] > 0]                        # what is still ahead
+        cells = frame.cell_of(rel)
+        cells = cells[frame.inside(cells)]
+        if not len(cells):
+            return False
+        near = inflate(people, (self.p.robot_radius_m + 0.5 * self.p.crowd_margin_m) / frame.resolution_m)
+        return bool(near[cells[:, 0], cells[:, 1]].any())
 
     def _remember(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame, high: np.ndarray,
                   t_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -208,6 +242,8 @@ class SocialPlanner:
         cell = frame.cell_of(rel)
         if frame.inside(cell)[0] and high[cell[0, 0], cell[0, 1]]:
             return "waypoint_blocked"
+        if self._path_blocked(pose, frame, high):
+            return "path_blocked"
         if rel[0] < 0:
             return "waypoint_behind"
         return "timeout" if t_s - self.waypoint_t_s > self.p.waypoint_timeout_s else ""
@@ -356,6 +392,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     v_max_mps: float = 1.0
     w_max_radps: float = 1.2
     crowd_margin_m: float = 0.3
+    person_cost: float = 8.0
     commitment: float = 0.5
     memory_s: float = 1.5
     predict_s: float = 2.0        # 0 = plan on the features alone (no flow input needed)
@@ -396,7 +433,7 @@ class DijkstraPlanner(Node):
             safe_zone_m=c.safe_zone_m, obstacle_radius_m=c.obstacle_radius_m, subgoal_m=c.subgoal_m,
             waypoint_m=c.waypoint_m, waypoint_timeout_s=c.waypoint_timeout_s, stray_m=c.stray_m,
             robot_radius_m=c.robot_radius_m, inflate_margin_m=c.inflate_margin_m, v_max_mps=c.v_max_mps,
-            w_max_radps=c.w_max_radps, crowd_margin_m=c.crowd_margin_m, commitment=c.commitment, memory_s=c.memory_s, fov_deg=c.fov_deg,
+            w_max_radps=c.w_max_radps, crowd_margin_m=c.crowd_margin_m, person_cost=c.person_cost, commitment=c.commitment, memory_s=c.memory_s, fov_deg=c.fov_deg,
             camera_x_m=c.camera_x_m, min_range_m=c.min_range_m))
         self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
         self._high: np.ndarray | None = None

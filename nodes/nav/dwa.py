@@ -127,11 +127,13 @@ class Dwa(Node):
             return None
         self._poses.append((msg.stamp_ns, pose))
         stop = Twist2D(stamp_ns=msg.stamp_ns, frame_id="base")
-        if self.goal is None or not self._sensed:
-            return None         # no goal or nothing seen yet: say nothing, the robot waits
+        if self.goal is None:
+            return None         # no goal yet: say nothing, the robot waits
         dist = float(np.hypot(self.goal[0] - pose[0], self.goal[1] - pose[1]))
         if dist <= self.goal[2]:
             return [("cmd", stop), ("status", PlanStatus(stamp_ns=msg.stamp_ns, state="reached"))]
+        if not self._sensed:
+            return None         # nothing seen yet: the robot waits
         carrot, final = self._carrot(pose)
         near = self._map_xy[np.hypot(*(self._map_xy - pose[:2]).T) <= self.config.map_range_m] if len(self._map_xy) else self._map_xy
         obstacles = np.vstack([self._seen, near]) if len(near) else self._seen

@@ -151,10 +151,12 @@ def depth_to_robot(depth_m: np.ndarray, fx: float, fy: float, cx: float, cy: flo
     return pts, float(ok.mean())
 
 
-def thin_points(xy: np.ndarray, cell_m: float = 0.1) -> np.ndarray:
-    """One point per ``cell_m`` square (the first seen), to keep the obstacle tree small: (M, 2)."""
+def thin_points(xy: np.ndarray, cell_m: float = 0.1, *, return_index: bool = False):
+    """One point per ``cell_m`` square (the first seen), to keep the obstacle tree small: (M, 2),
+    and with ``return_index`` also the indices (M,) of the kept points in ``xy``."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     if len(xy) == 0:
-        return xy
+        return (xy, np.zeros(0, np.int64)) if return_index else xy
     _, keep = np.unique(np.floor(xy / cell_m).astype(np.int64), axis=0, return_index=True)
-    return xy[np.sort(keep)]
+    keep = np.sort(keep)
+    return (xy[keep], keep) if return_index else xy[keep]

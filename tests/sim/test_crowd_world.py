@@ -133,3 +133,17 @@ def test_world_blames_the_pedestrian_who_walks_into_a_stopped_robot():
         w.step(0.0, 0.0, 0.1)
     assert w.collisions == 1 and w.collisions_by_robot == 0
     assert w.contacts[0].ped_id == 7 and w.contacts[0].ped_closing_mps > 0.5 and w.contacts[0].robot_closing_mps == 0.0
+
+
+def test_contact_attribution_rule_and_no_respawn_inside_the_robot():
+    from sim.crowd import robot_drove_in
+    assert robot_drove_in(0.3, 0.0) and robot_drove_in(0.97, 1.06)       # into someone standing; head-on
+    assert not robot_drove_in(0.14, 0.7) and not robot_drove_in(0.05, 0.0) and not robot_drove_in(-0.5, 1.0)
+    # a respawning walker whose start point is where the robot stands waits at its goal instead
+    w = CrowdWorld(room(pedestrians=[{"id": 3, "waypoints": [[0.0, 0.0], [2.0, 0.0]], "speed_mps": 1.0,
+                                      "at_goal": "respawn"}], robot={"x_m": -3.0, "y_m": 0.0, "yaw_rad": 3.1416},
+                        pedestrian_model="linear", pedestrians_see_robot=False), camera=SMALL)
+    w.pose, w.walkers.xy[0] = (0.0, 0.0, 3.1416), (1.0, 0.0)       # the robot now stands on the start point
+    for _ in range(40):
+        w.step(0.0, 0.0, 0.1)
+    assert w.collisions == 0 and np.hypot(*w.pedestrians().xy_m[0]) > 1.5

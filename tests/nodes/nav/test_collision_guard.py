@@ -66,3 +66,50 @@ def test_points_in_robot_frame_floor_and_ceiling_ignored():
     with Harness(CollisionGuard) as h:
         outs = h.feed([(0.0, "points", FlowPoints(points_m=pts.astype(np.float32))), (0.01, "cmd", GO)])
     assert cmds(outs)[-1] == (0.0, 0.3)
+
+
+def post(depth_m: float, hole: bool = False, t: float = 0.0) -> RgbdFrame:
+    """A far wall (5 m) with a post in the middle columns at ``depth_m`` (``hole``: the post reads 0)."""
+    depth = np.full((48, 64), 5.0, np.float32)
+    depth[:, 28:36] = 0.0 if hole else depth_m
+    return RgbdFrame(stamp_ns=int(round(t * 1e9)), depth_m=depth, info=INFO, rgb=np.zeros((48, 64, 3), np.uint8))
+
+
+def odom_at(x: float, t: float):
+    from msgs.geometry import Odometry2D, Pose2D
+    return Odometry2D(stamp_ns=int(round(t * 1e9)), frame_id="world", pose=Pose2D(x_m=x), twist=Twist2D(vx_mps=0.5))
+
+
+def test_speed_is_capped_so_the_robot_can_brake_before_an_obstacle_beyond_the_stop_distance():
+    with Harness(CollisionGuard, params={"stride_px": 2}) as h:
+        outs = h.feed([(0.0, "rgbd", post(0.9)), (0.01, "cmd", Twist2D(vx_mps=1.0))])     # post 1.2 m ahead
+    v = cmds(outs)[-1][0]
+    free = 1.2 - 0.45
+    assert 0.8 < v < 1.0 and v * 0.15 + v * v / 1.6 <= free           # stops short of the post's disc
+    assert any(o.output == "status" and o.msg.reason.startswith("slowed") for o in outs)
+
+
+def test_a_post_that_drops_into_the_cameras_near_blind_zone_is_remembered_with_odometry():
+    events = [(0.0, "odom", odom_at(0.0, 0.0)), (0.0, "rgbd", post(0.9))]
+    for k in range(1, 17):                                   # the robot creeps up to the post: nearer than
+        t = 0.1 * k                                          # 0.4 m to the camera it is a depth hole
+        d = 0.9 - 0.06 * min(k, 9)
+        events += [(t, "odom", odom_at(0.9 - d, t)), (t, "rgbd", post(d, hole=d < 0.4, t=t)), (t + 0.01, "cmd", GO)]
+    with Harness(CollisionGuard, params={"stride_px": 2, "release_s": 0.3}) as h:
+        remembered = cmds(h.feed(events))
+    blind = [(t, n, m) for t, n, m in events if n != "odom"]            # the same frames without odometry
+    with Harness(CollisionGuard, params={"stride_px": 2, "release_s": 0.3}) as h:
+        forgotten = cmds(h.feed(blind))
+    assert remembered[-1] == (0.0, 0.3)                      # still there, though unseen
+    assert forgotten[-1] == (0.8, 0.3)                       # without odometry the hole looks clear
+
+
+def test_a_person_walking_into_the_path_stops_the_robot_before_they_arrive():
+    clear = post(5.0)
+    walker = np.array([[0.9, -0.7, 1.0]], np.float32)
+    straight = Twist2D(vx_mps=0.8)
+    for vy, expected in ((1.0, 0.0), (0.0, 0.8)):
+        flow = FlowPoints(points_m=walker, velocity_mps=np.array([[0.0, vy, 0.0]], np.float32))
+        with Harness(CollisionGuard, params={"stride_px": 2}) as h:
+            outs = h.feed([(0.0, "rgbd", clear), (0.0, "points", flow), (0.01, "cmd", straight)])
+        assert cmds(outs)[-1][0] == expected
