@@ -189,13 +189,13 @@ class Controller:
         if desired is None or not _finite(*desired):
             return self.stop(wheels, "singular")
         aim = self._aim if self._aim is not None else (self.prev.delta_front, self.prev.delta_rear)
+        way, ref_speed = self._path_direction(ref, pose[2], desired[0])
         if self._fresh:     # starting from standstill: take the forward branch (see kinematics.initial_wheels)
-            way, ref_speed = self._start_direction(ref, pose[2], desired[0])
             fwd = initial_wheels(way, self.limits.steer_limit_rad)
             aim = (fwd.delta_front if fwd.v_front else aim[0], fwd.delta_rear if fwd.v_rear else aim[1])
             self._fresh = (ref_speed if ref_speed is not None else _speed(desired[0])) < self.limits.v_gate_mps
         # branches follow the path itself: feedback on a small error never swings a wheel half a turn
-        s_path = s_from_world(pose[2], *ref.dp, self.wheelbase_m)
+        s_path = way if ref_speed is not None else None
         self._aim = steer_targets(desired[0], desired[1], aim, self.limits, s_path=s_path)
         cmd = shape_command(desired[0], desired[1], self.prev, self.limits, dt, targets=self._aim)
         if not _finite(cmd):
@@ -203,8 +203,9 @@ class Controller:
         self.prev, self.status = cmd, "ok"
         return cmd
 
-    def _start_direction(self, ref: RefPoint, theta: float, s_cmd: Vec3) -> tuple[Vec3, float | None]:
-        """Body velocities whose forward branch a start from standstill takes, and the reference's speed.
+    def _path_direction(self, ref: RefPoint, theta: float, s_cmd: Vec3) -> tuple[Vec3, float | None]:
+        """Body velocities of the path alone (the branches follow them; a start from standstill takes
+        their forward branch), and the reference's speed.
 
         The reference's own velocity (else, for a ramped start at rest, its acceleration) in
         the body frame: at walking pace the command is dominated by feedback on millimetre

@@ -173,12 +173,9 @@ def _axle_angle(tan: float, lat: float, hint_tan: float, hint_lat: float, prev_d
     lim, margin = limits.steer_limit_rad, limits.clamp_margin_rad
     if path is not None and math.hypot(*path) > 1e-9:
         branch = choose_steer(path[0], path[1], prev_delta, lim, clamp_margin_rad=margin)[0]
-        if math.hypot(tan, lat) >= limits.v_gate_mps:
-            base = math.atan2(lat, tan)
-        elif math.hypot(hint_tan, hint_lat) > 1e-9:
-            base = math.atan2(hint_lat, hint_tan)
-        else:
-            return branch
+        if math.hypot(tan, lat) < limits.v_gate_mps:
+            return branch                           # (about to) move slowly: steer along the path itself
+        base = math.atan2(lat, tan)
         cand = base + math.pi * round((branch - base) / math.pi)
         return max(-lim, min(lim, cand))
     if math.hypot(tan, lat) >= limits.v_gate_mps:

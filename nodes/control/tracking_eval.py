@@ -85,7 +85,7 @@ def plot_tracking(path: str, ref_pose: np.ndarray, pose: np.ndarray, t: np.ndarr
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.14), ncol=2, fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.24), ncol=2, fontsize=8)
     ax.set_title(title)
     bx.plot(t, pos_err_m * 1e3, "C3", lw=1)
     bx.set_xlabel("t (s)")

@@ -4,7 +4,8 @@ A real vehicle must not be handed a reference that left without it. With
 ``wait_for_enable`` the trajectory's clock starts only when the ``enable`` input says true
 (e.g. ``can/ready``: every drive OPERATION ENABLED); while it says false the reference
 holds its pose with zero rates, and on the next true it restarts from rest (ramped over
-``ramp_s``). With ``start_from_state`` the whole trajectory is moved rigidly so that it
+``ramp_s``, after standing still for ``align_s`` while announcing the way it will leave, so
+the wheels can turn first). With ``start_from_state`` the whole trajectory is moved rigidly so that it
 starts at the vehicle's pose (``state``) as it was when the clock first started. Nothing
 is published before the clock first starts.
 """
@@ -24,6 +25,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     rate_hz: float = 50.0
     params: dict[str, float | str | list[float]] = {}   # keyword arguments of the generator
     ramp_s: float = 0.0                 # > 0: (re)start from rest, reaching full speed smoothly over ramp_s
+    align_s: float = 0.0                # > 0: on (re)start first stand still this long, announcing the way out
     duration_s: float = 0.0             # > 0: after this much trajectory time, hold the last pose (zero rates)
     wait_for_enable: bool = False       # start the clock on enable=true; pause while it is false
     start_from_state: bool = False      # move the trajectory to start at the vehicle's pose (waits for a state)
@@ -32,8 +34,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     def __post_init__(self) -> None:
         if self.kind not in GENERATORS:
             raise ValueError(f"kind must be one of {sorted(GENERATORS)}, not {self.kind!r}")
-        if self.ramp_s < 0 or self.duration_s < 0:
-            raise ValueError("ramp_s and duration_s must be >= 0 s")
+        if self.ramp_s < 0 or self.duration_s < 0 or self.align_s < 0:
+            raise ValueError("ramp_s, align_s and duration_s must be >= 0 s")
         try:
             make_trajectory(self.kind, **_params(self.params))
         except TypeError as exc:      # unknown keyword: say which generator refused it
@@ -118,16 +120,26 @@ class TrajectoryGenerator(Node):
         """Trajectory time now (held while paused, capped at duration_s)."""
         s = self._s0
         if self._run_ns is not None:
-            s += float(ramp_time((now - self._run_ns) * 1e-9, self.config.ramp_s)[0][0])
+            s += float(ramp_time(self._moving_s(now), self.config.ramp_s)[0][0])
         return min(s, self.config.duration_s) if self.config.duration_s > 0 else s
+
+    def _moving_s(self, now: int) -> float:
+        """Seconds since the reference started to move in this run (0 while aligning)."""
+        return max(0.0, (now - self._run_ns) * 1e-9 - self.config.align_s) if self._run_ns is not None else 0.0
 
     def _reference(self, now: int) -> Reference:
         cfg = self.config
         if self._run_ns is None:                       # paused: hold the pose, zero rates
             ref, s = resume(self.traj, self._s0, 0.0, 0.0)
             ref = Reference(ref.p, ref.dp * 0.0, ref.ddp * 0.0)
+        elif (now - self._run_ns) * 1e-9 < cfg.align_s:
+            # Aligning: at rest, about to leave along the path. A vanishing acceleration (1e-6 m/s^2,
+            # moving the reference < 1e-7 m over a stale period) tells the controller which way, so
+            # the steering turns before the wheels roll.
+            ref, s = resume(self.traj, self._s0, 0.0, 0.0)
+            ref = Reference(ref.p, ref.dp * 0.0, self.traj(self._s0).dp * 1e-6)
         else:
-            ref, s = resume(self.traj, self._s0, (now - self._run_ns) * 1e-9, cfg.ramp_s)
+            ref, s = resume(self.traj, self._s0, self._moving_s(now), cfg.ramp_s)
         self._s = float(s[0])
         if 0.0 < cfg.duration_s < self._s:             # past the end: hold the last pose
             self._s = cfg.duration_s

@@ -132,3 +132,20 @@ def test_choose_steer_clamps_at_the_stop_before_flipping():
     assert d == pytest.approx(2.5) and v == pytest.approx(math.cos(0.2))      # grazing the stop: clamp
     d, v = choose_steer(math.cos(2.95), math.sin(2.95), 2.45, 2.5, clamp_margin_rad=0.35)
     assert d == pytest.approx(2.95 - math.pi) and v == pytest.approx(-1.0)    # well past it: flip
+
+
+def test_steer_targets_follow_the_path_branch_feedback_only_moves_the_angle():
+    from nodes.control.kinematics import steer_targets
+    lim = Limits()
+    path = (-0.1, 0.2, 0.2)                                      # path wheels at ~2.03 rad, forward
+    aim = (2.0, 2.0)
+    # feedback opposing the path: the wheel stays on the path's branch and drives backwards along it
+    df, db = steer_targets((0.1, -0.2, -0.2), (0, 0, 0), aim, lim, s_path=path)
+    assert df == pytest.approx(math.atan2(0.2, -0.1)) and db == pytest.approx(df)
+    cmd = shape_command((0.1, -0.2, -0.2), (0, 0, 0), Wheels(0.0, df, 0.0, db), lim, 0.02, targets=(df, db))
+    assert cmd.v_front < 0 and cmd.delta_front == pytest.approx(df)
+    # feedback turning the wanted direction past the stop: clamped, not swung half a turn
+    df, db = steer_targets((-0.3, 0.05, 0.05), (0, 0, 0), (2.4, 2.4), lim, s_path=path)
+    assert df == db == lim.steer_limit_rad
+    assert steer_targets((-0.3, 0.05, 0.05), (0, 0, 0), (2.4, 2.4), lim)[0] == pytest.approx(
+        math.atan2(0.05, -0.3) - math.pi)                        # without the path: the flip

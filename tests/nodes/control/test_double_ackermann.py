@@ -169,3 +169,41 @@ def test_start_from_rest_on_a_ramped_figure_eight_aligns_wheels_without_flips():
         rear.append(cmd.delta_rear)
     assert max(errs) < 0.02 and max(errs[200:]) < 5e-5       # ~1 cm while the wheels swing ~2 rad
     assert min(rear[1:]) > 0.0      # the rear wheel turned the forward way (to ~2.2 rad), no half-turn flip
+
+
+def test_restart_is_seeded_from_the_measured_wheels_not_the_last_command():
+    """Commands went out while the drives were not enabled (measured steering stayed at -0.8 rad):
+    after a stop, the next command slews from where the wheels are, not from the stale command."""
+    ctrl = FinalController()
+    ref = RefPoint((0.0, 0.0, 0.0), (0.3, 0.3, 0.0), (0.0, 0.0, 0.0))
+    stuck = Wheels(0.0, -0.8, 0.0, -0.8)
+    for _ in range(30):
+        cmd = ctrl.step(ref, (0.0, 0.0, 0.0), stuck, 0.02)
+    assert cmd.delta_front == pytest.approx(math.pi / 4, abs=1e-3)        # believes it steered to 45 deg
+    ctrl.stop(stuck, "stale")
+    cmd = ctrl.step(ref, (0.0, 0.0, 0.0), stuck, 0.02)
+    step = ctrl.limits.steer_rate_radps * 0.02
+    assert cmd.delta_front == pytest.approx(-0.8 + step) and cmd.delta_rear == pytest.approx(-0.8 + step)
+    assert abs(cmd.v_front) <= ctrl.limits.wheel_accel_mps2 * 0.02 + 1e-12
+
+
+@pytest.mark.parametrize("offset", [(0.002, -0.001), (0.001, 0.001), (-0.001, -0.002), (0.0, 0.002)])
+def test_start_from_rest_with_a_millimetre_offset_keeps_both_wheels_on_the_forward_branch(offset):
+    """At walking pace a millimetre error dominates the command; the wheels must still pick the
+    branch of the path (rear at ~2.2 rad, 0.3 rad from its stop) and never reverse through a flip."""
+    from sim.vehicle4ws import Vehicle4WSModel
+    traj = make_trajectory("figure8", ramp_s=4.0)
+    ctrl = FinalController(lead_s=0.02)
+    model = Vehicle4WSModel(VehicleParams(wheel_tau_s=0.02, steer_tau_s=0.02),
+                            pose=(offset[0], offset[1], -math.pi / 2))
+    cmds, errs = [], []
+    for k in range(400):                                   # 8 s at 50 Hz from straight wheels at rest
+        cmd = ctrl.step(ref_at(traj, k * 0.02), model.pose, model.wheels, 0.02)
+        model.step(cmd, 0.02)
+        cmds.append(cmd)
+        r = traj(k * 0.02 + 0.02).p[0]
+        errs.append(math.hypot(model.x - r[0], model.y - r[1]))
+    c = np.array(cmds)
+    assert c[:, [0, 2]].min() > -0.01                     # no wheel drives backwards (a flip runs at -0.3 m/s)
+    assert c[:, 3].min() > -0.1 and c[:, 3].max() <= 2.5 # rear stays on the forward side, clamped at its stop
+    assert max(errs) < 5e-3 and max(errs[300:]) < 5e-4

@@ -72,3 +72,22 @@ def test_default_config_starts_at_the_first_tick_at_the_trajectory_origin():
         refs = h.of("reference")
         assert [r.t_s for r in refs] == pytest.approx([0.0, 0.1, 0.2, 0.3])
         assert (refs[0].x_m, refs[0].y_m) == pytest.approx((1.5, 0.0)) and refs[0].dy_mps == pytest.approx(0.5)
+
+
+def test_align_stands_still_announcing_the_way_out_then_ramps():
+    params = dict(GATED, align_s=0.5)
+    with Harness(TrajectoryGenerator, params=params) as h:
+        h.feed([(0.0, "state", POSE), (0.0, "enable", Bool(data=True))], until_s=1.0)
+        refs = h.of("reference")
+        aligning = [r for r in refs if r.stamp_ns < 0.52e9]
+        assert len(aligning) == 25 and all(r.t_s == 0.0 and r.dx_mps == r.dy_mps == 0.0 for r in aligning)
+        assert len({(r.x_m, r.y_m) for r in aligning}) == 1
+        # a vanishing acceleration along the departure direction (the path's, rotated by the anchor)
+        start = make_trajectory("figure8")(0.0)
+        dth = POSE.theta_rad - start.p[0, 2]
+        way = np.array([math.cos(dth) * start.dp[0, 0] - math.sin(dth) * start.dp[0, 1],
+                        math.sin(dth) * start.dp[0, 0] + math.cos(dth) * start.dp[0, 1]])
+        acc = np.array([aligning[0].ddx_mps2, aligning[0].ddy_mps2])
+        assert 0 < np.linalg.norm(acc) < 1e-5 and np.dot(acc, way) / np.linalg.norm(acc) / np.linalg.norm(way) == \
+            pytest.approx(1.0)
+        assert refs[-1].t_s > 0.0 and speeds(refs)[-1] > 0.0          # then it moves
