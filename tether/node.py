@@ -159,6 +159,8 @@ def iter_outputs(result: Any) -> Iterable[tuple[str, Message]]:
     """Normalise a handler's return value to ``(output, msg)`` pairs."""
     if result is None:
         return ()
+    if type(result) is dict:          # the common case, without an ABC check per message
+        return result.items()
     if isinstance(result, Mapping):
         return result.items()
     if isinstance(result, (list, tuple)):

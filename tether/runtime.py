@@ -22,7 +22,7 @@ from msgs.std import InputStats, NodeStats
 from tether.codec import Codec
 from tether.errors import DecodeError
 from tether.message import Message
-from tether.node import Context, Node, Tick
+from tether.node import Context, Node, Tick, iter_outputs
 from tether.transport import CurveKeys, Subscriptions, make_pub, start_authenticator
 
 log = logging.getLogger("tether.runtime")
@@ -30,6 +30,9 @@ log = logging.getLogger("tether.runtime")
 STATS_PERIOD_NS = 1_000_000_000
 ERROR_LOG_PERIOD_NS = 5_000_000_000
 READ_AHEAD = 16
+# Plain ints: pyzmq's flag enums cost an enum construction per operation on the hot path.
+_SNDMORE, _NOBLOCK, _RCVMORE, _EVENTS, _POLLIN = (int(zmq.SNDMORE), int(zmq.NOBLOCK), int(zmq.RCVMORE),
+                                                   int(zmq.EVENTS), int(zmq.POLLIN))
 
 
 @dataclass
@@ -59,7 +62,7 @@ class RunSpec:
 
 class _InputState:
     __slots__ = ("name", "topic", "type", "queue", "maxlen", "last_seq", "stats", "handler_ns", "handler_max_ns",
-                 "last_error_log_ns", "suppressed")
+                 "last_error_log_ns", "suppressed", "handler")
 
     def __init__(self, name: str, topic: str, tp: type[Message], maxlen: int) -> None:
         self.name, self.topic, self.type, self.maxlen = name, topic, tp, maxlen
@@ -71,6 +74,7 @@ class _InputState:
         self.handler_max_ns = 0
         self.last_error_log_ns = -ERROR_LOG_PERIOD_NS
         self.suppressed = 0
+        self.handler: Any = None
 
 
 class NodeRuntime(Context):
@@ -138,11 +142,21 @@ class NodeRuntime(Context):
 
     # -- receiving --------------------------------------------------------------------
     def _recv(self, sock: zmq.Socket, flags: int) -> tuple[bytes, list[Any]]:
-        """One message: topic and body as bytes (small), array buffers as zero-copy frames."""
-        topic = sock.recv(flags)
-        frames: list[Any] = [sock.recv()] if sock.getsockopt(zmq.RCVMORE) else []
-        while sock.getsockopt(zmq.RCVMORE):
-            frames.append(sock.recv(copy=False))
+        """One message: the topic, then body and array buffers as zero-copy frames.
+
+        ``Frame.more`` instead of ``getsockopt(RCVMORE)``: pyzmq builds an enum per getsockopt,
+        which doubled the cost of a small message. A multipart message arrives whole, so the
+        loop never blocks mid-message.
+        """
+        frame = sock.recv(flags, copy=False)
+        topic = frame.bytes
+        frames: list[Any] = []
+        if frame.more:
+            frame = sock.recv(copy=False)
+            frames.append(frame.bytes)        # the body is small: bytes decode faster than a memoryview
+            while frame.more:
+                frame = sock.recv(copy=False)
+                frames.append(frame)          # array buffers stay zero-copy
         return topic, frames
 
     def _route(self, topic: bytes, frames: list[Any], order: itertools.count) -> None:
@@ -156,8 +170,8 @@ class NodeRuntime(Context):
         # Bounded read-ahead: holding hundreds of large received frames at once costs more (cold
         # memory, allocator churn) than handling as we go; ZeroMQ's own queue holds the rest.
         # Latest-only inputs keep at most one message, so they still see the newest.
-        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-            self._route(*self._recv(sock, zmq.NOBLOCK), order)
+        while sock.getsockopt(_EVENTS) & _POLLIN:
+            self._route(*self._recv(sock, _NOBLOCK), order)
             if sum(len(st.queue) for st in self.inputs.values() if st.maxlen > 1) >= READ_AHEAD:
                 return
 
@@ -223,7 +237,12 @@ class NodeRuntime(Context):
     def _call(self, state: _InputState, msg: Message) -> None:
         t0 = time.perf_counter_ns()
         try:
-            self.node.dispatch(state.name, msg)
+            if state.handler is None:
+                state.handler = self.node.handler(state.name)
+            result = state.handler(msg)
+            if result is not None:
+                for output, out in iter_outputs(result):
+                    self.node.publish(output, out)
         except Exception as exc:  # noqa: BLE001 - a failing handler never kills the node
             state.stats["handler_errors"] += 1
             self._log_error(state, f"handler on_{state.name} failed on {state.topic} stamp_ns={msg.stamp_ns} "
@@ -380,8 +399,8 @@ class NodeRuntime(Context):
 
 def _send(sock: zmq.Socket, topic: bytes, frames: list[Any]) -> None:
     """Topic and body are copied (small); array buffers go zero-copy (ZeroMQ holds a reference)."""
-    sock.send(topic, zmq.SNDMORE)
+    sock.send(topic, _SNDMORE)
     last = len(frames) - 1
-    sock.send(frames[0], zmq.SNDMORE if last else 0)
+    sock.send(frames[0], _SNDMORE if last else 0)
     for i in range(1, last + 1):
-        sock.send(frames[i], zmq.SNDMORE if i < last else 0, copy=False)
+        sock.send(frames[i], _SNDMORE if i < last else 0, copy=False)
