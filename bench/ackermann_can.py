@@ -12,8 +12,9 @@ is ``udp_multicast`` -- real sockets, echo filtering -- or python-can's ``virtua
 
 Every CAN run starts as the launched pipeline does: drives boot with the steering straight
 and the wheels at rest, are enabled holding still, and only then does the trajectory's
-clock start, ramped up from rest (``--ramp``) at the vehicle's pose; the controller is
-seeded from the measured wheels. The headline RMS and max are over the WHOLE run, start-up
+clock start at the vehicle's pose: standing still for ``--align`` s while the wheels turn to
+the way out, then ramped up from rest over ``--ramp`` s; the controller is seeded from the
+measured wheels. The headline RMS and max are over the WHOLE run, start-up
 included; "steady" leaves out the first ``--skip`` seconds.
 
 Knob swept: the master's set-point rate (50-200 Hz) and the control rate. Reference, in
@@ -50,18 +51,33 @@ TAU_S = 0.02           # simulated drives' first-order motor lag
 PHYSICS_HZ = 500.0
 
 
+def start_reference(ramp_s: float, align_s: float):
+    """``t -> RefPoint`` of the figure-eight started as the launched trajectory node starts it: standing
+    still for ``align_s`` announcing the way out (a vanishing acceleration), then ramped over ``ramp_s``."""
+    traj, base = make_trajectory("figure8", ramp_s=ramp_s), make_trajectory("figure8")
+
+    def at(t: float) -> RefPoint:
+        if t < align_s:
+            r = base(0.0)
+            return RefPoint(tuple(r.p[0]), (0.0, 0.0, 0.0), tuple(r.dp[0] * 1e-6))
+        r = traj(t - align_s)
+        return RefPoint(tuple(r.p[0]), tuple(r.dp[0]), tuple(r.ddp[0]))
+    return at
+
+
 def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: str, skip_s: float,
-            ramp_s: float) -> dict:
+            ramp_s: float, align_s: float) -> dict:
     """One real-time closed loop over the CAN stack, started as a real robot starts; error summaries and timings.
 
     The drives boot with the steering straight and the wheels at rest. The master brings
     them up and enables them holding still (zero speed, steering where it is, as the
     controller node commands before it has a reference); the trajectory's clock starts when
-    every drive is OPERATION ENABLED, ramped from rest over ``ramp_s``, at the vehicle's pose;
-    the controller is seeded from the measured wheels. Errors count from that start.
+    every drive is OPERATION ENABLED, at the vehicle's pose, aligning for ``align_s`` and then
+    ramped from rest over ``ramp_s``; the controller is seeded from the measured wheels. Errors
+    count from that start.
     """
-    traj = make_trajectory("figure8", ramp_s=ramp_s)
-    r0 = traj(0.0)
+    ref_at = start_reference(ramp_s, align_s)
+    r0 = make_trajectory("figure8")(0.0)
     params = VehicleParams()
     channel = "239.74.163.2" if interface == "udp_multicast" else f"bench-{os.getpid()}-{master_hz}-{rate_hz}"
     opts = {"port": 46_000 + os.getpid() % 1000} if interface == "udp_multicast" else {}
@@ -104,13 +120,12 @@ def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: s
             if now >= next_ctrl:
                 late.append(now - next_ctrl)
                 next_ctrl += 1.0 / rate_hz
-                r = traj(t)
+                r = ref_at(t)
                 c0 = time.perf_counter()
-                cmd = ctrl.step(RefPoint(tuple(r.p[0]), tuple(r.dp[0]), tuple(r.ddp[0])), model.pose, wheels,
-                                1.0 / rate_hz)
+                cmd = ctrl.step(r, model.pose, wheels, 1.0 / rate_hz)
                 step_us.append((time.perf_counter() - c0) * 1e6)
                 setpoints = setpoints_from_command(*cmd, axles, steer_limit_rad=cfg.steer_limit_rad)
-                log.append((t, *model.pose, *map(float, r.p[0]), cmd.v_rear, cmd.delta_rear))
+                log.append((t, *model.pose, *map(float, r.p), cmd.v_rear, cmd.delta_rear))
             if now >= next_master:
                 next_master += 1.0 / master_hz
                 c0 = time.perf_counter()
@@ -200,13 +215,15 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print one JSON object with the headline figures only")
     ap.add_argument("--skip", type=float, default=3.0, help="start-up excluded from the *steady* RMS (s)")
     ap.add_argument("--ramp", type=float, default=4.0, help="trajectory ramp from rest (s), as in the launch file")
+    ap.add_argument("--align", type=float, default=1.0, help="wheel alignment before the ramp (s), as in the launch")
     args = ap.parse_args()
     say = (lambda *a, **k: None) if args.json else print
-    duration = 14.0 if args.quick else 42.0          # 42 s = one full lap of the figure-eight after a 4 s ramp
+    duration = 14.0 if args.quick else 43.0          # 43 s = one full lap of the figure-eight after align + ramp
     settings = [("udp_multicast", 50.0, 100.0)] if args.quick else [
         ("udp_multicast", 50.0, 50.0), ("udp_multicast", 50.0, 100.0), ("udp_multicast", 50.0, 200.0),
         ("udp_multicast", 100.0, 100.0), ("virtual", 50.0, 100.0)]
-    say(f"figure-eight, {duration:.0f} s per run from rest (drives enabled, then a {args.ramp:g} s ramp); "
+    say(f"figure-eight, {duration:.0f} s per run from rest (drives enabled, {args.align:g} s wheel alignment, "
+        f"{args.ramp:g} s ramp); "
         f"RMS over the WHOLE run, and steady after the first {args.skip:g} s")
     say(f"{'loop':>44s} {'rms mm':>8s} {'max mm':>8s} {'steady':>8s} {'head deg':>9s} {'ctrl us':>8s} "
         f"{'master us':>9s} {'tx fr/s':>8s} {'late p95':>8s} {'late max':>8s} {'wall s':>7s}")
@@ -214,7 +231,7 @@ def main() -> None:
     for interface, rate, master_hz in settings:
         name = f"CAN {interface} ctrl {rate:.0f} Hz, bus {master_hz:.0f} Hz"
         r = can_run(rate_hz=rate, master_hz=master_hz, duration_s=duration, interface=interface, skip_s=args.skip,
-                    ramp_s=args.ramp)
+                    ramp_s=args.ramp, align_s=args.align)
         runs[name] = r
         say(f"{name:>44s} {r['rms_mm']:8.2f} {r['max_mm']:8.2f} {r['rms_mm_steady']:8.2f} {r['rms_deg']:9.3f} "
             f"{r['step_us']:8.0f} {r['master_step_us']:9.0f} {r['tx_frames_per_s']:8.0f} {r['tick_late_ms_p95']:7.2f}ms"
@@ -242,7 +259,8 @@ def main() -> None:
         print(json.dumps({
             "fig8_rms_mm_can": head["rms_mm"], "fig8_max_mm_can": head["max_mm"],
             "fig8_rms_mm_can_steady": head["rms_mm_steady"], "fig8_max_mm_can_steady": head["max_mm_steady"],
-            "fig8_rms_mm_can_is": f"WHOLE run from rest (drives enabled, {args.ramp:g} s ramp, start-up included): "
+            "fig8_rms_mm_can_is": f"WHOLE run from rest (drives enabled, {args.align:g} s alignment, {args.ramp:g} s "
+                                  "ramp, start-up included): "
                                   "real CiA 402 loop over python-can udp_multicast in real time, sim drives tau "
                                   f"{TAU_S * 1e3:.0f} ms, control 50 Hz, set-points 100 Hz; _steady: after the "
                                   f"first {args.skip:g} s",

@@ -45,6 +45,7 @@ def tracking(h: Harness, cmd: WheelCommand = CMD) -> bool:
     s = latest_states(h)
     return (len(s) == 4 and all(x.state == "OPERATION ENABLED" for x in s.values())
             and abs(s["front_wheel"].velocity_unit - cmd.v_front_mps) < 0.01
+            and abs(s["front_steer"].position_unit - cmd.delta_front_rad) < 0.01
             and abs(s["rear_steer"].position_unit - cmd.delta_rear_rad) < 0.01)
 
 
