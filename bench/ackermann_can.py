@@ -198,7 +198,7 @@ def plot(path: str, runs: dict[str, dict], skip_s: float) -> None:
     bx.axhline(10.0, color="C3", ls="--", lw=1, label="goal 10 mm")
     ax.set_aspect("equal")
     ax.set_title("figure-eight, controller -> CiA 402 bus -> simulated drives -> vehicle")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.1), ncol=2)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.16), ncol=2)
     bx.set_xlabel("t (s)")
     bx.set_ylabel("position error (mm)")
     bx.legend(fontsize=7)

@@ -87,11 +87,12 @@ def run_lockstep(path: str | Path, *, duration_s: float, overrides: Mapping[str,
     subscribers: dict[str, list[tuple[str, str]]] = {}
     timers: list[tuple[str, str, int]] = []                # (node, input, period ns) of timer/hz/N inputs
     for entry in launch.nodes:
-        cls = entry.cls
-        assert cls is not None
-        if cls.is_source():
+        if entry.cls is not None and entry.cls.is_source():
             raise ValueError(f"{path}: node {entry.id!r} ({entry.node}) runs its own loop (run()); lockstep needs "
                              "nodes driven by inputs and timers")
+    for entry in launch.nodes:
+        cls = entry.cls
+        assert cls is not None
         if callable(getattr(cls, "open_bus", None)):
             cls = _on_hub(cls, hub)
         harnesses[entry.id] = Harness(cls, params=entry.params, node_id=entry.id, catch_errors=catch_errors)
@@ -101,30 +102,8 @@ def run_lockstep(path: str | Path, *, duration_s: float, overrides: Mapping[str,
             else:
                 subscribers.setdefault(src, []).append((entry.id, name))
     run = LockstepRun(harnesses, hub)
-    routed = {node_id: 0 for node_id in harnesses}
-    pending: list[tuple[str, Message]] = []
-    n = int(round(duration_s / step_s))
     try:
-        for k in range(n + 1):
-            t = k * step_s
-            hub.advance(t)
-            inbox: dict[str, list[tuple[float, str, Message]]] = {}
-            for topic, msg in pending:
-                for node_id, name in subscribers.get(topic, ()):
-                    inbox.setdefault(node_id, []).append((t, name, msg))
-            t_ns = int(round(t * 1e9))
-            for node_id, name, period in timers:
-                if t_ns % period < int(round(step_s * 1e9)):
-                    inbox.setdefault(node_id, []).append((t, name, Tick(stamp_ns=t_ns, period_ns=period)))
-            pending = []
-            for node_id, h in harnesses.items():
-                events = inbox.get(node_id, [])
-                run.delivered += len(events)
-                h.feed(events, until_s=t)
-                new = h.outputs[routed[node_id]:]
-                routed[node_id] = len(h.outputs)
-                pending.extend((f"{node_id}/{o.output}", o.msg) for o in new)
-            run.t_s = t
+        _drive(run, subscribers, timers, duration_s, step_s)
     finally:
         for node_id, h in harnesses.items():
             try:
@@ -134,3 +113,30 @@ def run_lockstep(path: str | Path, *, duration_s: float, overrides: Mapping[str,
         for node_id, h in harnesses.items():
             run.errors.extend((node_id, name, exc) for name, exc in h.errors)
     return run
+
+
+def _drive(run: LockstepRun, subscribers: dict[str, list[tuple[str, str]]], timers: list[tuple[str, str, int]],
+           duration_s: float, step_s: float) -> None:
+    """Advance the shared clock step by step: devices on the CAN hub, last step's messages, timers."""
+    routed = {node_id: 0 for node_id in run.harnesses}
+    pending: list[tuple[str, Message]] = []
+    step_ns = int(round(step_s * 1e9))
+    for k in range(int(round(duration_s / step_s)) + 1):
+        t = k * step_s
+        t_ns = int(round(t * 1e9))
+        run.hub.advance(t)
+        inbox: dict[str, list[tuple[float, str, Message]]] = {}
+        for topic, msg in pending:
+            for node_id, name in subscribers.get(topic, ()):
+                inbox.setdefault(node_id, []).append((t, name, msg))
+        for node_id, name, period in timers:
+            if t_ns % period < step_ns:
+                inbox.setdefault(node_id, []).append((t, name, Tick(stamp_ns=t_ns, period_ns=period)))
+        pending = []
+        for node_id, h in run.harnesses.items():
+            events = inbox.get(node_id, [])
+            run.delivered += len(events)
+            h.feed(events, until_s=t)
+            pending.extend((f"{node_id}/{o.output}", o.msg) for o in h.outputs[routed[node_id]:])
+            routed[node_id] = len(h.outputs)
+        run.t_s = t

@@ -117,7 +117,8 @@ def test_malformed_emcy_is_counted_not_fatal():
         up_and_running(master, bank)
         bank.bus.send(can.Message(arbitration_id=p.EMCY + 1, data=b"\x10", is_extended_id=False))
         assert cycle(master, 1.0, until=lambda: master.errors >= 1)
-        assert not master.latched and running(bank)
+        # not latched, still commanded (the steering may be inside its ~100-count profile-position overshoot)
+        assert not master.latched and cycle(master, 1.0, until=lambda: running(bank))
 
 
 @pytest.mark.parametrize("deaf", [False, True], ids=["mute", "disconnected"])
