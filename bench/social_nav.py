@@ -1,6 +1,6 @@
 """Social navigation: IRL planner vs DWA vs the human reference, on the paper's scenarios and replayed real crowds.
 
-    python bench/social_nav.py [--quick] [--json] [--weights nodes/nav/weights/default.json]
+    python bench/social_nav.py [--quick] [--json] [--weights nodes/nav/weights/default.json] [--scenes ...] [--live]
 
 Closed loop, in-process, deterministic (virtual time, 15 Hz camera): the simulator
 (sim.crowd) renders 640x480 RGB-D; the IRL method runs the nodes of
@@ -11,6 +11,10 @@ start to its goal at the robot's top speed, and on the real crowds the recorded
 pedestrian whose place the robot takes (taken out of the replay). Metrics: closest
 centre distance to a pedestrian, avoidance distance (robot-pedestrian distance when
 |yaw rate| first exceeds 0.3 rad/s), time to goal, path length, collisions, success.
+Collisions are split by who closed the gap at the onset (``collisions_robot``: the robot drove
+into the person; ``collisions_pedestrian``: a person walked into a robot that was stopped or
+nearly so; see ``sim.crowd.robot_drove_in``): replayed people never react to the robot.
+``--live`` runs the same scenarios through ``tether launch`` (bench/social_nav_live.py).
 Writes ``out/social_nav.png`` (trajectories) and prints a table; ``--json`` prints one
 object with the metrics per scenario and method, ``pipeline_hz`` and ``plan_ms_100x100``.
 """
