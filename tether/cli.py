@@ -65,7 +65,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
     from tether.supervisor import Supervisor
 
     launch = load_launch(args.file, parse_overrides(args.param))
-    sup = Supervisor(launch, machine=args.machine, record=args.record, keys=args.keys)
+    sup = Supervisor(launch, machine=args.machine, record=args.record, record_topics=args.record_topics,
+                     record_exclude=args.record_exclude, keys=args.keys)
     names = ", ".join(c.id for c in sup.children)
     log.info("launching %s (%s)%s", launch.name, names, f" for {args.duration:g} s" if args.duration else "")
     return sup.run(args.duration)
@@ -259,7 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("--duration", type=float, help="stop after S seconds")
     p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE", help="override a node parameter")
-    p.add_argument("--record", metavar="FILE", help="record every topic to an MCAP log")
+    p.add_argument("--record", metavar="FILE", help="record the graph's topics to an MCAP log")
+    p.add_argument("--record-topics", nargs="+", metavar="PATTERN", help="with --record: only these (e.g. 'sim/*')")
+    p.add_argument("--record-exclude", nargs="+", metavar="PATTERN", help="with --record: not these (e.g. '*/rgbd')")
     p.add_argument("--machine", help="start only this machine's nodes")
     p.add_argument("--keys", help="CurveZMQ key file of the graph (default ~/.config/tether/keys/NAME.json)")
     p.set_defaults(func=cmd_launch)

@@ -18,6 +18,7 @@ from tether.codec import wire_to_inline
 from tether.errors import DecodeError
 from tether.log import LogWriter
 from tether.transport import CurveKeys, Subscriptions
+from tether.runner import LOG_FORMAT
 
 log = logging.getLogger("tether.record")
 
@@ -106,3 +107,31 @@ class Recorder:
             if duration_s is not None and now - t0 >= duration_s:
                 break
         self.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m tether.record SPEC_JSON``: the launcher's recorder process (stops on SIGTERM/SIGINT).
+
+    SPEC: {"path", "topics": {topic: endpoint}, "secure": [topic], "curve": keys or null, "metadata": {}}.
+    """
+    import json
+    import signal
+    import sys
+
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
+    spec = json.loads((argv if argv is not None else sys.argv[1:])[0])
+    curve = CurveKeys.from_json(spec["curve"]) if spec.get("curve") else None
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    rec = Recorder(spec["path"], spec["topics"], curve=curve, secure=set(spec.get("secure", [])),
+                   metadata=spec.get("metadata")).start()
+    rec.run_until(stop)
+    log.info("recorded %d messages (%.1f MB) on %d topics to %s%s", rec.count, rec.bytes / 1e6, len(rec.topics),
+             rec.path, f"; {rec.errors} malformed dropped" if rec.errors else "")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+

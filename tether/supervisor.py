@@ -1,6 +1,8 @@
 """Launcher supervision: start node processes, prefix their logs, restart per policy, stop cleanly."""
 from __future__ import annotations
 
+import fnmatch
+import json
 import logging
 import os
 import signal
@@ -17,7 +19,7 @@ import msgspec
 
 from tether import registry
 from tether.launch import LaunchFile, plan
-from tether.record import Recorder
+from tether.errors import ConfigError
 from tether.runtime import RunSpec
 from tether.transport import CurveKeys
 
@@ -55,6 +57,7 @@ class Supervisor:
     """Run the nodes of ``launch`` that belong to ``machine`` (all when there are no machines)."""
 
     def __init__(self, launch: LaunchFile, *, machine: str | None = None, record: str | None = None,
+                 record_topics: list[str] | None = None, record_exclude: list[str] | None = None,
                  keys: str | None = None, out: IO[str] | None = None) -> None:
         self.launch = launch
         self.machine = machine or ""
@@ -70,11 +73,35 @@ class Supervisor:
                          for n in launch.nodes if not launch.machines or n.machine == self.machine]
         self.all_specs = specs
         self.record_path = record
-        if record:   # the recorder is one more subscriber every source waits for
-            for child in self.children:
-                child.spec.expect_subscribers = {t: n + 1 for t, n in child.spec.expect_subscribers.items()}
-        self.recorder: Recorder | None = None
+        self.record_topics = self._recorded(record_topics, record_exclude) if record else {}
+        for child in self.children:   # the recorder is one more subscriber those sources wait for
+            child.spec.expect_subscribers = {t: n + (t in self.record_topics)
+                                             for t, n in child.spec.expect_subscribers.items()}
+        self.recorder: subprocess.Popen | None = None
         self._registry_path: Path | None = None
+
+    def _recorded(self, patterns: list[str] | None, exclude: list[str] | None) -> dict[str, str]:
+        """Topics of this machine's nodes to record (fnmatch patterns), with their endpoints."""
+        topics = {f"{c.id}/{out}": c.spec.binds[0] for c in self.children if c.spec.binds
+                  for out in self.launch.node(c.id).ports.outputs}
+        keep = {t: ep for t, ep in topics.items()
+                if (not patterns or any(fnmatch.fnmatchcase(t, p) for p in patterns))
+                and not any(fnmatch.fnmatchcase(t, p) for p in exclude or [])}
+        if not keep:
+            raise ConfigError(f"--record: no topic matches (topics: {', '.join(sorted(topics))})")
+        return keep
+
+    def _start_recorder(self) -> None:
+        secure = [t for t in self.record_topics if any(b.startswith("tcp://") for b in self.all_specs[t.split("/")[0]].binds)]
+        spec = {"path": self.record_path, "topics": self.record_topics, "secure": secure,
+                "curve": self.curve.to_json() if self.curve else None,
+                "metadata": {"launch": str(self.launch.path), "graph": self.launch.name}}
+        # Its own process: recording a camera stream costs CPU (the mcap writer copies every byte a
+        # few times), which must not slow the supervisor's log pumping or restarts.
+        self.recorder = subprocess.Popen([sys.executable, "-m", "tether.record", json.dumps(spec)],
+                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                         errors="replace", start_new_session=True)
+        threading.Thread(target=self._pump, args=("record", self.recorder.stdout), daemon=True).start()
 
     # -- processes --------------------------------------------------------------------
     def _start(self, child: Child) -> None:
@@ -131,14 +158,7 @@ class Supervisor:
         previous = {sig: signal.signal(sig, lambda *_: self.stop_event.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             if self.record_path:
-                topics = {f"{nid}/{out}": self.all_specs[nid].binds[0]
-                          for nid, spec in self.all_specs.items() if spec.binds
-                          for out in self.launch.node(nid).ports.outputs}
-                if self.launch.machines:
-                    topics = {t: ep for t, ep in topics.items() if self._local(t.split("/")[0])}
-                secure = {t for t in topics if any(b.startswith("tcp://") for b in self.all_specs[t.split("/")[0]].binds)}
-                self.recorder = Recorder(self.record_path, topics, curve=self.curve, secure=secure,
-                                         metadata={"launch": str(self.launch.path), "graph": self.launch.name}).start()
+                self._start_recorder()
             for child in self.children:
                 self._start(child)
             deadline = None if duration_s is None else time.monotonic() + duration_s
@@ -155,9 +175,13 @@ class Supervisor:
                     if not child.done:
                         child.exit_codes.append(child.proc.returncode)
                         child.failed = child.failed or child.proc.returncode != 0
-            if self.recorder is not None:
-                self.recorder.stop()
-                log.info("recorded %d messages to %s", self.recorder.count, self.record_path)
+            if self.recorder is not None:   # stopped after the nodes, so it has their last messages
+                self.recorder.send_signal(signal.SIGTERM)
+                try:
+                    self.recorder.wait(STOP_TIMEOUT_S)
+                except subprocess.TimeoutExpired:
+                    log.error("the recorder did not stop within %.0f s: killed", STOP_TIMEOUT_S)
+                    self.recorder.kill()
             if self._registry_path is not None:
                 registry.unregister(self._registry_path)
             for sig, handler in previous.items():
@@ -166,9 +190,6 @@ class Supervisor:
         if failed:
             log.error("failed: %s", ", ".join(failed))
         return 1 if failed else 0
-
-    def _local(self, node_id: str) -> bool:
-        return any(c.id == node_id for c in self.children)
 
     def _reap(self) -> None:
         now = time.monotonic()

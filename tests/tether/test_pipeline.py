@@ -168,3 +168,15 @@ def test_malformed_frames_into_a_live_node_are_counted_not_fatal(runtime_env: di
     thread.join(5)
     assert not thread.is_alive()
     ctx.destroy(linger=0)
+
+
+def test_launch_records_only_the_selected_topics(tmp_path: Path, runtime_env: dict) -> None:
+    log = tmp_path / "sel.mcap"
+    res = tether("launch", "launch/counter.yaml", "--duration", "2", "--param", "counter.rate_hz=20",
+                 "--record", str(log), "--record-exclude", "scale/*", env=runtime_env)
+    assert res.returncode == 0, res.stderr
+    assert set(LogReader(log).info().topics) == {"counter/value"}
+    assert "[record]" in res.stdout and "recorded" in res.stdout        # the recorder is its own process
+    bad = tether("launch", "launch/counter.yaml", "--duration", "1", "--record", str(log),
+                 "--record-topics", "nothing/*", env=runtime_env)
+    assert bad.returncode == 2 and "no topic matches" in bad.stderr
