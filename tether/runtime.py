@@ -170,7 +170,8 @@ class NodeRuntime(Context):
         # Bounded read-ahead: holding hundreds of large received frames at once costs more (cold
         # memory, allocator churn) than handling as we go; ZeroMQ's own queue holds the rest.
         # Latest-only inputs keep at most one message, so they still see the newest.
-        while sock.getsockopt(_EVENTS) & _POLLIN:
+        ready = [(sock, _POLLIN)]
+        while _zmq_poll(ready, 0):   # cheaper than getsockopt(EVENTS), which builds an enum per call
             self._route(*self._recv(sock, _NOBLOCK), order)
             if sum(len(st.queue) for st in self.inputs.values() if st.maxlen > 1) >= READ_AHEAD:
                 return
@@ -397,10 +398,14 @@ class NodeRuntime(Context):
             self._auth = None
 
 
+_zmq_poll = zmq.backend.zmq_poll
+_send_frame = zmq.backend.Socket.send   # pyzmq's C-level send: the Python wrapper only adds routing_id/group
+
+
 def _send(sock: zmq.Socket, topic: bytes, frames: list[Any]) -> None:
     """Topic and body are copied (small); array buffers go zero-copy (ZeroMQ holds a reference)."""
-    sock.send(topic, _SNDMORE)
+    _send_frame(sock, topic, _SNDMORE)
     last = len(frames) - 1
-    sock.send(frames[0], _SNDMORE if last else 0)
+    _send_frame(sock, frames[0], _SNDMORE if last else 0)
     for i in range(1, last + 1):
-        sock.send(frames[i], _SNDMORE if i < last else 0, copy=False)
+        _send_frame(sock, frames[i], _SNDMORE if i < last else 0, copy=False)
