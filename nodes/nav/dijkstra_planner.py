@@ -40,7 +40,7 @@ class PlannerParams:
     safe_zone_m: float = 0.25
     obstacle_radius_m: float = 4.0
     subgoal_m: float = 4.0
-    waypoint_m: float = 1.0
+    waypoint_m: float = 2.0       # 1 m made the robot weave (turn-in-place on every new waypoint): bench/social_nav.py
     waypoint_timeout_s: float = 3.0
     stray_m: float = 1.5
     robot_radius_m: float = 0.35
@@ -48,7 +48,8 @@ class PlannerParams:
     v_max_mps: float = 1.0
     w_max_radps: float = 1.2
     crowd_margin_m: float = 0.3   # the cost grid is dilated by robot radius + this (personal space)
-    person_cost: float = 8.0      # cells with people (high density, predicted crossings) cost at least this x the median
+    person_cost: float = 4.0      # cells with people (high density, predicted crossings) cost at least this x the median
+                                  # (8 made detours ~2 m wide; 4 keeps the same closest distance on the bench)
     commitment: float = 0.5       # cost of moving the sub-goal between re-plans, x typical cost per cell
     memory_s: float = 1.5         # unseen cells keep what was seen there this long
     fov_deg: float = 57.0         # the camera's horizontal field of view
@@ -384,7 +385,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     safe_zone_m: float = 0.25
     obstacle_radius_m: float = 4.0
     subgoal_m: float = 4.0
-    waypoint_m: float = 1.0
+    waypoint_m: float = 2.0
     waypoint_timeout_s: float = 3.0
     stray_m: float = 1.5
     robot_radius_m: float = 0.35
@@ -392,7 +393,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     v_max_mps: float = 1.0
     w_max_radps: float = 1.2
     crowd_margin_m: float = 0.3
-    person_cost: float = 8.0
+    person_cost: float = 4.0
     commitment: float = 0.5
     memory_s: float = 1.5
     predict_s: float = 2.0        # 0 = plan on the features alone (no flow input needed)
