@@ -277,6 +277,11 @@ def _yaw_of(transform: np.ndarray) -> float:
     return float(np.arctan2(transform[1, 0], transform[0, 0]))
 
 
+def _off_prior(t: np.ndarray, prior: np.ndarray) -> float:
+    """|yaw difference| (rad) of ``t`` from ``prior``."""
+    return abs((_yaw_of(t) - _yaw_of(prior) + np.pi) % (2 * np.pi) - np.pi)
+
+
 def _distinct(a: np.ndarray, b: np.ndarray, cfg: IcpSettings, pivot: np.ndarray) -> bool:
     dyaw = abs((_yaw_of(a) - _yaw_of(b) + np.pi) % (2 * np.pi) - np.pi)
     moved = np.linalg.norm((a[:3, :3] - b[:3, :3]) @ pivot + a[:3, 3] - b[:3, 3])
@@ -361,9 +366,15 @@ def align(cloud: np.ndarray, model: IcpModel, init: np.ndarray | None = None,
     if cfg.yaw_hypotheses > 1:
         best, ambiguous, hypotheses = _resolve_yaw(src, model, t0, best, cfg, rng)
         if hypotheses and best is not hypotheses[0][1]:      # a restart won: refine it on the full sample
+            chosen = best
             best, iters, converged, sys_ = _iterate(src, model, best, cfg, cfg.max_iterations)
             if sys_ is None:
                 return _failed(t0, len(pts), "the best yaw hypothesis lost its correspondences")
+            # The window and the rivals were judged at the restart's pose; the refinement on the full
+            # sample can slide on (a partial view of the 3-fold tripod: from 56 deg to 104 deg off
+            # the prior). A result the check did not see is not trusted.
+            ambiguous = ambiguous or _distinct(best, chosen, cfg, model.centroid)
+        ambiguous = ambiguous or _off_prior(best, t0) > cfg.prior_window_rad
     cov, free = _covariance(sys_, cfg)
     gate_score = 2.0 * cfg.min_correspondence_m
     return IcpOutcome(best, cov, converged, bool(free.shape[1] > 0), ambiguous, float(sys_["evals"][0]),
@@ -395,7 +406,7 @@ def _resolve_yaw(src: np.ndarray, model: IcpModel, prior: np.ndarray, first: np.
             t, _, _, _ = _iterate(small, model, t, cfg, cfg.max_iterations, polish=False)
             hyps[i] = (_score(small, model, t, gate), t)
     def off_prior(t: np.ndarray) -> float:
-        return abs((_yaw_of(t) - _yaw_of(prior) + np.pi) % (2 * np.pi) - np.pi)
+        return _off_prior(t, prior)
 
     inside = [(sc, t) for sc, t in hyps if off_prior(t) <= cfg.prior_window_rad]
     if not inside:

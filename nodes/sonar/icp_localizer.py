@@ -226,7 +226,11 @@ class IcpLocalizer(Node):
         if out.ambiguous:
             self._count("ambiguous", "ambiguous fit: a distinct pose near the prior fits as well (symmetry), "
                                      "or one the prior rules out fits clearly better")
-        if out.converged and not out.ambiguous and cfg.track:
+        # Only a trusted result becomes the tracked pose (the next prior and the centre of the
+        # ambiguity check's prior window). A degenerate one moved its observable directions on too
+        # little structure (a leg or a mat seen alone fits at many yaws): adopting it let a later,
+        # well-posed fit of the 3-fold tripod settle 120 deg off and be trusted.
+        if out.converged and not out.ambiguous and not out.degenerate and cfg.track:
             self._last = out.transform
         elif cfg.track:
             self._checked = False
@@ -251,7 +255,8 @@ class IcpLocalizer(Node):
                 self._since_check += 1
                 return out
         out = align(src, self._model, init, self._settings)
-        self._checked = out.converged and not out.ambiguous and self._settings.yaw_hypotheses > 1
+        self._checked = (out.converged and not out.ambiguous and not out.degenerate
+                         and self._settings.yaw_hypotheses > 1)
         self._since_check = 0
         return out
 
