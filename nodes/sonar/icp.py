@@ -23,7 +23,8 @@ rejection), and:
   the prior instead of wandering, and get a huge variance in the covariance.
 * **ambiguity**: restarts over yaw about the model's vertical axis compare robust residuals. When a
   distinct pose near the prior fits as well as the chosen one (a 3-fold symmetric tripod seen 60 deg
-  off), the result says so instead of claiming one with confidence.
+  off), the result says so instead of claiming one with confidence. The final, refined pose must
+  still lie inside the prior window (and, when a restart won, next to the restart that was checked).
 
 Transforms are 4x4, cloud frame -> model frame. Covariance order (x, y, z, roll, pitch, yaw), a
 left perturbation about the model-frame origin; the world is z-up.
