@@ -334,8 +334,10 @@ class SocialPlanner:
             return 0.0, 0.0
         target = self.carrot(pose) if self.mode == "global" or self.waypoint is None else self.waypoint
         final = bool(np.allclose(target, self.goal))
+        # brake to stop on the goal point itself: it is reached on entering the tolerance, and braking
+        # to stop inside it (0.15 m short) cost ~0.1 s at 0.8 m/s^2 for nothing
         return steer(pose, target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps,
-                     stop_at_m=self.goal_tol_m if final else None)
+                     stop_at_m=0.0 if final else None)
 
 
 def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: GridFrame, *, robot_speed_mps: float,
