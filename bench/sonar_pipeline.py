@@ -87,16 +87,18 @@ def main() -> None:
               "loc_err_m": round(head["loc_err_m"], 3), "loc_err_deg": round(head["loc_err_deg"], 2),
               "nav_err_m": round(head["nav_err_m"], 3), "cloud_size": head["cloud_size"],
               "trusted_corrections": head["trusted_corrections"], "corrections": head["corrections"],
+              "wrong_trusted": head["wrong_trusted"], "max_trusted_err_m": round(head["max_trusted_err_m"], 3),
               "duration_s": duration}
     if args.json:
         print(json.dumps(result))
         return
     print(f"{'beams':>5s} {'pings/s':>8s} {'render-only':>11s} {'ratio':>6s} {'latency p50':>11s} "
-          f"{'loc err':>8s} {'nav err':>8s} {'trusted':>8s} {'cloud':>7s}")
+          f"{'loc err':>8s} {'nav err':>8s} {'trusted':>8s} {'wrong':>5s} {'cloud':>7s}")
     for r in rows:
         print(f"{r['beams']:5d} {r['pings_per_s']:8.1f} {r['render_only_pps']:11.1f} "
               f"{r['pings_per_s'] / r['render_only_pps']:6.2f} {r['latency_ms_p50']:9.0f} ms "
               f"{r['loc_err_m']:6.3f} m {r['nav_err_m']:6.3f} m {r['trusted_corrections']:3d}/{r['corrections']:<4d} "
+              f"{r['wrong_trusted']:5d} "
               f"{r['cloud_size']:7d}")
     print(f"({duration:.0f} s launches at the sonar's highest ping rate; render-only = the simulator alone, in-process;"
           " errors are steady-state medians vs ground truth)")

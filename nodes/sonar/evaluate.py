@@ -20,6 +20,9 @@ from nodes.sonar.evaluation import nearest, pose_error, save_cloud_png, save_fan
 from tether import Input, Node
 
 
+WRONG_M, WRONG_DEG = 0.5, 5.0     # a trusted correction further off than this is a confident wrong pose
+
+
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     out_dir: str = "out/sonar"
     scene: str = "tripod"          # whose structures to draw under the cloud (sim.fls scene name or path)
@@ -104,6 +107,10 @@ class SonarEvaluation(Node):
             "nav_err_deg": float(np.median([e["nav_err_deg"] for e in errs])) if errs else float("nan"),
             "loc_err_m": float(np.median([e["err_m"] for e in tail])) if tail else float("nan"),
             "loc_err_deg": float(np.median([e["err_deg"] for e in tail])) if tail else float("nan"),
+            # every trusted correction, not just the steady state: a confident wrong pose must show
+            "max_trusted_err_m": max((e["err_m"] for e in trusted), default=float("nan")),
+            "max_trusted_err_deg": max((e["err_deg"] for e in trusted), default=float("nan")),
+            "wrong_trusted": sum(e["err_m"] > WRONG_M or e["err_deg"] > WRONG_DEG for e in trusted),
         }
 
     def teardown(self) -> None:
@@ -116,6 +123,9 @@ class SonarEvaluation(Node):
         self.log.info("summary: localisation error %.3f m / %.2f deg after ICP (navigation alone: %.3f m / %.2f deg); "
                       "%d of %d corrections trusted", s["loc_err_m"], s["loc_err_deg"], s["nav_err_m"],
                       s["nav_err_deg"], s["trusted_corrections"], s["corrections"])
+        (self.log.error if s["wrong_trusted"] else self.log.info)(
+            "summary: worst trusted correction %.3f m / %.2f deg; %d trusted corrections were wrong (> %.1f m or %.0f deg)",
+            s["max_trusted_err_m"], s["max_trusted_err_deg"], s["wrong_trusted"], WRONG_M, WRONG_DEG)
         if self.config.png:
             self._pictures(out)
 
