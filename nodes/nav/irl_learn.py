@@ -130,6 +130,32 @@ def evaluate(weights: np.ndarray, step_cost: float, demos: list[Demo], *, oracle
     return out
 
 
+def widen_demo(demo: Demo, radius_cells: float, groups: tuple[int, ...] = (0, 3, 6)) -> Demo:
+    """The planner's view of a demo: each crowd group's bins widened by the robot footprint.
+
+    ``groups`` are the first columns of one-hot (high, medium, low) triples (density, speed,
+    direction in :data:`nodes.nav.features.FEATURE_NAMES`); the goal-distance group is left as
+    it is. A cell gets the highest bin found within ``radius_cells`` of it (high wins over
+    medium, medium over low), as the planner's footprint dilation prices the robot's centre
+    by the dearest cell under its disc. Features (rows, cols, K) stay one-hot per group.
+    """
+    from scipy.ndimage import grey_dilation
+
+    if radius_cells <= 0:
+        return demo
+    r = int(np.ceil(radius_cells))
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    disc = np.hypot(yy, xx) <= radius_cells + 1e-9
+    f = np.asarray(demo.features, float).copy()
+    for g in groups:
+        if g + 2 >= f.shape[2]:
+            raise ValueError(f"group {g} needs columns {g}..{g + 2}, the features have {f.shape[2]}")
+        hi = grey_dilation(f[..., g], footprint=disc, mode="constant", cval=0.0)
+        med = np.maximum(grey_dilation(f[..., g + 1], footprint=disc, mode="constant", cval=0.0) - hi, 0.0)
+        f[..., g], f[..., g + 1], f[..., g + 2] = hi, med, 1.0 - hi - med
+    return Demo(f, demo.path, demo.blocked)
+
+
 def sim_camera() -> object:
     """The simulator camera model used for learning and benchmarks (see CAMERA_FX_PX)."""
     from sim.crowd_render import CameraModel
@@ -334,6 +360,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--log-dir", default="out/irl_logs")
     ap.add_argument("--cache", default="", help="npz file to save / reuse the extracted demos")
     ap.add_argument("--use", nargs="*", default=[], help="only these scenes (log stems / data sets) of the cache")
+    ap.add_argument("--widen-m", type=float, default=0.0,
+                    help="learn on crowd features widened by this radius (the planner's footprint view; 0 = as seen)")
+    ap.add_argument("--cell-m", type=float, default=0.25, help="feature grid cell size (for --widen-m)")
     ap.add_argument("-o", "--output", required=True)
     ap.add_argument("--debug", action="store_true")
     args = ap.parse_args(argv)
@@ -345,6 +374,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.use:
         demos = DemoSet({k: v for k, v in demos.scenes.items() if k in set(args.use) | set(args.holdout)})
+    if args.widen_m > 0:
+        demos = DemoSet({k: [widen_demo(d, args.widen_m / args.cell_m) for d in v] for k, v in demos.scenes.items()})
     held = set(args.holdout) or {n for n in list(demos.scenes)[-max(1, len(demos.scenes) // 5):]}
     train_names = [n for n in demos.scenes if n not in held]
     train = demos.pick(train_names)
@@ -356,7 +387,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in sorted(held & set(demos.scenes)):
         report[name] = evaluate(res.weights, res.step_cost, demos.scenes[name], oracle=name in oracle_scenes)
     from nodes.nav.features import FEATURE_NAMES
-    extra = {"method": args.method, "prior": args.prior, "lam": args.lam, "trained_on": train_names,
+    extra = {"method": args.method, "prior": args.prior, "lam": args.lam, "widen_m": args.widen_m, "trained_on": train_names,
              "held_out": sorted(held), "converged": res.converged, "scores": report}
     Path(args.output).parent.mkdir(parents=True, exist_ok=True)
     Path(args.output).write_text(CostWeights(tuple(FEATURE_NAMES), res.weights, res.step_cost, extra).to_json() + "\n")

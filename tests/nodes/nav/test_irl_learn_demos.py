@@ -5,7 +5,7 @@ import numpy as np
 
 from nodes.nav.dijkstra import GridFrame
 from nodes.nav.irl import Demo
-from nodes.nav.irl_learn import DemoSet, demo_path, demos_from_poses, load_demos, save_demos
+from nodes.nav.irl_learn import DemoSet, demo_path, demos_from_poses, load_demos, save_demos, widen_demo
 
 FRAME = GridFrame((24, 24), 0.25, origin_x_m=-0.375, origin_y_m=-2.875)
 
@@ -46,3 +46,20 @@ def test_demo_cache_roundtrip(tmp_path):
     assert sorted(back.scenes) == ["a", "b"] and len(back.scenes["b"]) == 2
     np.testing.assert_array_equal(back.scenes["b"][1].path, [[2, 2], [2, 3], [3, 4]])
     np.testing.assert_array_equal(back.scenes["a"][0].features, demos.scenes["a"][0].features)
+
+
+def test_widen_demo_spreads_the_high_bin_over_the_footprint_and_stays_one_hot():
+    f = np.zeros((9, 9, 12))
+    f[..., [2, 5, 8, 11]] = 1.0                  # every group 'low'
+    f[4, 4, [0, 2]] = [1.0, 0.0]                 # one high-density cell
+    f[4, 7, [1, 2]] = [1.0, 0.0]                 # one medium-density cell, 3 cells away
+    f[0, 0, [9, 11]] = [1.0, 0.0]                # a goal feature: not widened
+    d = widen_demo(Demo(f, np.array([[0, 0], [0, 1]])), 2.0)
+    w = d.features
+    assert w[4, 6, 0] == 1 and w[2, 4, 0] == 1 and w[3, 3, 0] == 1      # within 2 cells of the person
+    assert w[1, 1, 0] == 0 and w[4, 7, 0] == 0                          # beyond the disc
+    assert w[4, 7, 1] == 1 and w[4, 5, 1] == 0                          # high wins over medium
+    assert w[0, 1, 9] == 0 and w[0, 0, 9] == 1                          # goal group untouched
+    for g in (0, 3, 6, 9):
+        assert np.all(w[..., g:g + 3].sum(axis=2) == 1)
+    assert widen_demo(d, 0.0) is d
