@@ -267,7 +267,7 @@ def record_oracle(scene: str, path: str | Path, *, dt_s: float = 1.0 / 15.0) -> 
     difference of what is learnt from its log can be measured.
     """
     from msgs.geometry import Odometry2D, Pose2D, Twist2D
-    from nodes.nav.dijkstra_planner import PlannerParams, SocialPlanner
+    from nodes.nav.social_planner import PlannerParams, SocialPlanner
     from nodes.nav.irl import cell_costs
     from sim.crowd import CrowdWorld
     from tether.log import LogWriter

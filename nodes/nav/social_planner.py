@@ -1,0 +1,374 @@
+"""Three-layer social planning (Kim & Pineau 2016, Algorithm 2), the pure part: arrays in, decisions out.
+
+Layer 1, global: Dijkstra over the known occupancy map (inflated by the robot radius),
+re-planned when the goal or map changes or the robot strays from the path. Layer 2,
+local (Algorithm 2, run on every cost grid): once the robot is inside the safe zone
+(``safe_zone_m``, 0.25 m) of its current waypoint it decides again — if no cell within
+``obstacle_radius_m`` (4 m) has high crowd density it follows the global path; otherwise it
+runs Dijkstra over the learnt cost grid from its cell to a sub-goal (the farthest global
+path point within reach) and extracts the next waypoint ``waypoint_m`` along that path.
+Outside the safe zone it keeps its waypoint, except on re-plan events: the waypoint's cell
+turned high-density (a pedestrian stepped onto it), the waypoint fell behind the robot,
+or it has been held longer than ``waypoint_timeout_s``. Layer 3, the collision guard, is a
+separate node (:mod:`nodes.nav.collision_guard`). The node is :mod:`nodes.nav.dijkstra_planner`.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import grey_dilation
+
+from nodes.nav.dijkstra import (GridFrame, GridGraph, backtrack, cost_from, densify, extract_waypoint, inflate, smooth_path,
+                                plan_on_map, steer, to_robot, to_world)
+
+
+@dataclass(frozen=True)
+class PlannerParams:
+    """Algorithm 2 settings (metres, seconds, SI velocities)."""
+
+    safe_zone_m: float = 0.25
+    obstacle_radius_m: float = 4.0
+    subgoal_m: float = 4.0
+    waypoint_m: float = 2.0       # 1 m made the robot weave (turn-in-place on every new waypoint): bench/social_nav.py
+    waypoint_timeout_s: float = 3.0
+    stray_m: float = 1.5
+    robot_radius_m: float = 0.35
+    inflate_margin_m: float = 0.1
+    v_max_mps: float = 1.0
+    w_max_radps: float = 1.2
+    crowd_margin_m: float = 0.3   # the cost grid is dilated by robot radius + this (personal space)
+    person_cost: float = 4.0      # cells with people (high density, predicted crossings) cost at least this x the median
+                                  # (8 made detours ~2 m wide; 4 keeps the same closest distance on the bench)
+    commitment: float = 0.5       # cost of moving the sub-goal between re-plans, x typical cost per cell
+    memory_s: float = 1.5         # unseen cells keep what was seen there this long
+    fov_deg: float = 57.0         # the camera's horizontal field of view
+    camera_x_m: float = 0.3       # camera ahead of the robot centre
+    min_range_m: float = 0.4      # the camera measures nothing nearer
+
+
+@dataclass
+class Decision:
+    """What the planner decided on a cost grid: mode, the event that caused it, the waypoint (world, m)."""
+
+    mode: str                      # idle | global | local | hold | reached | unreachable
+    event: str = ""                # new_goal | safe_zone | waypoint_blocked | waypoint_behind | timeout | ...
+    waypoint: np.ndarray | None = None
+    path_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    plan_ms: float = 0.0
+    reason: str = ""
+
+
+class SocialPlanner:
+    """Pure Algorithm 2 state machine; see the module docstring."""
+
+    def __init__(self, params: PlannerParams = PlannerParams()) -> None:
+        self.p = params
+        self.goal: np.ndarray | None = None
+        self.goal_tol_m = 0.3
+        self.occupied: np.ndarray | None = None
+        self.map_frame: GridFrame | None = None
+        self.global_path: np.ndarray | None = None
+        self.mode = "idle"
+        self.waypoint: np.ndarray | None = None
+        self.waypoint_t_s = 0.0
+        self._graphs: dict[tuple[int, int], GridGraph] = {}
+        self._event = "new_goal"
+        self._subgoal: np.ndarray | None = None
+        self._path: np.ndarray | None = None           # local path being followed (world, m)
+        self._memory: list[tuple] = []
+
+    # -- inputs -----------------------------------------------------------------------------------
+    def set_goal(self, xy: tuple[float, float], tolerance_m: float = 0.3) -> None:
+        """A new goal resets the plans; the same goal sent again (goals are re-published) changes nothing."""
+        if self.goal is not None and np.allclose(self.goal, xy) and self.goal_tol_m == tolerance_m:
+            return
+        self.goal = np.asarray(xy, float).reshape(2)
+        self.goal_tol_m = float(tolerance_m)
+        self.global_path, self.waypoint, self._event, self._subgoal = None, None, "new_goal", None
+
+    def set_map(self, occupancy: np.ndarray, frame: GridFrame) -> None:
+        """Occupancy (rows = y, cols = x; > 0.5 occupied) of the known world map."""
+        radius = (self.p.robot_radius_m + self.p.inflate_margin_m) / frame.resolution_m
+        self.occupied = inflate(np.asarray(occupancy) > 0.5, radius)
+        self.map_frame = frame
+        self.global_path, self._event = None, "new_map"
+
+    def _graph(self, shape: tuple[int, int]) -> GridGraph:
+        if shape not in self._graphs:
+            self._graphs[shape] = GridGraph.of(shape)
+        return self._graphs[shape]
+
+    # -- layer 1 ----------------------------------------------------------------------------------
+    def _global(self, pose: tuple[float, float, float]) -> str:
+        """(Re)plan the global path when needed; returns an error reason or ''."""
+        assert self.goal is not None
+        if self.global_path is not None:
+            if np.hypot(*(self.global_path - pose[:2]).T).min() <= self.p.stray_m:
+                return ""
+            self._event = "strayed"
+        if self.occupied is None or self.map_frame is None:
+            self.global_path = densify(np.stack([np.asarray(pose[:2]), self.goal]), 0.1)
+            return ""
+        path, result = plan_on_map(self.occupied, self.map_frame, pose[:2], tuple(self.goal),
+                                   graph=self._graph(self.occupied.shape))
+        self.global_path = path if result.reachable else None
+        return "" if result.reachable else f"global goal: {result.reason}"
+
+    def carrot(self, pose: tuple[float, float, float]) -> np.ndarray:
+        """The global-path point ``waypoint_m`` ahead of the path point closest to the robot."""
+        assert self.global_path is not None
+        i = int(np.argmin(np.hypot(*(self.global_path - pose[:2]).T)))
+        return extract_waypoint(self.global_path[i:], self.p.waypoint_m)
+
+    # -- layer 2 ----------------------------------------------------------------------------------
+    def update(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame,
+               high_density: np.ndarray, t_s: float, predicted: np.ndarray | None = None) -> Decision:
+        """Algorithm 2 on one cost grid (robot frame, ``frame``) with its high-density mask.
+
+        ``predicted`` (optional, rows x cols bool, see :func:`predict_conflicts`) marks cells a
+        moving person is expected to reach when the robot would: they count as high density.
+        Cells with people (high density or predicted) cost at least ``person_cost`` times the
+        median cell (:meth:`_person_cost`). Cells on static obstacles of the map never count as
+        crowd (walls are dense too).
+        """
+        if self.goal is None:
+            return Decision("idle", reason="no goal yet")
+        if np.hypot(*(self.goal - pose[:2])) <= self.goal_tol_m:
+            self.mode, self.waypoint = "reached", None
+            return Decision("reached", "goal", self.goal)
+        reason = self._global(pose)
+        if reason:
+            self.mode, self.waypoint = "unreachable", None
+            return Decision("unreachable", reason=reason)
+        cost, high_density = np.asarray(cost, float), np.asarray(high_density, bool)
+        static = self._static_mask(pose, frame)
+        cost, high_density = self._remember(pose, cost, frame, high_density & ~static, t_s)
+        if predicted is not None and predicted.shape == cost.shape and predicted.any():
+            high_density = high_density | (predicted & ~static)
+        cost = self._person_cost(cost, high_density)
+        event = self._replan_event(pose, frame, high_density, t_s)
+        if not event:
+            return Decision(self.mode, "", self.waypoint)
+        if not self._obstacle_near(frame, high_density):
+            self.mode, self.waypoint, self._subgoal = "global", None, None
+            return Decision("global", event, self.carrot(pose), self.global_path)
+        t0 = time.perf_counter()
+        decision = self._local(pose, cost, frame, event)
+        decision.plan_ms = (time.perf_counter() - t0) * 1e3
+        self.mode, self.waypoint, self.waypoint_t_s = decision.mode, decision.waypoint, t_s
+        self._path = decision.path_xy if decision.mode == "local" else None
+        return decision
+
+    def _person_cost(self, cost: np.ndarray, people: np.ndarray) -> np.ndarray:
+        """Cells with people cost at least ``person_cost`` x the median cell.
+
+        The learnt weights price a crowded cell only a little above a free one (see
+        nodes/nav/weights/default.json: density_high ~0.2 against a step cost ~2): the path then
+        grazes people, which a replayed or inattentive walker turns into contact. The paper's
+        Algorithm 2 treats a high-density cell as an obstacle for its decision; this makes the
+        local plan treat it as (nearly) one too, while still finite, so a plan exists in a crowd.
+        """
+        if self.p.person_cost <= 0 or not people.any():
+            return cost
+        finite = np.isfinite(cost)
+        floor = self.p.person_cost * float(np.median(cost[finite])) if finite.any() else 0.0
+        return np.where(people & finite, np.maximum(cost, floor), cost)
+
+    def _path_blocked(self, pose: tuple[float, float, float], frame: GridFrame, people: np.ndarray) -> bool:
+        """Does the local path being followed now pass within the robot's footprint of a person?"""
+        if self._path is None or len(self._path) < 2 or not people.any():
+            return False
+        seg = np.diff(self._path, axis=0)
+        n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / (0.5 * frame.resolution_m)).astype(int), 1)
+        pts = np.vstack([a + np.outer(np.arange(k) / k, b - a) for a, b, k in zip(self._path[:-1], self._path[1:], n)])
+        rel = to_robot(pose, pts)
+        rel = rel[rel[:, 0] > 0]                        # what is still ahead
+        cells = frame.cell_of(rel)
+        cells = cells[frame.inside(cells)]
+        if not len(cells):
+            return False
+        near = inflate(people, (self.p.robot_radius_m + 0.5 * self.p.crowd_margin_m) / frame.resolution_m)
+        return bool(near[cells[:, 0], cells[:, 1]].any())
+
+    def _remember(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame, high: np.ndarray,
+                  t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Cells the camera cannot see now (outside its field of view, or nearer than it can
+        measure) keep the dearest cost and the density flag they had in the last ``memory_s``.
+
+        The camera sees ~57 degrees; a pedestrian being passed leaves the view while still at
+        arm's length, and planning as if they had vanished steers the robot back into them
+        (the paper's Sec. 7.1 limitation). What is in view always overrides the memory.
+        """
+        self._memory = [m for m in self._memory if t_s - m[0] <= self.p.memory_s and m[3].shape == frame.shape]
+        entry = (t_s, pose, cost, frame, high)
+        if not self._memory or self.p.memory_s <= 0:
+            self._memory.append(entry)
+            return cost, high
+        rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
+        rel = frame.xy_of(np.stack([rr.ravel(), cc.ravel()], axis=1))
+        bearing = np.arctan2(rel[:, 1], rel[:, 0] - self.p.camera_x_m)
+        unseen = ((np.abs(bearing) > np.radians(self.p.fov_deg) / 2)
+                  | (np.hypot(rel[:, 0] - self.p.camera_x_m, rel[:, 1]) < self.p.min_range_m))
+        world = to_world(pose, rel[unseen])
+        fused_cost, fused_high = cost.reshape(-1).copy(), high.reshape(-1).copy()
+        for _, m_pose, m_cost, m_frame, m_high in self._memory:
+            cells = m_frame.cell_of(to_robot(m_pose, world))
+            ok = m_frame.inside(cells)
+            idx = np.flatnonzero(unseen)[ok]
+            fused_cost[idx] = np.maximum(fused_cost[idx], m_cost[cells[ok, 0], cells[ok, 1]])
+            fused_high[idx] |= m_high[cells[ok, 0], cells[ok, 1]]
+        self._memory.append(entry)
+        return fused_cost.reshape(cost.shape), fused_high.reshape(high.shape)
+
+    def _replan_event(self, pose: tuple[float, float, float], frame: GridFrame, high: np.ndarray, t_s: float) -> str:
+        if self._event:
+            event, self._event = self._event, ""
+            return event
+        if self.mode != "local" or self.waypoint is None:
+            return "global_path" if self.mode == "global" else "hold_retry"
+        rel = to_robot(pose, self.waypoint)[0]
+        if np.hypot(*rel) <= self.p.safe_zone_m:
+            return "safe_zone"
+        cell = frame.cell_of(rel)
+        if frame.inside(cell)[0] and high[cell[0, 0], cell[0, 1]]:
+            return "waypoint_blocked"
+        if self._path_blocked(pose, frame, high):
+            return "path_blocked"
+        if rel[0] < 0:
+            return "waypoint_behind"
+        return "timeout" if t_s - self.waypoint_t_s > self.p.waypoint_timeout_s else ""
+
+    def _obstacle_near(self, frame: GridFrame, high: np.ndarray) -> bool:
+        cells = np.argwhere(high)
+        if len(cells) == 0:
+            return False
+        return bool((np.hypot(*frame.xy_of(cells).T) <= self.p.obstacle_radius_m).any())
+
+    def _static_mask(self, pose: tuple[float, float, float], frame: GridFrame) -> np.ndarray:
+        """Local cells (robot frame) that fall on inflated static obstacles of the map."""
+        if self.occupied is None or self.map_frame is None:
+            return np.zeros(frame.shape, bool)
+        rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
+        world = to_world(pose, frame.xy_of(np.stack([rr.ravel(), cc.ravel()], axis=1)))
+        cells = self.map_frame.cell_of(world)
+        inside = self.map_frame.inside(cells)
+        cells = self.map_frame.clamp(cells)
+        return (inside & self.occupied[cells[:, 0], cells[:, 1]]).reshape(frame.shape)
+
+    def _local(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame, event: str) -> Decision:
+        """Dijkstra from the robot over the local cost grid to a sub-goal; the sub-goal is the cell at the
+        edge of the local action radius (``subgoal_m``; or the goal itself when nearer) that minimises
+        cost-so-far + (typical cell cost) x (remaining global-path length).
+
+        Taking the global path's point at ``subgoal_m`` as the sub-goal would end every local plan
+        on that point even when a pedestrian stands on it; scoring the whole rim lets the plan end
+        beside the person, on the side that is cheaper overall.
+        """
+        assert self.global_path is not None and self.goal is not None
+        cost = footprint_cost(np.where(self._static_mask(pose, frame), np.inf, cost),
+                              (self.p.robot_radius_m + self.p.crowd_margin_m) / frame.resolution_m)
+        start = tuple(frame.clamp(frame.cell_of(np.zeros(2)))[0])
+        dist, pred = cost_from(cost, start, graph=self._graph(cost.shape))
+        rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
+        cells = np.stack([rr.ravel(), cc.ravel()], axis=1)
+        xy = frame.xy_of(cells)
+        r = np.hypot(xy[:, 0], xy[:, 1])
+        goal_rel = to_robot(pose, self.goal)[0]
+        goal_cell = frame.cell_of(goal_rel)
+        if np.hypot(*goal_rel) <= self.p.subgoal_m and frame.inside(goal_cell)[0]:
+            rim = (np.abs(cells - goal_cell).max(axis=1) <= 1)           # the goal (or next to it)
+        else:
+            rim = (r <= self.p.subgoal_m) & (r > self.p.subgoal_m - 2.0 * frame.resolution_m)
+        reachable = np.isfinite(dist.ravel()) & (r <= self.p.subgoal_m)
+        ok = rim & reachable
+        if not ok.any():        # the rim is walled off (facing a wall, a corner): any reachable cell will do
+            ok = reachable & (np.abs(cells - np.array(start)).max(axis=1) > 0)
+        if not ok.any():
+            return Decision("hold", event, None, reason="local plan: no reachable cell around the robot")
+        rim_world = to_world(pose, xy[ok])
+        remaining = self._remaining_m(pose, rim_world)
+        if remaining.min() >= self._remaining_m(pose, np.asarray(pose[:2])[None])[0]:
+            # nothing in view gets closer to the goal: turn toward the global path and look again
+            return Decision("global", event, self.carrot(pose), self.global_path, reason="no progress in view")
+        typical = float(np.median(cost[np.isfinite(cost)]))
+        score = dist.ravel()[ok] + typical * remaining / frame.resolution_m
+        if self._subgoal is not None:      # commit to a side: moving the sub-goal costs like walking there
+            score += self.p.commitment * typical * np.hypot(*(rim_world - self._subgoal).T) / frame.resolution_m
+        k = int(np.argmin(score))
+        self._subgoal = rim_world[k]
+        sub = cells[np.flatnonzero(ok)[k]]
+        corners = smooth_path(cost, backtrack(pred, tuple(sub)))
+        path_xy = to_world(pose, np.vstack([np.zeros((1, 2)), frame.xy_of(corners[1:])]))
+        return Decision("local", event, extract_waypoint(path_xy, self.p.waypoint_m), path_xy)
+
+    def _remaining_m(self, pose: tuple[float, float, float], xy: np.ndarray) -> np.ndarray:
+        """Distance (m) from world points (n, 2) to the global goal along the global path (ahead of the robot)."""
+        assert self.global_path is not None
+        gp = self.global_path
+        i0 = int(np.argmin(np.hypot(*(gp - pose[:2]).T)))
+        ahead = gp[i0:]
+        seg = np.hypot(*np.diff(ahead, axis=0).T)
+        to_end = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+        d = np.hypot(xy[:, None, 0] - ahead[None, :, 0], xy[:, None, 1] - ahead[None, :, 1])
+        return (d + to_end[None, :]).min(axis=1)
+
+    # -- command ----------------------------------------------------------------------------------
+    def command(self, pose: tuple[float, float, float]) -> tuple[float, float]:
+        """(v_mps, w_radps) toward the current waypoint (global mode: the carrot); 0 when idle/held."""
+        if self.goal is None or self.mode in ("idle", "hold", "reached", "unreachable"):
+            return 0.0, 0.0
+        if np.hypot(*(self.goal - pose[:2])) <= self.goal_tol_m:
+            return 0.0, 0.0
+        if self.global_path is None and self._global(pose):
+            return 0.0, 0.0
+        target = self.carrot(pose) if self.mode == "global" or self.waypoint is None else self.waypoint
+        final = bool(np.allclose(target, self.goal))
+        # brake to stop on the goal point itself: it is reached on entering the tolerance, and braking
+        # to stop inside it (0.15 m short) cost ~0.1 s at 0.8 m/s^2 for nothing
+        return steer(pose, target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps,
+                     stop_at_m=0.0 if final else None)
+
+
+def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: GridFrame, *, robot_speed_mps: float,
+                      horizon_s: float = 2.0, step_s: float = 0.25, slack_m: float = 0.5,
+                      moving_mps: float = 0.3) -> np.ndarray:
+    """Cells (rows, cols) bool where a moving point will be when the robot could be there too.
+
+    Each point moving faster than ``moving_mps`` (robot frame, N x 3 positions and
+    velocities) is extrapolated at constant velocity for ``horizon_s``; the cell it reaches
+    at time tau is marked when the robot, driving at ``robot_speed_mps``, would also be about
+    that far away then (within ``slack_m``). The Figure 3 direction features look one or two
+    cells ahead (0.25-0.5 m, half a second of walking); a person crossing the robot's path
+    must be avoided where they will be in one or two seconds, not where they are.
+    """
+    p = np.asarray(points_m, float).reshape(-1, 3)[:, :2]
+    v = np.asarray(velocity_mps, float).reshape(-1, 3)[:, :2]
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(v).all(axis=1) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
+    mask = np.zeros(frame.shape, bool)
+    p, v = p[ok], v[ok]
+    if len(p) == 0 or horizon_s <= 0:
+        return mask
+    for tau in np.arange(step_s, horizon_s + 1e-9, step_s):
+        cells = frame.cell_of(p + v * tau)
+        inside = frame.inside(cells)
+        cells = cells[inside]
+        reach = np.hypot(*frame.xy_of(cells).T)
+        hit = np.abs(reach - robot_speed_mps * tau) <= slack_m
+        mask[cells[hit, 0], cells[hit, 1]] = True
+    return mask
+
+
+def footprint_cost(cost: np.ndarray, radius_cells: float) -> np.ndarray:
+    """Cost of placing the robot's disc (``radius_cells``) centred on each cell: the dearest cell under it.
+
+    The cost grid is per cell of the floor; the robot covers several cells, so the planner
+    searches over its centre with each cell's cost raised to the maximum under the disc
+    (a configuration-space costmap, as obstacle inflation does for occupancy).
+    """
+    r = int(np.ceil(radius_cells))
+    if r <= 0:
+        return cost
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return grey_dilation(cost, footprint=np.hypot(yy, xx) <= radius_cells + 1e-9, mode="nearest")
