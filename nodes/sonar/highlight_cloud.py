@@ -130,7 +130,7 @@ class HighlightCloud(Node):
     # -- helpers ------------------------------------------------------------------------
     def _pose_at(self, stamp_ns: int) -> np.ndarray | None:
         if not self._poses:
-            self._drop("no sonar pose received yet")
+            self._drop("no sonar pose received yet", expected=True)
             return None
         t, transform = min(reversed(self._poses), key=lambda p: abs(p[0] - stamp_ns))   # newest wins ties
         if abs(t - stamp_ns) > self.config.max_pose_age_s * 1e9:
@@ -159,8 +159,10 @@ class HighlightCloud(Node):
         self._head = (self._head + len(points)) % cap
         self._count += len(points)
 
-    def _drop(self, reason: str, ping_id: int | None = None) -> None:
+    def _drop(self, reason: str, ping_id: int | None = None, *, expected: bool = False) -> None:
         first = reason not in self.dropped
         self.dropped[reason] = self.dropped.get(reason, 0) + 1
         if first:
-            self.log.error("dropping %s: %s", f"ping {ping_id}" if ping_id is not None else "input", reason)
+            # Pings before the first pose are normal at start-up (two streams, no ordering): a warning.
+            say = self.log.warning if expected else self.log.error
+            say("dropping %s: %s", f"ping {ping_id}" if ping_id is not None else "input", reason)
