@@ -10,7 +10,6 @@ import textwrap
 import time
 from pathlib import Path
 
-import pytest
 
 from conftest import REPO, tether
 from tether.log import LogReader, LogWriter
@@ -55,7 +54,6 @@ def test_curve_rejects_a_subscriber_without_the_graph_keys(runtime_env: dict) ->
 
     import zmq
 
-    from msgs.std import Float64
     from nodes.std.demo import Counter
     from tether.runtime import NodeRuntime, RunSpec
     from tether.transport import CurveKeys
@@ -295,9 +293,8 @@ def test_run_attaches_one_node_to_a_running_graph(runtime_env: dict) -> None:
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         while "lone2" not in tether("topic", "list", "--all", env=runtime_env).stdout:
             assert time.monotonic() < deadline + 30
-        t0 = time.monotonic()
         lone.terminate()
-        assert lone.wait(20) == 0 and time.monotonic() - t0 < 15
+        assert lone.wait(20) == 0          # stopped by the signal, long before its 60 s duration
     finally:
         launch.send_signal(signal.SIGINT)
         launch.wait(30)

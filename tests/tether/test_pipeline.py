@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from conftest import REPO, tether
+from conftest import tether
 from tether.log import LogReader
 
 
@@ -101,7 +101,6 @@ def test_replay_into_live_node_handles_every_message(tmp_path: Path, runtime_env
 def test_replay_window_and_player_node(tmp_path: Path) -> None:
     from tether.log import LogWriter
     from tether.replay import Player, Window, records
-    from tether.testing import Harness
     from msgs.std import Float64, String
 
     log = tmp_path / "in.mcap"
