@@ -26,10 +26,7 @@ def _jsonable(value: Any) -> Any:
 def export_foxglove(src: str | Path, dst: str | Path) -> int:
     """Rewrite ``src`` with json-encoded channels (arrays' ``data`` base64, as their schema says)."""
     reader = LogReader(src)
-    schemas_by_type: dict[str, bytes] = {}
-    if reader._summary is not None:   # the original schemas travel along
-        for schema in reader._summary.schemas.values():
-            schemas_by_type[schema.name] = schema.data
+    schemas_by_type = reader.schemas()     # the original schemas travel along
     count = 0
     with open(dst, "wb") as fh:
         writer = Writer(fh)

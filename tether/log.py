@@ -216,13 +216,23 @@ class LogReader:
         return LogRecord(channel.topic, type_name, message.log_time, message.publish_time, message.data,
                          message.sequence)
 
+    def schemas(self) -> dict[str, bytes]:
+        """The JSON schema each type had when it was recorded, by type name (empty for a recovered log)."""
+        if self._summary is None:
+            return {}
+        return {schema.name: schema.data for schema in self._summary.schemas.values()}
+
+    def decode_as(self, tp: type[Message], record: LogRecord) -> Message:
+        """Decode a record as ``tp`` (a newer version of the recorded type reads an older record)."""
+        return self._codec.decode_inline(tp, record.data)
+
     def decode(self, record: LogRecord) -> Message:
         """The typed message of a record (``DecodeError`` if its type is unknown here or it is malformed)."""
         try:
             tp = message_type(record.type_name)
         except KeyError as exc:
             raise DecodeError(str(exc)) from None
-        return self._codec.decode_inline(tp, record.data)
+        return self.decode_as(tp, record)
 
     @staticmethod
     def decode_plain(record: LogRecord) -> Any:

@@ -122,6 +122,7 @@ class NodeRuntime(Context):
             subs.add(src.topic, src.endpoint, secure=src.secure)
         self.subs = subs.sockets
         self._rcvtimeo = -1
+        self._poll_lists: dict[zmq.Socket, list[tuple[zmq.Socket, int]]] = {}
 
     # -- Context ----------------------------------------------------------------------
     def now_ns(self) -> int:
@@ -170,7 +171,9 @@ class NodeRuntime(Context):
         # Bounded read-ahead: holding hundreds of large received frames at once costs more (cold
         # memory, allocator churn) than handling as we go; ZeroMQ's own queue holds the rest.
         # Latest-only inputs keep at most one message, so they still see the newest.
-        ready = [(sock, _POLLIN)]
+        ready = self._poll_lists.get(sock)
+        if ready is None:
+            ready = self._poll_lists[sock] = [(sock, _POLLIN)]
         while _zmq_poll(ready, 0):   # cheaper than getsockopt(EVENTS), which builds an enum per call
             self._route(*self._recv(sock, _NOBLOCK), order)
             if sum(len(st.queue) for st in self.inputs.values() if st.maxlen > 1) >= READ_AHEAD:

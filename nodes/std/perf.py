@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 import time
 
 import msgspec
@@ -41,21 +40,21 @@ class Pinger(Node):
         self._payload = os.urandom(self.config.payload_bytes)
         self._rtts: list[int] = []
         self._sent_ns = 0
-        self._done = threading.Event()
+        self._done = False
 
     def _send(self) -> None:
         self._sent_ns = time.perf_counter_ns()
         self.publish("ping", Bytes(data=self._payload, stamp_ns=1))
 
     def on_tick(self, tick) -> None:
-        if not self._done.is_set() and time.perf_counter_ns() - self._sent_ns > 4e8:   # first, or lost
+        if not self._done and time.perf_counter_ns() - self._sent_ns > 4e8:   # first, or lost
             self._send()
 
     def on_pong(self, msg: Bytes) -> None:
         self._rtts.append(time.perf_counter_ns() - self._sent_ns)
         if len(self._rtts) >= self.config.count + self.config.warmup:
-            if not self._done.is_set():
-                self._done.set()
+            if not self._done:
+                self._done = True
                 _write_result(self.config.result_path, {"rtt_ns": self._rtts[self.config.warmup:]})
             return
         self._send()

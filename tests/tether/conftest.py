@@ -28,3 +28,14 @@ def tether(*args: str, env: dict[str, str], timeout: float = 120, **kw) -> subpr
     """Run the CLI as a user would, from the repo root."""
     return subprocess.run([sys.executable, "-m", "tether.cli", *args], cwd=REPO, env=env, capture_output=True,
                           text=True, timeout=timeout, **kw)
+
+
+def wait_for_topic(topic: str, env: dict[str, str], *, timeout_s: float = 30.0,
+                   alive: subprocess.Popen | None = None) -> None:
+    """Bounded poll until a running graph registers ``topic`` (and ``alive``, if given, still runs)."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while topic not in tether("topic", "list", "--all", env=env).stdout:
+        assert time.monotonic() < deadline, f"{topic} was never registered"
+        assert alive is None or alive.poll() is None, "the process publishing it exited"

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 
-from conftest import REPO, tether
+from conftest import REPO, tether, wait_for_topic
 from tether.log import LogReader, LogWriter
 
 
@@ -95,15 +95,9 @@ def test_recorder_killed_with_sigkill_leaves_a_readable_log(tmp_path: Path, runt
                                "--param", "counter.rate_hz=50"], cwd=REPO, env=runtime_env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 30
-        rec = None
-        while time.monotonic() < deadline:
-            listed = tether("topic", "list", env=runtime_env, timeout=30).stdout
-            if "scale/value" in listed:
-                rec = subprocess.Popen([sys.executable, "-m", "tether.cli", "record", "-o", str(log)], cwd=REPO,
-                                       env=runtime_env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                break
-        assert rec is not None, "the graph never registered its topics"
+        wait_for_topic("scale/value", runtime_env, alive=launch)
+        rec = subprocess.Popen([sys.executable, "-m", "tether.cli", "record", "-o", str(log)], cwd=REPO,
+                               env=runtime_env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         time.sleep(3.5)                          # > 3 flush periods of recording at 50 Hz
         rec.send_signal(signal.SIGKILL)
         rec.wait(10)
@@ -136,7 +130,7 @@ def test_old_log_still_decodes_after_a_field_is_appended(tmp_path: Path) -> None
             unit: str = "m"          # appended with a default, per the schema policy
         import tether.message as tm
         r = LogReader({str(log)!r})
-        m = r._codec.decode_inline(Reading, next(r.messages()).data)
+        m = r.decode_as(Reading, next(r.messages()))
         assert (m.value, m.unit, m.stamp_ns) == (1.5, "m", 7), m
         print("ok")
     """)
@@ -144,7 +138,7 @@ def test_old_log_still_decodes_after_a_field_is_appended(tmp_path: Path) -> None
         res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
         assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "ok"
-    schema = json.loads(LogReader(log)._summary.schemas[1].data)   # the log carries its schema
+    schema = json.loads(LogReader(log).schemas()["evolve.Reading"])   # the log carries its schema
     assert schema["$defs"]["Reading"]["properties"]["value"]["type"] == "number"
 
 
@@ -187,9 +181,7 @@ def test_cli_attaches_echo_hz_and_node_info_to_a_running_graph(runtime_env: dict
                                "--param", "counter.rate_hz=40"], cwd=REPO, env=runtime_env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 30
-        while "scale/value" not in tether("topic", "list", env=runtime_env).stdout:
-            assert time.monotonic() < deadline
+        wait_for_topic("scale/value", runtime_env)
         echo = tether("topic", "echo", "scale/value", "-n", "2", env=runtime_env)
         assert echo.returncode == 0 and echo.stdout.count("Float64") == 2
         hz = tether("topic", "hz", "counter/value", "--duration", "3", env=runtime_env)
@@ -232,9 +224,7 @@ def test_replay_then_record_gives_the_same_messages(tmp_path: Path, runtime_env:
     replay = subprocess.Popen([sys.executable, "-m", "tether.cli", "replay", str(src), "--delay", "8"], cwd=REPO,
                               env=runtime_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 30
-        while "cam/name" not in tether("topic", "list", env=runtime_env).stdout:
-            assert time.monotonic() < deadline and replay.poll() is None
+        wait_for_topic("cam/name", runtime_env, alive=replay)
         rec = subprocess.Popen([sys.executable, "-m", "tether.cli", "record", "-o", str(dst)], cwd=REPO,
                                env=runtime_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         assert replay.wait(60) == 0                 # replay starts after its --delay and ends by itself
@@ -277,9 +267,7 @@ def test_run_attaches_one_node_to_a_running_graph(runtime_env: dict) -> None:
                                "--param", "counter.rate_hz=20"], cwd=REPO, env=runtime_env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 30
-        while "counter/value" not in tether("topic", "list", env=runtime_env).stdout:
-            assert time.monotonic() < deadline
+        wait_for_topic("counter/value", runtime_env)
         res = tether("run", "nodes.std.demo:Printer", "--id", "lone", "--input", "value=counter/value",
                      "--duration", "2", env=runtime_env)
         assert res.returncode == 0, res.stderr
@@ -291,8 +279,7 @@ def test_run_attaches_one_node_to_a_running_graph(runtime_env: dict) -> None:
         lone = subprocess.Popen([sys.executable, "-m", "tether.cli", "run", "nodes.std.demo:Printer", "--id", "lone2",
                                  "--input", "value=counter/value", "--duration", "60"], cwd=REPO, env=runtime_env,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        while "lone2" not in tether("topic", "list", "--all", env=runtime_env).stdout:
-            assert time.monotonic() < deadline + 30
+        wait_for_topic("lone2/_stats", runtime_env)
         lone.terminate()
         assert lone.wait(20) == 0          # stopped by the signal, long before its 60 s duration
     finally:
