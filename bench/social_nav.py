@@ -216,13 +216,17 @@ def _yaw_rate(xy: np.ndarray, dt: float) -> np.ndarray:
 def human_walker(scene, max_s: float) -> Episode:
     """A social-force pedestrian sent from the robot's start to its goal at the robot's top speed.
 
-    Its last waypoint is 1 m beyond the goal (a walker halts short of a 'stop' goal); it has
-    arrived when it passes within the goal tolerance.
+    It heads for the goal, then for a point 1 m beyond it (a walker halts short of a 'stop' goal); it has
+    arrived when it passes within the goal tolerance. The crowd treats it as it treats the
+    robot: where the scene's pedestrians do not see the robot they do not make way for the
+    reference either (it still avoids them), or the reference would be given a path the robot
+    never is.
     """
     (sx, sy, _), (gx, gy, tol) = scene.robot_start, scene.goal
     direction = np.array([gx - sx, gy - sy]) / max(np.hypot(gx - sx, gy - sy), 1e-9)
     beyond = np.array([gx, gy]) + direction
-    walker = PedestrianSpec(id=999, waypoints=np.array([[sx, sy], beyond]), speed_mps=1.0)
+    walker = PedestrianSpec(id=999, waypoints=np.array([[sx, sy], [gx, gy], beyond]), speed_mps=1.0,
+                            unseen=not scene.pedestrians_see_robot)
     far = (scene.bounds_m[0] - 100.0, scene.bounds_m[1] - 100.0, 0.0)
     world = CrowdWorld(dataclasses.replace(scene, pedestrians=scene.pedestrians + (walker,), robot_start=far),
                        camera=sim_camera())

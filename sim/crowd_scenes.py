@@ -52,6 +52,7 @@ class PedestrianSpec:
     radius_m: float = 0.3
     height_m: float = 1.75
     at_goal: str = "stop"
+    unseen: bool = False             # the others do not react to this one (as to a robot they do not see)
 
 
 @dataclass(frozen=True)
@@ -325,6 +326,7 @@ class Walkers:
         self.height = np.array([p.height_m for p in specs], float)
         self.speed = np.array([p.speed_mps for p in specs], float)
         self.start_s = np.array([p.start_s for p in specs], float)
+        self.unseen = np.array([p.unseen for p in specs], bool)
         self.tracks = tracks
         self.keep_clear: tuple[float, float, float] | None = None   # (x, y, radius) no respawn may land on
         if scene.replay is not None and tracks is None:
@@ -358,7 +360,7 @@ class Walkers:
             vel = np.where(dist > self.v0[:, None] * dt, vel, to_goal / max(dt, 1e-9))   # land on the waypoint
         else:
             _, rep_xy, rep_vel, rep_r, _ = self.replayed()
-            others = np.concatenate([np.column_stack([self.xy, self.radius, self.vel])[self.present],
+            others = np.concatenate([np.column_stack([self.xy, self.radius, self.vel])[self.present & ~self.unseen],
                                      np.column_stack([rep_xy, rep_r, rep_vel])])
             acc = self.force.acceleration(self.xy, self.vel, self.v0, goal, self.radius, others, self.scene, robot)
             vel = self.vel + acc * dt
