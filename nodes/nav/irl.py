@@ -3,7 +3,8 @@
 MDP (Kim & Pineau 2016, section 4): states are the cells of a local grid, actions the 8
 moves to a neighbour cell, and the cost of a move is its length (1 or sqrt 2 cells) times
 the cost of the cell it enters, ``c0 + w . phi(s')`` with ``phi`` the cell's binary
-features. A demonstration is a cell path; it ends at its last cell (the goal).
+features. A demonstration is a cell path; it ends at its last cell (the goal), or, when it
+has exit cells, it leaves the grid from its last cell (see "Exits" below).
 
 Why undiscounted, goal-terminated, strictly positive costs (the paper writes a discounted
 MDP, eq. 1): with discounting and costs that can be zero or negative, the cheapest plan
@@ -18,9 +19,23 @@ the cost the learner fitted. Since the paper's features come in one-hot groups
 (high/medium/low), w >= 0 loses nothing: adding a constant to a group only adds a step
 cost, and the Laplace prior then pins each group's cheapest bin at 0.
 
+Exits (the planner's local problem). The local planner (:mod:`nodes.nav.social_planner`)
+does not plan to a fixed cell: it picks the cell on a rim ``subgoal_m`` ahead that minimises
+cost-so-far + step cost x the distance still left to the global goal from there. A
+demonstration cut to a fixed horizon and ended at its own last cell hides why the expert
+went where it went: the straight line to that cell passes beside a person as often as the
+expert did (measured on the oracle logs: in 4 of 102 demos the shortest path to the
+demo's own end crossed more crowd than the expert), so nothing can be learnt about people.
+``Demo.exit_cells`` gives the rim: for each cell the expert may leave the grid from, the
+distance (cells) still left to its goal; leaving there costs that distance x the step
+cost, and leaving is one more action in each rim cell. The expert then chose its exit as
+well as its path, against every other way around the crowd.
+
 MaxEnt additionally needs the path partition function sum_paths exp(-cost) to converge,
 i.e. costs above the branching entropy: with 4 straight and 4 diagonal moves that holds
 for every cell when 4 exp(-c0) + 4 exp(-sqrt(2) c0) < 1 (c0 > 1.77); the default c0 = 2.
+
+The MDP itself (demos, costs, Q-values, the MaxEnt path likelihood) is :mod:`nodes.nav.irl_mdp`.
 """
 from __future__ import annotations
 
@@ -29,29 +44,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.sparse import csr_matrix, identity
-from scipy.sparse.linalg import spsolve
 from scipy.special import logsumexp
 
-from nodes.nav.dijkstra import MOVES, GridGraph, cost_to_go, path_cost, plan_dijkstra
-
-STEP_COST = 2.0
-_STEP = np.hypot(MOVES[:, 0], MOVES[:, 1])
-_MOVE_INDEX = np.array([0, 1, 2, 3, -1, 4, 5, 6, 7])   # (d_row + 1) * 3 + (d_col + 1) -> index in MOVES
-
-
-@dataclass(frozen=True)
-class Demo:
-    """One demonstration: a cell path over a feature grid.
-
-    ``features`` (rows, cols, K) >= 0 (binary in the paper); ``path`` (n, 2) int (row, col)
-    of successive 8-neighbour cells, the last one being the goal; ``blocked`` (rows, cols)
-    bool marks forbidden cells (static obstacles), or None.
-    """
-
-    features: np.ndarray
-    path: np.ndarray
-    blocked: np.ndarray | None = None
+from nodes.nav.dijkstra import GridGraph, path_cost, plan_dijkstra
+from nodes.nav.irl_mdp import (STEP_COST, Demo, check_demo, cell_costs, cost_to_exits, maxent_demo,  # noqa: F401
+                               q_values)
 
 
 @dataclass(frozen=True)
@@ -65,93 +62,6 @@ class IrlResult:
     iterations: int
     converged: bool
     message: str = ""
-
-
-def check_demo(demo: Demo) -> Demo:
-    """Validate and normalise a demo (drops repeated cells); raise ``ValueError`` saying what is wrong."""
-    f = np.asarray(demo.features, dtype=np.float64)
-    if f.ndim != 3 or f.shape[0] < 1 or f.shape[1] < 1:
-        raise ValueError(f"demo features must be rows x cols x K, got shape {f.shape}")
-    if not np.isfinite(f).all() or (f < 0).any():
-        raise ValueError("demo features must be finite and >= 0 (binary feature bins)")
-    p = np.asarray(demo.path, dtype=np.int64).reshape(-1, 2)
-    if len(p) and ((p < 0).any() or (p[:, 0] >= f.shape[0]).any() or (p[:, 1] >= f.shape[1]).any()):
-        raise ValueError(f"demo path leaves the {f.shape[0]} x {f.shape[1]} grid; clip or split the path first")
-    if len(p) > 1:
-        keep = np.concatenate([[True], (np.diff(p, axis=0) != 0).any(axis=1)])
-        p = p[keep]
-    if len(p) > 1 and (np.abs(np.diff(p, axis=0)).max(axis=1) > 1).any():
-        raise ValueError("demo path cells must be 8-neighbours; resample the track at the grid resolution")
-    blocked = None if demo.blocked is None else np.asarray(demo.blocked, dtype=bool)
-    if blocked is not None:
-        if blocked.shape != f.shape[:2]:
-            raise ValueError(f"blocked mask shape {blocked.shape} != grid shape {f.shape[:2]}")
-        if len(p) and blocked[p[:, 0], p[:, 1]].any():
-            raise ValueError("demo path crosses a blocked cell; the map and the path disagree")
-    return Demo(f, p, blocked)
-
-
-def cell_costs(features: np.ndarray, weights: np.ndarray, *, step_cost: float = STEP_COST,
-               blocked: np.ndarray | None = None) -> np.ndarray:
-    """Per-cell cost ``step_cost + features @ weights`` (rows, cols); ``inf`` where blocked.
-
-    Strictly positive whenever ``step_cost > 0`` and weights, features >= 0.
-    """
-    w = np.asarray(weights, dtype=np.float64)
-    f = np.asarray(features, dtype=np.float64)
-    if f.shape[-1] != w.size:
-        raise ValueError(f"{w.size} weights for {f.shape[-1]} features; the weights file does not match this grid")
-    cost = step_cost + f @ w
-    if blocked is not None:
-        cost = np.where(blocked, np.inf, cost)
-    return cost
-
-
-def _neighbours(shape: tuple[int, int], cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Target cells (m, 8, 2) of the 8 moves from ``cells`` (m, 2), and which are in the grid."""
-    t = cells[:, None, :] + MOVES[None, :, :]
-    ok = (t[..., 0] >= 0) & (t[..., 0] < shape[0]) & (t[..., 1] >= 0) & (t[..., 1] < shape[1])
-    return np.where(ok[..., None], t, 0), ok
-
-
-def _path_features(succ: np.ndarray, cost_feat: np.ndarray, step_of: np.ndarray, goal: int) -> np.ndarray:
-    """Feature sums along each cell's optimal path to the goal, by pointer doubling (N, K)."""
-    nxt = np.where(succ < 0, goal, succ)
-    acc = step_of[:, None] * cost_feat[nxt]
-    acc[nxt == np.arange(nxt.size)] = 0.0
-    acc[succ < 0] = 0.0
-    for _ in range(int(np.log2(max(nxt.size, 2))) + 2):   # a shortest-path tree is at most N deep
-        if (nxt == goal).all():
-            break
-        acc = acc + acc[nxt]
-        nxt = nxt[nxt]
-    return acc
-
-
-def _q_values(demo: Demo, w: np.ndarray, step_cost: float, graph: GridGraph
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Q (m, 8), dQ/dw (m, 8, K) for every move from each path cell, expert move index (m,)."""
-    f = demo.features
-    shape = f.shape[:2]
-    cost = cell_costs(f, w, step_cost=step_cost, blocked=demo.blocked)
-    goal = tuple(demo.path[-1])
-    value, succ = cost_to_go(cost, goal, graph=graph)
-    flat_f = f.reshape(-1, f.shape[2])
-    flat_succ = succ.reshape(-1)
-    d = np.stack(np.divmod(np.maximum(flat_succ, 0), shape[1]), axis=1) - np.stack(
-        np.divmod(np.arange(flat_succ.size), shape[1]), axis=1)
-    along = _path_features(flat_succ, flat_f, np.hypot(d[:, 0], d[:, 1]), goal[0] * shape[1] + goal[1])
-    cells = demo.path[:-1]
-    tgt, ok = _neighbours(shape, cells)
-    tflat = tgt[..., 0] * shape[1] + tgt[..., 1]
-    corner_a = cost[cells[:, None, 0], tgt[..., 1]]
-    corner_b = cost[tgt[..., 0], cells[:, None, 1]]
-    q = _STEP[None, :] * cost.reshape(-1)[tflat] + value.reshape(-1)[tflat]
-    q = np.where(ok & np.isfinite(corner_a) & np.isfinite(corner_b), q, np.inf)
-    dq = _STEP[None, :, None] * flat_f[tflat] + along[tflat]
-    move = demo.path[1:] - cells
-    expert = _MOVE_INDEX[(move[:, 0] + 1) * 3 + move[:, 1] + 1]
-    return q, dq, expert, value
 
 
 def _prior(w: np.ndarray, prior: str, lam: float, penalised: np.ndarray | None = None) -> tuple[float, np.ndarray]:
@@ -169,7 +79,8 @@ def _prior(w: np.ndarray, prior: str, lam: float, penalised: np.ndarray | None =
 
 def birl_objective(w: np.ndarray, demos: list[Demo], *, beta: float = 1.0, step_cost: float = STEP_COST,
                    prior: str = "laplace", lam: float = 0.1, penalised: np.ndarray | None = None,
-                   graphs: dict[tuple[int, int], GridGraph] | None = None) -> tuple[float, np.ndarray]:
+                   graphs: dict[tuple[int, int], GridGraph] | None = None, step_col: int | None = None
+                   ) -> tuple[float, np.ndarray]:
     """Negative log posterior of MAP-BIRL (Choi & Kim 2011) and its (sub)gradient.
 
     Likelihood: Boltzmann-rational expert, P(a | s) = exp(-beta Q*(s, a)) / sum_b exp(-beta Q*(s, b)),
@@ -181,7 +92,7 @@ def birl_objective(w: np.ndarray, demos: list[Demo], *, beta: float = 1.0, step_
     for demo in demos:
         shape = demo.features.shape[:2]
         graph = graphs.setdefault(shape, GridGraph.of(shape))
-        q, dq, expert, _ = _q_values(demo, w, step_cost, graph)
+        q, dq, expert, _ = q_values(demo, w, step_cost, graph, step_col)
         z = -beta * q
         lse = logsumexp(z, axis=1, keepdims=True)
         p = np.exp(z - lse)
@@ -191,42 +102,10 @@ def birl_objective(w: np.ndarray, demos: list[Demo], *, beta: float = 1.0, step_
     return nll, grad
 
 
-def _maxent_demo(demo: Demo, w: np.ndarray, step_cost: float, g: GridGraph) -> tuple[float, np.ndarray]:
-    """MaxEnt negative log likelihood of one demo path and its gradient."""
-    f = demo.features
-    shape = f.shape[:2]
-    n = g.n_cells
-    start, goal = (int(c[0] * shape[1] + c[1]) for c in (demo.path[0], demo.path[-1]))
-    cost = cell_costs(f, w, step_cost=step_cost, blocked=demo.blocked)
-    weight = g.matrix(cost).data
-    # z(s) = sum over paths to the goal of exp(-cost) underflows for long or costly paths;
-    # solve for y(s) = z(s) exp(V(s)) instead, V the hard cost-to-go: the same linear system
-    # up to a diagonal scaling, with every coefficient exp(-(C + V(s') - V(s))) in [0, 1].
-    value = cost_to_go(cost, divmod(goal, shape[1]), graph=g)[0].reshape(-1)
-    ok = np.isfinite(value[g.src]) & np.isfinite(value[g.indices]) & np.isfinite(weight) & (g.src != goal)
-    coef = np.zeros_like(weight)
-    coef[ok] = np.exp(-(weight[ok] + value[g.indices[ok]] - value[g.src[ok]]))
-    a = csr_matrix((coef, g.indices, g.indptr), shape=(n, n))
-    eye = identity(n, format="csc")
-    y = spsolve((eye - a).tocsc(), np.eye(1, n, goal).ravel())
-    if not np.all(np.isfinite(y)) or y[start] <= 0:
-        raise ValueError("MaxEnt partition function diverged; raise step_cost (needs > 1.77)")
-    p_edge = np.where(ok, coef * y[g.indices] / np.where(y[g.src] > 0, y[g.src], 1.0), 0.0)
-    visits = spsolve((eye - csr_matrix((p_edge, (g.indices, g.src)), shape=(n, n))).tocsc(),
-                     np.eye(1, n, start).ravel())
-    flat_f = f.reshape(n, -1)
-    expected = (visits[g.src] * p_edge * g.step) @ flat_f[g.indices]
-    d = np.diff(demo.path, axis=0)
-    steps = np.hypot(d[:, 0], d[:, 1])
-    nxt = demo.path[1:, 0] * shape[1] + demo.path[1:, 1]
-    expert = steps @ flat_f[nxt]
-    nll = float(np.sum(steps * cost.reshape(-1)[nxt])) + float(np.log(y[start])) - float(value[start])
-    return nll, expert - expected
-
-
 def maxent_objective(w: np.ndarray, demos: list[Demo], *, step_cost: float = STEP_COST,
                      prior: str = "gaussian", lam: float = 0.1, penalised: np.ndarray | None = None,
-                     graphs: dict[tuple[int, int], GridGraph] | None = None) -> tuple[float, np.ndarray]:
+                     graphs: dict[tuple[int, int], GridGraph] | None = None, step_col: int | None = None
+                     ) -> tuple[float, np.ndarray]:
     """Negative log likelihood of MaxEnt IRL (Ziebart 2008), P(path) ∝ exp(-cost), plus a prior.
 
     Goal-terminated and undiscounted: z = A z + e_goal with A[s, s'] = exp(-C(s, s')), solved
@@ -236,7 +115,7 @@ def maxent_objective(w: np.ndarray, demos: list[Demo], *, step_cost: float = STE
     nll, grad = _prior(w, prior, lam, penalised)
     for demo in demos:
         shape = demo.features.shape[:2]
-        part, part_grad = _maxent_demo(demo, w, step_cost, graphs.setdefault(shape, GridGraph.of(shape)))
+        part, part_grad = maxent_demo(demo, w, step_cost, graphs.setdefault(shape, GridGraph.of(shape)), step_col)
         nll += part
         grad = grad + part_grad
     return nll, grad
@@ -279,8 +158,8 @@ def learn(demos: list[Demo], *, method: str = "birl", prior: str = "laplace", la
     k = ks.pop()
     penalised = np.ones(k, dtype=bool)
     if learn_step_cost:
-        checked = [Demo(np.concatenate([d.features, np.ones(d.features.shape[:2] + (1,))], axis=2), d.path, d.blocked)
-                   for d in checked]
+        checked = [Demo(np.concatenate([d.features, np.ones(d.features.shape[:2] + (1,))], axis=2), d.path, d.blocked,
+                        d.exit_cells) for d in checked]
         penalised = np.append(penalised, False)
     graphs: dict[tuple[int, int], GridGraph] = {}
     objective = birl_objective if method == "birl" else maxent_objective
@@ -288,7 +167,7 @@ def learn(demos: list[Demo], *, method: str = "birl", prior: str = "laplace", la
 
     def fun(w: np.ndarray) -> tuple[float, np.ndarray]:
         return objective(w, checked, step_cost=step_cost, prior=prior, lam=lam, penalised=penalised,
-                         graphs=graphs, **extra)
+                         graphs=graphs, step_col=k if learn_step_cost else None, **extra)
 
     res = minimize(fun, np.full(penalised.size, 0.1), jac=True, method="L-BFGS-B",
                    bounds=[(0.0, w_max)] * penalised.size, options={"maxiter": max_iter})
@@ -306,7 +185,7 @@ def action_agreement(demos: list[Demo], weights: np.ndarray, *, step_cost: float
         if len(demo.path) < 2:
             continue
         shape = demo.features.shape[:2]
-        q, _, expert, _ = _q_values(demo, np.asarray(weights, float), step_cost,
+        q, _, expert, _ = q_values(demo, np.asarray(weights, float), step_cost,
                                     graphs.setdefault(shape, GridGraph.of(shape)))
         best = q.min(axis=1, keepdims=True)
         optimal = q <= best + 1e-9 * np.maximum(1.0, best)
@@ -332,12 +211,37 @@ def expected_value_difference(demos: list[Demo], weights: np.ndarray, true_weigh
         start, goal = tuple(demo.path[0]), tuple(demo.path[-1])
         true_cost = cell_costs(demo.features, true_weights, step_cost=true_step_cost, blocked=demo.blocked)
         learnt = cell_costs(demo.features, weights, step_cost=step_cost, blocked=demo.blocked)
+        if demo.exit_cells is not None:
+            out.append(_exit_value_difference(demo, true_cost, learnt, true_step_cost, step_cost))
+            continue
         planned = plan_dijkstra(learnt, start, goal)
         optimal = plan_dijkstra(true_cost, start, goal)
         out.append(path_cost(true_cost, planned.cells) - optimal.cost)
     if not out:
         raise ValueError("no demonstration has a move to compare")
     return float(np.mean(out))
+
+
+def _exit_value_difference(demo: Demo, true_cost: np.ndarray, learnt: np.ndarray, true_step: float,
+                           step: float) -> float:
+    """Extra true cost (walk + exit) of leaving the grid the learnt way instead of the true best way."""
+    shape, n = true_cost.shape, true_cost.size
+    exits = demo.exit_cells
+    best, _ = cost_to_exits(true_cost, exits * true_step)         # type: ignore[operator]
+    _, succ = cost_to_exits(learnt, exits * step)                  # type: ignore[operator]
+    cell = int(demo.path[0, 0] * shape[1] + demo.path[0, 1])
+    total, flat = 0.0, true_cost.reshape(-1)
+    for _ in range(n):
+        nxt = int(succ[cell])
+        if nxt < 0:
+            return float("inf")
+        if nxt == n:
+            break
+        (r0, c0), (r1, c1) = divmod(cell, shape[1]), divmod(nxt, shape[1])
+        total += float(np.hypot(r1 - r0, c1 - c0)) * flat[nxt]
+        cell = nxt
+    total += float(exits.reshape(-1)[cell]) * true_step          # type: ignore[union-attr]
+    return total - float(best.reshape(-1)[int(demo.path[0, 0] * shape[1] + demo.path[0, 1])])
 
 
 @dataclass(frozen=True)

@@ -66,9 +66,32 @@ def demo_path(frame: GridFrame, pose: tuple[float, float, float], future_xy: np.
     return out[keep]
 
 
+def exit_rim(frame: GridFrame, pose: tuple[float, float, float], goal_xy: np.ndarray, rim_m: float
+             ) -> np.ndarray | None:
+    """The local planner's exits on a robot-frame grid: cells on the rim ``rim_m`` ahead (two cells
+    deep, as :meth:`nodes.nav.social_planner.SocialPlanner._local` scores them), each holding the
+    straight-line distance (cells) still left from it to ``goal_xy`` (world, m); inf elsewhere.
+    None when the goal lies within the rim: the planner then plans to the goal itself."""
+    goal_rel = to_robot(pose, np.asarray(goal_xy, float))[0]
+    if np.hypot(*goal_rel) <= rim_m:
+        return None
+    rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
+    xy = frame.xy_of(np.stack([rr.ravel(), cc.ravel()], axis=1))
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    rim = (r <= rim_m) & (r > rim_m - 2.0 * frame.resolution_m)
+    left = np.hypot(xy[:, 0] - goal_rel[0], xy[:, 1] - goal_rel[1]) / frame.resolution_m
+    return np.where(rim, left, np.inf).reshape(frame.shape)
+
+
 def demos_from_poses(grids: list[tuple[float, np.ndarray, GridFrame]], poses: np.ndarray, *,
-                     horizon_s: float = 3.0) -> list[Demo]:
-    """Demos from feature grids ``(t_s, features, frame)`` and a trajectory ``poses`` (T, 4) = t, x, y, yaw."""
+                     horizon_s: float = 3.0, goal_xy: np.ndarray | None = None, rim_m: float = 0.0) -> list[Demo]:
+    """Demos from feature grids ``(t_s, features, frame)`` and a trajectory ``poses`` (T, 4) = t, x, y, yaw.
+
+    With ``goal_xy`` (world, m) and ``rim_m`` > 0 a demo whose path reaches the rim of
+    :func:`exit_rim` is cut there and leaves the grid from it (``Demo.exit_cells``); a path
+    that does not reach it within ``horizon_s``, or a goal within the rim, gives a demo that
+    ends at its last cell.
+    """
     poses = np.asarray(poses, float).reshape(-1, 4)
     out = []
     for t, features, frame in grids:
@@ -79,8 +102,15 @@ def demos_from_poses(grids: list[tuple[float, np.ndarray, GridFrame]], poses: np
         pose = (float(np.interp(t, poses[:, 0], poses[:, 1])), float(np.interp(t, poses[:, 0], poses[:, 2])), float(near[3]))
         ahead = (poses[:, 0] > t) & (poses[:, 0] <= t + horizon_s)
         path = demo_path(frame, pose, poses[ahead, 1:3])
+        exits = exit_rim(frame, pose, goal_xy, rim_m) if goal_xy is not None and rim_m > 0 else None
+        if exits is not None:
+            on_rim = np.isfinite(exits[path[:, 0], path[:, 1]])
+            if on_rim.any():
+                path = path[:int(np.argmax(on_rim)) + 1]
+            else:
+                exits = None
         if len(path) >= 2:
-            out.append(Demo(np.asarray(features), path))
+            out.append(Demo(np.asarray(features), path, exit_cells=exits))
     return out
 
 
@@ -94,16 +124,22 @@ class DemoSet:
         return [d for n in names for d in self.scenes.get(n, [])]
 
 
-def read_log_demos(path: str | Path, *, horizon_s: float = 3.0, every_s: float = 0.4) -> list[Demo]:
-    """Demos of one MCAP log holding ``nav.FeatureGrid`` and ``geometry.Odometry2D`` channels."""
+def read_log_demos(path: str | Path, *, horizon_s: float = 3.0, every_s: float = 0.4, rim_m: float = 0.0
+                   ) -> list[Demo]:
+    """Demos of one MCAP log holding ``nav.FeatureGrid`` and ``geometry.Odometry2D`` channels
+    (and ``nav.Goal2D``, the world goal, for demos that leave by the rim; see :func:`demos_from_poses`)."""
     from tether.log import LogReader
 
     reader = LogReader(path)
     grids: list[tuple[float, np.ndarray, GridFrame]] = []
     poses: list[tuple[float, float, float, float]] = []
     last = -np.inf
+    goal = None
     for rec in reader.messages():
-        if rec.type_name == "geometry.Odometry2D":
+        if rec.type_name == "nav.Goal2D":
+            g = reader.decode(rec)
+            goal = np.array([g.x_m, g.y_m])
+        elif rec.type_name == "geometry.Odometry2D":
             m = reader.decode(rec)
             poses.append((m.stamp_ns * 1e-9, m.pose.x_m, m.pose.y_m, m.pose.yaw_rad))
         elif rec.type_name == "nav.FeatureGrid":
@@ -114,7 +150,7 @@ def read_log_demos(path: str | Path, *, horizon_s: float = 3.0, every_s: float =
                 grids.append((t, f, GridFrame(f.shape[:2], m.resolution_m, m.origin_x_m, m.origin_y_m)))
                 last = t
     p = np.array(sorted(set(poses)))
-    return demos_from_poses(grids, p, horizon_s=horizon_s)
+    return demos_from_poses(grids, p, horizon_s=horizon_s, goal_xy=goal, rim_m=rim_m)
 
 
 def evaluate(weights: np.ndarray, step_cost: float, demos: list[Demo], *, oracle: bool = False) -> dict[str, float]:
@@ -153,7 +189,7 @@ def widen_demo(demo: Demo, radius_cells: float, groups: tuple[int, ...] = (0, 3,
         hi = grey_dilation(f[..., g], footprint=disc, mode="constant", cval=0.0)
         med = np.maximum(grey_dilation(f[..., g + 1], footprint=disc, mode="constant", cval=0.0) - hi, 0.0)
         f[..., g], f[..., g + 1], f[..., g + 2] = hi, med, 1.0 - hi - med
-    return Demo(f, demo.path, demo.blocked)
+    return Demo(f, demo.path, demo.blocked, demo.exit_cells)
 
 
 def sim_camera() -> object:
@@ -210,7 +246,7 @@ def _expert_tracks(tracks: object, min_len_m: float, min_s: float) -> list[int]:
 
 
 def pedestrian_demos(dataset: str, n_peds: int, *, horizon_s: float = 3.0, every_s: float = 0.4,
-                     seed: int = 0) -> list[Demo]:
+                     seed: int = 0, rim_m: float = 0.0) -> list[Demo]:
     """Real pedestrians as experts: the robot's camera rides along each one's track (see the module docstring)."""
     from sim.crowd import CrowdWorld
     from sim.pedestrian_data import Tracks, load_tracks
@@ -229,12 +265,14 @@ def pedestrian_demos(dataset: str, n_peds: int, *, horizon_s: float = 3.0, every
         scene = {"name": f"{dataset}-{tracks.ids[i]}", "bounds_m": [lo[0], lo[1], hi[0], hi[1]],
                  "robot": {"x_m": float(xy[0, 0]), "y_m": float(xy[0, 1])}, "goal": {"x_m": float(xy[-1, 0]), "y_m": float(xy[-1, 1])},
                  "replay": {"dataset": dataset, "t0_s": float(t[0])}}
-        demos += _ride_along(CrowdWorld(scene, tracks=others, camera=sim_camera()), t - t[0], xy, horizon_s, every_s)
+        demos += _ride_along(CrowdWorld(scene, tracks=others, camera=sim_camera()), t - t[0], xy, horizon_s, every_s,
+                             rim_m)
         log.info("%s pedestrian %d: %d demos so far", dataset, tracks.ids[i], len(demos))
     return demos
 
 
-def _ride_along(world: object, t: np.ndarray, xy: np.ndarray, horizon_s: float, every_s: float) -> list[Demo]:
+def _ride_along(world: object, t: np.ndarray, xy: np.ndarray, horizon_s: float, every_s: float,
+                rim_m: float = 0.0) -> list[Demo]:
     """Carry the camera along a track (t from 0, xy world); a demo every ``every_s``."""
     dt = 1.0 / 15.0
     pipe = FeaturePipeline({"max_gap_s": 1.5 * dt})
@@ -257,17 +295,25 @@ def _ride_along(world: object, t: np.ndarray, xy: np.ndarray, horizon_s: float, 
         if grid is not None:
             f = np.asarray(grid.features)
             grids.append((ts, f, GridFrame(f.shape[:2], grid.resolution_m, grid.origin_x_m, grid.origin_y_m)))
-    return demos_from_poses(grids, poses, horizon_s=horizon_s)
+    return demos_from_poses(grids, poses, horizon_s=horizon_s, goal_xy=xy[-1], rim_m=rim_m)
 
 
-def record_oracle(scene: str, path: str | Path, *, dt_s: float = 1.0 / 15.0) -> Path:
+def record_oracle(scene: str, path: str | Path, *, dt_s: float = 1.0 / 15.0, person_cost: float = 4.0,
+                  predict_s: float = 2.0) -> Path:
     """Drive a sim scene with the three-layer planner on the known ORACLE_WEIGHTS cost; log features + odometry.
 
     A stand-in for a human driving the wheelchair: its cost is known, so the expected value
-    difference of what is learnt from its log can be measured.
+    difference of what is learnt from its log can be measured. It plans as the planner node
+    does: with the floor on cells with people (``person_cost``, :class:`PlannerParams`) and
+    the predicted crossings of moving points (``predict_s``). Measured without them (0, 0) it
+    drove into the oncoming group three times in four contacts, on the paper's table alone
+    and on that table x 2, 4, 8: not an expert worth learning from. With them its true cost
+    is ``ORACLE_WEIGHTS`` plus those floors, so the expected value difference against
+    ``ORACLE_WEIGHTS`` alone is an approximation.
     """
     from msgs.geometry import Odometry2D, Pose2D, Twist2D
-    from nodes.nav.social_planner import PlannerParams, SocialPlanner
+    from msgs.nav import Goal2D
+    from nodes.nav.social_planner import PlannerParams, SocialPlanner, predict_conflicts
     from nodes.nav.irl import cell_costs
     from sim.crowd import CrowdWorld
     from tether.log import LogWriter
@@ -276,43 +322,53 @@ def record_oracle(scene: str, path: str | Path, *, dt_s: float = 1.0 / 15.0) -> 
     pipe = FeaturePipeline()
     gx, gy, tol = world.goal
     pipe.set_goal((gx, gy), 0.0)
-    planner = SocialPlanner(PlannerParams(**PLANNER_PARAMS))
+    planner = SocialPlanner(PlannerParams(**PLANNER_PARAMS, person_cost=person_cost))
     planner.set_goal((gx, gy), tol)
     occ = world.occupancy(0.1)
     planner.set_map(occ.data, GridFrame(occ.data.shape, occ.resolution_m, occ.origin_x_m, occ.origin_y_m))
     with LogWriter(path) as out:
+        out.write("sim/goal", Goal2D(stamp_ns=0, frame_id="world", x_m=gx, y_m=gy, tolerance_m=tol), log_time_ns=0)
         while world.t_s < world.scene.duration_s and not world.goal_reached:
             t, pose, twist = world.t_s, world.pose, world.twist
             stamp = int(round(t * 1e9))
             out.write("sim/odom", Odometry2D(stamp_ns=stamp, frame_id="world", pose=Pose2D(x_m=pose[0], y_m=pose[1], yaw_rad=pose[2]),
                                              twist=Twist2D(vx_mps=twist[0], wz_radps=twist[1])), log_time_ns=stamp)
             rgb, depth = world.render()
-            _, grid = pipe.step(t, pose, twist, rgb, depth, world.camera)
+            flow, grid = pipe.step(t, pose, twist, rgb, depth, world.camera)
             if grid is not None:
                 out.write("features/features", grid, log_time_ns=stamp)
                 f = np.asarray(grid.features)
                 frame = GridFrame(f.shape[:2], grid.resolution_m, grid.origin_x_m, grid.origin_y_m)
-                planner.update(pose, cell_costs(f, ORACLE_WEIGHTS), frame, f[..., 0] > 0, t)
+                predicted = None
+                if predict_s > 0 and flow is not None:     # as the planner node does with its flow input
+                    predicted = predict_conflicts(flow.points_m, flow.velocity_mps, frame,
+                                                  robot_speed_mps=planner.p.v_max_mps, horizon_s=predict_s)
+                planner.update(pose, cell_costs(f, ORACLE_WEIGHTS), frame, f[..., 0] > 0, t, predicted)
             world.step(*planner.command(pose), dt_s)
-    log.info("oracle drove %s in %.1f s (goal %s) -> %s", scene, world.t_s, world.goal_reached, path)
+    log.info("oracle drove %s in %.1f s (goal %s), closest %.2f m, contacts %d (robot drove in %d) -> %s", scene,
+             world.t_s, world.goal_reached, world.min_clearance_m, world.collisions, world.collisions_by_robot, path)
     return Path(path)
 
 
 def save_demos(path: str | Path, demos: DemoSet) -> None:
     """Demos to an npz (no pickles): features stacked per grid shape is not needed — all grids share one."""
-    names, feats, paths, lens = [], [], [], []
+    names, feats, paths, lens, exits = [], [], [], [], []
     for scene, ds in demos.scenes.items():
         for d in ds:
             names.append(scene), feats.append(d.features.astype(np.uint8)), paths.append(d.path), lens.append(len(d.path))
-    np.savez_compressed(path, names=np.array(names), features=np.stack(feats), paths=np.vstack(paths), lens=np.array(lens))
+            exits.append(np.full(d.features.shape[:2], np.nan) if d.exit_cells is None else d.exit_cells)
+    np.savez_compressed(path, names=np.array(names), features=np.stack(feats), paths=np.vstack(paths), lens=np.array(lens),
+                        exits=np.stack(exits))
 
 
 def load_demos(path: str | Path) -> DemoSet:
     with np.load(path, allow_pickle=False) as z:
         names, feats, paths, lens = z["names"], z["features"], z["paths"], z["lens"]
+        exits = z["exits"] if "exits" in z else np.full(feats.shape[:3], np.nan)
     scenes: dict[str, list[Demo]] = {}
-    for name, f, lo, n in zip(names, feats, np.concatenate([[0], np.cumsum(lens)[:-1]]), lens):
-        scenes.setdefault(str(name), []).append(Demo(f, paths[lo:lo + n]))
+    for name, f, lo, n, ex in zip(names, feats, np.concatenate([[0], np.cumsum(lens)[:-1]]), lens, exits):
+        # NaN marks "no exits" (a demo that ends at its last cell); inf is a cell one cannot leave from
+        scenes.setdefault(str(name), []).append(Demo(f, paths[lo:lo + n], exit_cells=None if np.isnan(ex).any() else ex))
     return DemoSet(scenes)
 
 
@@ -331,12 +387,12 @@ def collect_demos(args: argparse.Namespace) -> tuple[DemoSet, set[str]]:
         logs.append(str(path))
     for path in logs:
         name = Path(path).stem
-        scenes[name] = read_log_demos(path, horizon_s=args.horizon_s)
+        scenes[name] = read_log_demos(path, horizon_s=args.horizon_s, rim_m=args.rim_m)
         oracle |= {name} if name.startswith("oracle-") else set()
         log.info("%s: %d demos", path, len(scenes[name]))
     from sim.pedestrian_data import ROW_PERIOD_S
     for k, dataset in enumerate(args.tracks + [h for h in args.holdout if h not in args.tracks and h in ROW_PERIOD_S]):
-        scenes[dataset] = pedestrian_demos(dataset, args.peds, horizon_s=args.horizon_s, seed=k)
+        scenes[dataset] = pedestrian_demos(dataset, args.peds, horizon_s=args.horizon_s, seed=k, rim_m=args.rim_m)
     demos = DemoSet({k: v for k, v in scenes.items() if v})
     if not demos.scenes:
         raise ValueError("no demonstrations: give --demos logs, --tracks data sets or --record-oracle scenes")
@@ -354,7 +410,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--method", choices=("birl", "maxent"), default="birl")
     ap.add_argument("--prior", choices=("laplace", "gaussian"), default="laplace")
     ap.add_argument("--lam", type=float, default=0.5)
-    ap.add_argument("--horizon-s", type=float, default=3.0)
+    ap.add_argument("--horizon-s", type=float, default=8.0, help="expert path length (s) after each feature grid")
+    ap.add_argument("--rim-m", type=float, default=4.0,
+                    help="demos leave the grid by the local planner's rim this far ahead (its subgoal_m; 0 = "
+                         "a demo ends at its own last cell)")
     ap.add_argument("--record-oracle", nargs="*", default=[], metavar="SCENE",
                     help="first drive these sim scenes with the oracle driver and record logs into --log-dir")
     ap.add_argument("--log-dir", default="out/irl_logs")

@@ -63,3 +63,36 @@ def test_widen_demo_spreads_the_high_bin_over_the_footprint_and_stays_one_hot():
     for g in (0, 3, 6, 9):
         assert np.all(w[..., g:g + 3].sum(axis=2) == 1)
     assert widen_demo(d, 0.0) is d
+
+
+def test_demos_leave_by_the_planners_rim_with_the_distance_left_to_the_goal():
+    t = np.arange(0, 10.0, 0.1)
+    poses = np.column_stack([t, 1.0 * t, 0.3 * np.sin(t), np.zeros_like(t)])
+    f = np.zeros((24, 24, 12), np.uint8)
+    far, near = np.array([20.0, 0.0]), np.array([3.0, 0.0])
+    d = demos_from_poses([(0.5, f, FRAME)], poses, horizon_s=8.0, goal_xy=far, rim_m=4.0)[0]
+    assert d.exit_cells is not None
+    end = FRAME.xy_of(d.path[-1:])[0]
+    assert 3.4 < np.hypot(*end) <= 4.0 + 1e-9                      # cut where the path first reaches the rim
+    assert np.isfinite(d.exit_cells[d.path[-1, 0], d.path[-1, 1]])
+    assert np.isinf(d.exit_cells[d.path[:-1, 0], d.path[:-1, 1]]).all()
+    rim = np.argwhere(np.isfinite(d.exit_cells))
+    left = d.exit_cells[rim[:, 0], rim[:, 1]] * FRAME.resolution_m
+    # distance left to the goal from each rim cell (the robot is at x = 0.5 m at t = 0.5 s)
+    xy = FRAME.xy_of(rim) + [0.5, 0.3 * np.sin(0.5)]
+    np.testing.assert_allclose(left, np.hypot(*(far - xy).T), atol=1e-9)
+    # a goal inside the rim: the planner plans to the goal itself, so the demo ends at its last cell
+    assert demos_from_poses([(0.5, f, FRAME)], poses, horizon_s=3.0, goal_xy=near, rim_m=4.0)[0].exit_cells is None
+    # a path that never reaches the rim within the horizon also ends at its last cell
+    assert demos_from_poses([(0.5, f, FRAME)], poses, horizon_s=1.0, goal_xy=far, rim_m=4.0)[0].exit_cells is None
+
+
+def test_demo_cache_and_widening_keep_the_exits(tmp_path):
+    exits = np.full((4, 5), np.inf)
+    exits[:, 4] = [5.0, 4.0, 4.5, 6.0]
+    d = Demo(np.zeros((4, 5, 12), np.uint8), np.array([[1, 2], [1, 3], [1, 4]]), exit_cells=exits)
+    save_demos(tmp_path / "d.npz", DemoSet({"a": [d, Demo(d.features, d.path)]}))
+    a, b = load_demos(tmp_path / "d.npz").scenes["a"]
+    np.testing.assert_array_equal(a.exit_cells, exits)
+    assert b.exit_cells is None
+    np.testing.assert_array_equal(widen_demo(d, 2.0).exit_cells, exits)

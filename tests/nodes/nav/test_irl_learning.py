@@ -7,6 +7,7 @@ from scipy.ndimage import gaussian_filter
 
 from nodes.nav.dijkstra import plan_dijkstra
 from nodes.nav.irl import (STEP_COST, CostWeights, Demo, action_agreement, birl_objective, cell_costs, check_demo,
+                           cost_to_exits,
                            expected_value_difference, learn, maxent_objective)
 
 # the paper's table (Sec. 4.2.3) with each one-hot group shifted so its cheapest bin is 0
@@ -122,3 +123,76 @@ def test_weights_json_roundtrip_and_name_mapping():
         back.vector_for(["direction_high"], 1)
     with pytest.raises(ValueError, match="strictly positive"):
         CostWeights(("a",), np.array([-1.0]))
+
+
+# -- demos that leave the grid by a rim (the local planner's problem) -------------------------------
+
+def exit_scene(rng: np.random.Generator, rows: int = 12, cols: int = 12) -> Demo:
+    """A person blob ahead; exits on the last column priced by the distance left to a goal beyond it.
+    The path is the TRUE_W-optimal way out (walk + exit), found by brute force over exits."""
+    feats = synthetic_scene(rng, rows, cols).features
+    goal = np.array([rows / 2 + rng.uniform(-2, 2), cols + 6.0])
+    rr = np.arange(rows)
+    exits = np.full((rows, cols), np.inf)
+    exits[:, -1] = np.hypot(rr - goal[0], cols - 1 - goal[1])
+    start = (int(rng.integers(0, rows)), 0)
+    cost = cell_costs(feats, TRUE_W)
+    best = min((plan_dijkstra(cost, start, (r, cols - 1)) for r in rr),
+               key=lambda p: p.cost + exits[p.cells[-1][0], -1] * STEP_COST)
+    return Demo(feats, best.cells, exit_cells=exits)
+
+
+def test_cost_to_exits_is_the_best_walk_plus_exit():
+    rng = np.random.default_rng(7)
+    cost = rng.uniform(1.0, 5.0, (7, 9))
+    cost[2, 3:6] = np.inf
+    exits = np.full(cost.shape, np.inf)
+    exits[:, -1] = rng.uniform(0.0, 10.0, 7)
+    exits[0, 0] = 0.5
+    value, succ = cost_to_exits(cost, exits)
+    for cell in [(3, 0), (6, 4), (2, 8), (0, 0)]:
+        brute = min(plan_dijkstra(cost, cell, tuple(t)).cost + exits[tuple(t)] for t in np.argwhere(np.isfinite(exits)))
+        assert value[cell] == pytest.approx(brute, rel=1e-9, abs=1e-9)
+    assert succ[0] == cost.size                                # (0, 0) leaves right where it is
+    with pytest.raises(ValueError, match="no exit"):
+        cost_to_exits(cost, np.full(cost.shape, np.inf))
+
+
+@pytest.mark.parametrize("method", ["birl", "maxent"])
+def test_learns_from_demos_that_leave_by_the_rim(method):
+    rng = np.random.default_rng(3)
+    train, test = [exit_scene(rng) for _ in range(12)], [exit_scene(rng) for _ in range(12)]
+    res = learn(train, method=method, prior="laplace", lam=0.5)
+    evd = expected_value_difference(test, res.weights, TRUE_W, step_cost=res.step_cost)
+    evd_shortest = expected_value_difference(test, np.zeros(12), TRUE_W)
+    assert evd < 0.5 * evd_shortest
+    assert res.weights[0] > res.weights[2] and res.weights[6] > res.weights[8]
+    agreement = action_agreement(test, res.weights, step_cost=res.step_cost)
+    assert agreement > action_agreement(test, np.zeros(12))
+
+
+def test_exit_gradients_match_finite_differences():
+    rng = np.random.default_rng(5)
+    demos = [check_demo(exit_scene(rng)) for _ in range(3)]
+    ones = [Demo(np.concatenate([d.features, np.ones(d.features.shape[:2] + (1,))], axis=2), d.path,
+                 exit_cells=d.exit_cells) for d in demos]          # + the learnt step-cost column, as learn() does
+    w = rng.uniform(0.2, 2.0, 13)
+    for fun in (lambda x: maxent_objective(x, ones, prior="gaussian", lam=0.3, step_col=12),
+                lambda x: birl_objective(x, ones, prior="laplace", lam=0.3, step_col=12)):
+        _, g = fun(w)
+        for k in (0, 6, 9, 12):
+            e = np.zeros(13)
+            e[k] = 1e-6
+            num = (fun(w + e)[0] - fun(w - e)[0]) / 2e-6
+            assert num == pytest.approx(g[k], rel=1e-3, abs=1e-4)
+
+
+def test_exit_demo_validation():
+    f = np.zeros((5, 5, 2))
+    exits = np.full((5, 5), np.inf)
+    exits[:, 4] = 3.0
+    check_demo(Demo(f, np.array([[2, 2], [2, 3], [2, 4]]), exit_cells=exits))
+    with pytest.raises(ValueError, match="end on one"):
+        check_demo(Demo(f, np.array([[2, 2], [2, 3]]), exit_cells=exits))
+    with pytest.raises(ValueError, match="exit_cells"):
+        check_demo(Demo(f, np.array([[2, 3], [2, 4]]), exit_cells=np.where(np.isinf(exits), np.nan, exits)))
