@@ -1,11 +1,11 @@
 """Dijkstra over an 8-connected cost grid: fast local plans and cost-to-go fields.
 
-The grid's neighbour structure (CSR ``indptr``/``indices``, step lengths, corner cells)
-is built once per grid shape in :class:`GridGraph`; a plan only gathers the edge weights
-from the cell costs (one vectorised ``take``) and runs :func:`scipy.sparse.csgraph.dijkstra`
-(compiled). A straight-line feasible path gives an upper bound on the answer, passed as
-``limit`` so the search stops expanding beyond it — most local plans touch a fraction of
-the grid.
+The grid's neighbour structure is built once per grid shape in :class:`GridGraph`. A search
+writes the edge weights in place into a CSR graph kept with it (row ``i`` = the 3 x 3
+neighbourhood of cell ``i``, see :class:`_Stencil`: one strided multiply and a scatter of the
+diagonals cut off by obstacles, no allocation) and runs :func:`scipy.sparse.csgraph.dijkstra` (compiled) on it. A
+straight-line feasible path, when there is one, gives an upper bound on the answer, passed as
+``limit`` so the search stops expanding beyond it.
 
 Cost model: entering cell ``t`` from a neighbour costs ``step_len * cost[t]`` (step length
 1 or sqrt(2) cells), matching the IRL cost C(s, a) = w . phi(s') of the next state. Costs
@@ -14,9 +14,12 @@ cell it cuts past is forbidden, so paths never squeeze between two obstacles' co
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
+from numpy.lib.stride_tricks import as_strided
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
@@ -96,6 +99,79 @@ class GridGraph:
         n = self.n_cells
         return csr_matrix((weight, self.indices, self.indptr), shape=(n, n))
 
+    @cached_property
+    def _stencil(self) -> "_Stencil":
+        return _Stencil(*self.shape)
+
+    def search(self, cost: np.ndarray, source: int, *, reverse: bool = False, limit: float = np.inf
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """Dijkstra from flat cell ``source`` over validated float64 costs (rows x cols).
+
+        Returns (dist, pred), both (rows * cols,): the least cost (inf = unreachable or beyond
+        ``limit``) and each cell's predecessor (negative where none); with ``reverse=True``
+        cost-to-go to ``source`` and each cell's successor. Same weights, same edge order and
+        so the same result, ties included, as ``dijkstra(self.matrix(cost, reverse=...))``.
+        """
+        stencil = self._stencil
+        with stencil.lock:          # the weight buffer is shared by every search on this graph
+            stencil.write(cost, reverse)
+            return dijkstra(stencil.matrix, indices=source, return_predecessors=True, limit=limit)
+
+
+#: step length of each move in a 3 x 3 neighbourhood (the centre is a self-loop, never taken)
+_STEP33 = np.hypot(*np.mgrid[-1:2, -1:2]).clip(min=1.0)
+
+
+class _Stencil:
+    """Search workspace of one grid shape: a CSR graph with 9 entries per row, the 3 x 3
+    neighbourhood of cell ``i`` in flat-index order, and the buffers its weights are written to.
+
+    The centre and every neighbour off the grid are self-loops ``i -> i``: a positive
+    self-loop never shortens a path, so Dijkstra never takes one (scipy skips edges into
+    settled cells) and the real edges are scanned in the same order as in
+    :meth:`GridGraph.matrix`: same distances, same predecessors, ties included. Weights are
+    written in place (no allocation, hence no page faults) by one strided multiply.
+    """
+
+    def __init__(self, rows: int, cols: int) -> None:
+        n = rows * cols
+        self.lock = threading.Lock()
+        self.cost = np.ones((rows + 2, cols + 2))          # padded costs; the border stays 1
+        self.data = np.empty(9 * n)
+        r, c = np.divmod(np.arange(n), cols)
+        dr, dc = np.mgrid[-1:2, -1:2].reshape(2, 1, 9)
+        rr, cc = r[:, None] + dr, c[:, None] + dc
+        inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+        indices = np.where(inside, rr * cols + cc, np.arange(n)[:, None]).astype(np.int32).ravel()
+        self.matrix = csr_matrix((self.data, indices, np.arange(0, 9 * n + 1, 9, dtype=np.int32)), shape=(n, n))
+        if not np.shares_memory(self.matrix.data, self.data):
+            raise RuntimeError("scipy copied the CSR weights; the in-place search buffer cannot work")
+        # move-major views, so that one ufunc call runs rows x cols inner loops (order="C")
+        self.out = self.data.reshape(rows, cols, 3, 3).transpose(2, 3, 0, 1)
+        sr, sc = self.cost.strides
+        self.target = as_strided(self.cost, (3, 3, rows, cols), (sr, sc, sr, sc), writeable=False)
+        self.source = self.cost[None, None, 1:-1, 1:-1]
+        self.step = _STEP33[:, :, None, None]
+        # the 8 diagonal edges that cut past each cell (a cell's own centre slot where the edge's
+        # source is off the grid): from (r, c - dc) by (dr, dc), and from (r - dr, c) by (dr, dc)
+        cut = []
+        for d_r in (-1, 1):
+            for d_c in (-1, 1):
+                slot = (d_r + 1) * 3 + d_c + 1
+                for sr_, sc_ in ((r, c - d_c), (r - d_r, c)):
+                    ok = (sr_ >= 0) & (sr_ < rows) & (sc_ >= 0) & (sc_ < cols)
+                    cut.append(np.where(ok, (sr_ * cols + sc_) * 9 + slot, np.arange(n) * 9 + 4))
+        self.cut = np.stack(cut, axis=1)
+
+    def write(self, cost: np.ndarray, reverse: bool) -> None:
+        """Weights for ``cost``: step x cost of the entered cell (of the left cell if ``reverse``),
+        inf for a diagonal past a forbidden cell — the very values of :meth:`GridGraph.matrix`."""
+        np.copyto(self.cost[1:-1, 1:-1], cost)
+        np.multiply(self.source if reverse else self.target, self.step, out=self.out, order="C")
+        blocked = np.flatnonzero(np.isinf(cost))
+        if blocked.size:
+            self.data[self.cut[blocked].reshape(-1)] = np.inf
+
 
 @dataclass(frozen=True)
 class PlanResult:
@@ -117,6 +193,8 @@ def check_costs(cost: np.ndarray) -> np.ndarray:
     cost = np.asarray(cost, dtype=np.float64)
     if cost.ndim != 2 or cost.size == 0:
         raise ValueError(f"cost grid must be a non-empty 2-D array (rows x cols), got shape {cost.shape}")
+    if (cost > 0).all():            # one pass for the common case (NaN fails it too)
+        return cost
     if np.isnan(cost).any():
         raise ValueError("cost grid contains NaN; mark forbidden cells with inf, unknown cells with a finite cost")
     if (cost <= 0).any():
@@ -190,6 +268,16 @@ def smooth_path(cost: np.ndarray, cells: np.ndarray, *, tolerance: float = 0.02)
     return cells[keep]
 
 
+def _line_limit(cost: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> float:
+    """Search limit: the cost of the straight line when it is free (a feasible path, so an upper
+    bound on the optimum; a hair above it so that rounding cannot cut the optimum), else inf."""
+    line = line_cells(start, goal)
+    if np.isinf(cost[line[1:, 0], line[1:, 1]]).any():      # the common case in clutter: no bound
+        return float("inf")
+    bound = path_cost(cost, line)
+    return bound * (1 + 1e-9) + 1e-9 if np.isfinite(bound) else float("inf")
+
+
 def plan_dijkstra(cost: np.ndarray, start: tuple[int, int], goal: tuple[int, int], *,
                   graph: GridGraph | None = None) -> PlanResult:
     """Least-cost 8-connected path from ``start`` to ``goal`` over a cell cost grid.
@@ -220,18 +308,17 @@ def plan_dijkstra(cost: np.ndarray, start: tuple[int, int], goal: tuple[int, int
         return PlanResult(empty, float("inf"), False, f"goal cell {goal_rc} is inside an obstacle (infinite cost)")
     if s == g:
         return PlanResult(np.array([goal_rc], dtype=np.int64), 0.0, True)
-    bound = path_cost(cost, line_cells(divmod(s, cost.shape[1]), goal_rc))
-    limit = bound * (1 + 1e-9) + 1e-9 if np.isfinite(bound) else np.inf
-    dist, pred = dijkstra(graph.matrix(cost), indices=s, return_predecessors=True, limit=limit)
-    if not np.isfinite(dist[g]):
+    dist, pred = graph.search(cost, s, limit=_line_limit(cost, divmod(s, cost.shape[1]), goal_rc))
+    expanded = int(np.count_nonzero(dist < np.inf))
+    if not dist[g] < np.inf:
         return PlanResult(empty, float("inf"), False, f"goal cell {goal_rc} is not reachable from the start (walled off)",
-                          int(np.isfinite(dist).sum()))
-    chain = [g]
+                          expanded)
+    chain, step = [g], pred.item
     while chain[-1] != s:
-        chain.append(int(pred[chain[-1]]))
+        chain.append(step(chain[-1]))
     flat = np.array(chain[::-1], dtype=np.int64)
     cells = np.stack(np.divmod(flat, cost.shape[1]), axis=1)
-    return PlanResult(cells, float(dist[g]), True, "", int(np.isfinite(dist).sum()))
+    return PlanResult(cells, float(dist[g]), True, "", expanded)
 
 
 def cost_from(cost: np.ndarray, start: tuple[int, int], *, graph: GridGraph | None = None
@@ -242,7 +329,7 @@ def cost_from(cost: np.ndarray, start: tuple[int, int], *, graph: GridGraph | No
     if graph is None or graph.shape != cost.shape:
         graph = GridGraph.of(cost.shape)
     s = _cell(start, cost.shape, "start")
-    dist, pred = dijkstra(graph.matrix(cost), indices=s, return_predecessors=True)
+    dist, pred = graph.search(cost, s)
     return dist.reshape(cost.shape), np.where(pred < 0, -1, pred).astype(np.int64).reshape(cost.shape)
 
 
@@ -273,7 +360,7 @@ def cost_to_go(cost: np.ndarray, goal: tuple[int, int], *, graph: GridGraph | No
     if graph is None or graph.shape != cost.shape:
         graph = GridGraph.of(cost.shape)
     g = _cell(goal, cost.shape, "goal")
-    dist, pred = dijkstra(graph.matrix(cost, reverse=True), indices=g, return_predecessors=True)
+    dist, pred = graph.search(cost, g, reverse=True)
     succ = np.where(pred < 0, -1, pred).astype(np.int64)
     succ[g] = g
     return dist.reshape(cost.shape), succ.reshape(cost.shape)

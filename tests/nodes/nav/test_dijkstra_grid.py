@@ -182,3 +182,82 @@ def test_string_pulling_keeps_cost_and_removes_staircases():
     assert 2 < len(corners) < len(res.cells)
     pulled = np.vstack([line_cells(tuple(a), tuple(b))[:-1] for a, b in zip(corners[:-1], corners[1:])] + [corners[-1:]])
     assert path_cost(cost, pulled) <= res.cost * 1.02 + 1e-9
+
+
+def _random_grid(rng: np.random.Generator, rows: int, cols: int) -> np.ndarray:
+    if rng.random() < 0.5:
+        cost = rng.integers(1, 4, (rows, cols)).astype(float)         # integer costs: many equal-cost ties
+    else:
+        cost = rng.uniform(0.5, 3.0, (rows, cols))
+    cost[rng.random((rows, cols)) < rng.uniform(0.0, 0.4)] = np.inf
+    return cost
+
+
+def test_in_place_search_equals_csgraph_on_the_plain_matrix_ties_included():
+    """The in-place 3 x 3 stencil graph must give exactly what csgraph gives on GridGraph.matrix:
+    same distances, same predecessors (so the same path among equal-cost ones), both directions."""
+    from scipy.sparse.csgraph import dijkstra
+    rng = np.random.default_rng(11)
+    shapes = [(1, 1), (1, 7), (7, 1), (2, 2), (3, 2)] + [tuple(int(v) for v in rng.integers(1, 22, 2)) for _ in range(40)]
+    for rows, cols in shapes:
+        graph = GridGraph.of((rows, cols))
+        for _ in range(2):                               # the same graph reused with other costs
+            cost = _random_grid(rng, rows, cols)
+            src = int(rng.integers(0, rows * cols))
+            for reverse in (False, True):
+                want_d, want_p = dijkstra(graph.matrix(cost, reverse=reverse), indices=src, return_predecessors=True)
+                got_d, got_p = graph.search(cost, src, reverse=reverse)
+                np.testing.assert_array_equal(got_d, want_d)
+                np.testing.assert_array_equal(got_p, want_p)
+
+
+def test_plan_matches_csgraph_reference_path_and_cost():
+    from scipy.sparse.csgraph import dijkstra
+    rng = np.random.default_rng(12)
+    for _ in range(30):
+        rows, cols = (int(v) for v in rng.integers(2, 30, 2))
+        cost = _random_grid(rng, rows, cols)
+        s, g = (int(rng.integers(rows)), 0), (int(rng.integers(rows)), cols - 1)
+        cost[g] = 1.0
+        res = plan_dijkstra(cost, s, g)
+        graph = GridGraph.of(cost.shape)
+        dist, pred = dijkstra(graph.matrix(cost), indices=s[0] * cols + s[1], return_predecessors=True)
+        want = dist[g[0] * cols + g[1]]
+        assert res.reachable == np.isfinite(want)
+        if res.reachable:
+            assert abs(res.cost - want) <= 1e-9 * want
+            chain = [g[0] * cols + g[1]]
+            while chain[-1] != s[0] * cols + s[1]:
+                chain.append(int(pred[chain[-1]]))
+            np.testing.assert_array_equal(res.cells, np.stack(np.divmod(chain[::-1], cols), axis=1))
+
+
+def test_reused_graph_forgets_the_previous_obstacles():
+    graph = GridGraph.of((12, 12))
+    walled = np.ones((12, 12))
+    walled[:, 6] = np.inf
+    assert not plan_dijkstra(walled, (5, 0), (5, 11), graph=graph).reachable
+    corners = np.ones((12, 12))
+    corners[4, 6] = corners[6, 6] = np.inf               # cut the diagonals into and out of (5, 6)
+    for cost, want in ((np.ones((12, 12)), 11.0), (corners, 11.0), (walled, np.inf), (np.ones((12, 12)), 11.0)):
+        fresh = plan_dijkstra(cost, (5, 0), (5, 11))
+        reused = plan_dijkstra(cost, (5, 0), (5, 11), graph=graph)
+        assert reused.cost == fresh.cost == pytest.approx(want)
+        np.testing.assert_array_equal(reused.cells, fresh.cells)
+    value, _ = cost_to_go(np.ones((12, 12)), (0, 0), graph=graph)
+    assert value[11, 11] == pytest.approx(11 * np.sqrt(2))
+
+
+def test_threads_sharing_one_graph_get_their_own_answers():
+    from concurrent.futures import ThreadPoolExecutor
+    rng = np.random.default_rng(13)
+    graph = GridGraph.of((40, 40))
+    grids = [_random_grid(rng, 40, 40) for _ in range(8)]
+    for cost in grids:
+        cost[20, 0] = cost[20, 39] = 1.0
+    want = [plan_dijkstra(cost, (20, 0), (20, 39)) for cost in grids]
+    with ThreadPoolExecutor(4) as pool:
+        got = list(pool.map(lambda k: plan_dijkstra(grids[k % 8], (20, 0), (20, 39), graph=graph), range(64)))
+    for k, res in enumerate(got):
+        assert res.cost == want[k % 8].cost or (np.isinf(res.cost) and np.isinf(want[k % 8].cost))
+        np.testing.assert_array_equal(res.cells, want[k % 8].cells)
