@@ -132,11 +132,13 @@ class IrlStack:
 
     name = "irl"
 
-    def __init__(self, world: CrowdWorld, weights: str) -> None:
+    def __init__(self, world: CrowdWorld, weights: str, params: dict[str, dict] | None = None) -> None:
+        params = params or {}
         self.pipe = FeaturePipeline()
         self.cost = Harness(IrlCost, params={"weights_path": weights}, roundtrip=False, node_id="cost")
-        self.plan = Harness(DijkstraPlanner, params=PLANNER_PARAMS, roundtrip=False, node_id="planner")
-        self.guard = Harness(CollisionGuard, roundtrip=False, node_id="guard")
+        self.plan = Harness(DijkstraPlanner, params={**PLANNER_PARAMS, **params.get("planner", {})}, roundtrip=False,
+                            node_id="planner")
+        self.guard = Harness(CollisionGuard, params=params.get("guard", {}), roundtrip=False, node_id="guard")
         goal, grid = _static(world)
         self.pipe.set_goal((goal.x_m, goal.y_m), 0.0)
         self.plan.feed([(0.0, "goal", goal), (0.0, "map", grid)])
@@ -168,9 +170,10 @@ class DwaStack:
 
     name = "dwa"
 
-    def __init__(self, world: CrowdWorld, weights: str) -> None:
-        self.dwa = Harness(Dwa, roundtrip=False, node_id="dwa")
-        self.guard = Harness(CollisionGuard, roundtrip=False, node_id="guard")
+    def __init__(self, world: CrowdWorld, weights: str, params: dict[str, dict] | None = None) -> None:
+        params = params or {}
+        self.dwa = Harness(Dwa, params=params.get("dwa", {}), roundtrip=False, node_id="dwa")
+        self.guard = Harness(CollisionGuard, params=params.get("guard", {}), roundtrip=False, node_id="guard")
         goal, grid = _static(world)
         self.dwa.feed([(0.0, "goal", goal), (0.0, "map", grid)])
 
@@ -186,9 +189,22 @@ class DwaStack:
         return (safe[-1].vx_mps, safe[-1].wz_radps) if safe else (0.0, 0.0)
 
 
-def run_robot(make_world, stack_cls, weights: str, max_s: float) -> Episode:
+def node_params(overrides: list[str]) -> dict[str, dict]:
+    """``NODE.KEY=VALUE`` overrides (values parsed as YAML scalars) by node id."""
+    import yaml
+    out: dict[str, dict] = {}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        node, dot, field = key.partition(".")
+        if not sep or not dot:
+            raise SystemExit(f"social_nav: --param wants NODE.KEY=VALUE, got {item!r}")
+        out.setdefault(node, {})[field] = yaml.safe_load(value)
+    return out
+
+
+def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[str, dict] | None = None) -> Episode:
     world = make_world()
-    stack = stack_cls(world, weights)
+    stack = stack_cls(world, weights, params)
     ts, poses, rates, peds, ms = [], [], [], [], {}
     goal_t = None
     while world.t_s <= max_s:
@@ -415,7 +431,8 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="*", default=[], help=f"scenes to run (default: {' '.join(SCENES)})")
     ap.add_argument("--live", action="store_true",
                     help="run the launch files (tether launch, one process per node, wall clock) instead of in-process")
-    ap.add_argument("--param", action="append", default=[], help="live: extra launch override NODE.KEY=VALUE")
+    ap.add_argument("--param", action="append", default=[],
+                    help="node parameter override NODE.KEY=VALUE (planner, guard, dwa; live: any launch node)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
     names = args.scenes or (QUICK if args.quick else SCENES)
@@ -427,7 +444,7 @@ def main() -> None:
     for name, scene in cases.items():
         make = (lambda s=scene: CrowdWorld(s, camera=sim_camera()))
         for stack in (IrlStack, DwaStack):
-            ep = run_robot(make, stack, args.weights, scene.duration_s)
+            ep = run_robot(make, stack, args.weights, scene.duration_s, node_params(args.param))
             runs[name][stack.name] = ep
             for k, v in ep.stage_ms.items():
                 stage_ms.setdefault(k, []).extend(v)
