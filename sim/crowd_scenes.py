@@ -142,7 +142,7 @@ def _pedestrian(raw: Mapping[str, Any]) -> PedestrianSpec:
     spec = PedestrianSpec(id=int(raw["id"]), waypoints=_xy(raw["waypoints"], f"pedestrian {raw.get('id')} waypoints"),
                           speed_mps=float(raw.get("speed_mps", 1.2)), start_s=float(raw.get("start_s", 0.0)),
                           radius_m=float(raw.get("radius_m", 0.3)), height_m=float(raw.get("height_m", 1.75)),
-                          at_goal=str(raw.get("at_goal", "stop")))
+                          at_goal=str(raw.get("at_goal", "stop")), unseen=bool(raw.get("unseen", False)))
     if spec.at_goal not in AT_GOAL:
         raise ValueError(f"pedestrian {spec.id}: at_goal must be one of {AT_GOAL}, got {spec.at_goal!r}")
     if spec.speed_mps < 0 or spec.radius_m <= 0 or spec.height_m <= 0:

@@ -76,6 +76,18 @@ def test_two_pedestrians_head_on_pass_each_other_without_contact():
     assert final[0, 0] > 3.0 and final[1, 0] < -3.0       # and still get where they were going
 
 
+def test_nobody_makes_way_for_an_unseen_pedestrian_who_still_avoids_them():
+    a = {"id": 1, "waypoints": [[-4, 0.0], [4, 0.0]], "speed_mps": 1.2}
+    b = {"id": 2, "waypoints": [[4, 0.05], [-4, 0.05]], "speed_mps": 1.2, "unseen": True}
+    alone = run(Walkers(scene(pedestrians=[a])), 6.0)
+    both = run(Walkers(scene(pedestrians=[a, b])), 6.0)
+    # pedestrian 1 walks exactly as if 2 were not there; 2 swerves around 1 and gets past
+    np.testing.assert_allclose([s[1][0] for s in both], [s[1][0] for s in alone], atol=1e-12)
+    assert max(abs(s[1][1, 1] - 0.05) for s in both) > 0.2
+    assert min(np.linalg.norm(s[1][0] - s[1][1]) for s in both) > 0.4
+    assert both[-1][1][1, 0] < -2.0
+
+
 def test_pedestrian_does_not_walk_through_a_wall_and_a_standing_one_never_moves():
     sc = scene(pedestrians=[{"id": 1, "waypoints": [[0, 0], [0, 8]], "speed_mps": 1.2},
                             {"id": 2, "waypoints": [[2, 2]], "speed_mps": 0}])
