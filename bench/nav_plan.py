@@ -1,8 +1,10 @@
-"""Local planner time vs grid size: cached-structure Dijkstra vs scipy csgraph built per call vs pure-Python heap.
+"""Local planner time vs grid size: in-place stencil Dijkstra vs scipy csgraph (graph built per call) vs pure-Python heap.
 
     python bench/nav_plan.py [--quick] [--json]
 
-Every method runs on the same random cost grids (costs 2..12 per cell, 10 % blocked, start
+"previous" is the planner before the in-place weights (cached CSR structure, a new weighted
+matrix from ``GridGraph.matrix`` per call, then csgraph), kept here for a before/after in the
+same run. Every method runs on the same random cost grids (costs 2..12 per cell, 10 % blocked, start
 and goal on opposite sides); the costs must agree exactly (checked, max relative
 difference printed). The accuracy knob of a grid planner is its resolution: on an empty
 room the 8-connected path is longer than the true straight line, and string pulling
@@ -25,7 +27,20 @@ sys.path.insert(0, str(ROOT))
 from scipy.sparse import coo_matrix  # noqa: E402
 from scipy.sparse.csgraph import dijkstra  # noqa: E402
 
-from nodes.nav.dijkstra import MOVES, GridGraph, plan_dijkstra, smooth_path  # noqa: E402
+from nodes.nav.dijkstra import (MOVES, GridGraph, _line_limit, check_costs, plan_dijkstra,  # noqa: E402
+                                smooth_path)
+
+
+def previous_plan(cost: np.ndarray, s: tuple[int, int], g: tuple[int, int], graph: GridGraph) -> float:
+    """The planner as it was: validate, straight-line limit, a new weighted CSR per call, csgraph, backtrack."""
+    cost = check_costs(cost)
+    cols = cost.shape[1]
+    dist, pred = dijkstra(graph.matrix(cost), indices=s[0] * cols + s[1], return_predecessors=True,
+                          limit=_line_limit(cost, s, g))
+    chain = [g[0] * cols + g[1]]
+    while np.isfinite(dist[chain[0]]) and chain[-1] != s[0] * cols + s[1]:
+        chain.append(int(pred[chain[-1]]))
+    return float(dist[g[0] * cols + g[1]])
 
 
 def scipy_fresh(cost: np.ndarray, s: tuple[int, int], g: tuple[int, int]) -> float:
@@ -121,28 +136,40 @@ def main() -> None:
         ours = plan_dijkstra(cost, s, g, graph=graph)
         ref = scipy_fresh(cost, s, g)
         py = python_heap(cost, s, g) if n <= 200 else ref
-        max_rel = max(max_rel, abs(ours.cost - ref) / ref, abs(py - ref) / ref)
+        prev = previous_plan(cost, s, g, graph)
+        max_rel = max(max_rel, abs(ours.cost - ref) / ref, abs(py - ref) / ref, abs(prev - ref) / ref)
         slow_ok = n <= (100 if args.quick else 200)
+        weighted = graph.matrix(cost)
         t = interleaved_ms({"ours": lambda: plan_dijkstra(cost, s, g, graph=graph),
+                            "search": lambda: dijkstra(weighted, indices=s[0] * n + s[1], return_predecessors=True),
+                            "previous": lambda: previous_plan(cost, s, g, graph),
                             "scipy": lambda: scipy_fresh(cost, s, g)}, repeats)
         t_py = interleaved_ms({"py": (lambda: python_heap(cost, s, g)) if slow_ok else None}, max(1, repeats // 5))["py"]
         e8, epull = length_error(n)
         rows.append(dict(n=n, ours_ms=float(np.median(t["ours"])), ours_min_ms=float(t["ours"].min()),
+                         previous_ms=float(np.median(t["previous"])), search_only_ms=float(np.median(t["search"])),
                          scipy_ms=float(np.median(t["scipy"])), python_ms=float(np.median(t_py)),
                          len_err_8grid=e8, len_err_pulled=epull))
     if not args.json:
-        print(f"{'grid':>9} {'ours ms':>9} {'ours min':>9} {'scipy ms':>9} {'python ms':>10} {'x scipy':>8} {'x python':>9} "
-              f"{'8-grid len err':>15} {'pulled len err':>15}")
+        print(f"{'grid':>9} {'ours ms':>9} {'ours min':>9} {'prev ms':>9} {'search':>7} {'scipy ms':>9} {'python ms':>10} {'x prev':>7} "
+              f"{'x scipy':>8} {'x python':>9} {'8-grid len err':>15} {'pulled len err':>15}")
         for r in rows:
-            print(f"{r['n']:>4}x{r['n']:<4} {r['ours_ms']:9.3f} {r['ours_min_ms']:9.3f} {r['scipy_ms']:9.3f} {r['python_ms']:10.2f} "
-                  f"{r['scipy_ms'] / r['ours_ms']:8.1f} {r['python_ms'] / r['ours_ms']:9.1f} "
+            print(f"{r['n']:>4}x{r['n']:<4} {r['ours_ms']:9.3f} {r['ours_min_ms']:9.3f} {r['previous_ms']:9.3f} {r['search_only_ms']:7.3f} {r['scipy_ms']:9.3f} "
+                  f"{r['python_ms']:10.2f} {r['previous_ms'] / r['ours_ms']:7.2f} "
+                  f"{r['scipy_ms'] / r['ours_ms']:8.2f} {r['python_ms'] / r['ours_ms']:9.1f} "
                   f"{100 * r['len_err_8grid']:14.2f}% {100 * r['len_err_pulled']:14.2f}%")
         print(f"costs agree: max relative difference {max_rel:.2e}")
+        print("search = csgraph.dijkstra alone on a prebuilt weighted matrix (the floor of any csgraph planner); "
+              "prev = the planner before in-place weights")
     plot(rows)
     at100 = next(r for r in rows if r["n"] == 100)
     if args.json:
         print(json.dumps({"plan_ms_100x100": round(at100["ours_ms"], 3), "plan_ms_100x100_best": round(at100["ours_min_ms"], 3),
+                          "previous_ms_100x100": round(at100["previous_ms"], 3),
+                          "speedup_vs_previous_100x100": round(at100["previous_ms"] / at100["ours_ms"], 2),
+                          "csgraph_search_only_ms_100x100": round(at100["search_only_ms"], 3),
                           "scipy_fresh_ms_100x100": round(at100["scipy_ms"], 3),
+                          "speedup_vs_scipy_100x100": round(at100["scipy_ms"] / at100["ours_ms"], 2),
                           "python_heap_ms_100x100": round(at100["python_ms"], 2),
                           "speedup_vs_python_100x100": round(at100["python_ms"] / at100["ours_ms"], 1),
                           "max_cost_rel_diff": max_rel, "goal_plan_ms_100x100": 2.0,
@@ -158,7 +185,8 @@ def plot(rows: list[dict]) -> None:
     out.mkdir(exist_ok=True)
     cells = [r["n"] ** 2 for r in rows]
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
-    for key, label in (("ours_ms", "cached graph + csgraph (ours)"), ("scipy_ms", "csgraph, graph built per call"),
+    for key, label in (("ours_ms", "in-place stencil + csgraph (ours)"), ("previous_ms", "previous: new weighted CSR per call"),
+                       ("scipy_ms", "csgraph, graph built per call"), ("search_only_ms", "csgraph call alone (floor)"),
                        ("python_ms", "pure-Python heapq")):
         ax[0].loglog(cells, [r[key] for r in rows], "o-", label=label)
     ax[0].axhline(2.0, color="k", ls=":", label="goal: 2 ms at 100x100")
