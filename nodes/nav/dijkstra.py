@@ -163,7 +163,7 @@ class _Stencil:
                 for sr_, sc_ in ((r, c - d_c), (r - d_r, c)):
                     ok = (sr_ >= 0) & (sr_ < rows) & (sc_ >= 0) & (sc_ < cols)
                     cut.append(np.where(ok, (sr_ * cols + sc_) * 9 + slot, np.arange(n) * 9 + 4))
-        self.cut = np.stack(cut, axis=1)
+        self.cut = np.stack(cut, axis=1).astype(np.int32)       # slots < 9 n, int32 like the CSR
 
     def write(self, cost: np.ndarray, reverse: bool) -> None:
         """Weights for ``cost``: step x cost of the entered cell (of the left cell if ``reverse``),
