@@ -236,9 +236,21 @@ class SocialPlanner:
             return "waypoint_blocked"
         if self._path_blocked(pose, frame, high):
             return "path_blocked"
-        if rel[0] < 0:
+        if self._passed(pose):
             return "waypoint_behind"
         return "timeout" if t_s - self.waypoint_t_s > self.p.waypoint_timeout_s else ""
+
+    def _passed(self, pose: tuple[float, float, float]) -> bool:
+        """Has the robot gone past its waypoint (behind the robot along the local path's direction)?
+
+        Not "behind the robot's heading": while the robot turns toward a new waypoint on its
+        other side, that waypoint is briefly behind its heading, and re-planning then (group:
+        waypoint_behind while turning in place) picked yet another waypoint before the turn ended.
+        """
+        assert self.waypoint is not None
+        if self._path is None or len(self._path) < 2:
+            return bool(to_robot(pose, self.waypoint)[0, 0] < 0)
+        return bool(np.dot(self.waypoint - np.asarray(pose[:2]), self.waypoint - self._path[0]) < 0)
 
     def _obstacle_near(self, frame: GridFrame, high: np.ndarray) -> bool:
         cells = np.argwhere(high)

@@ -137,3 +137,21 @@ def test_footprint_dilation_spreads_the_dearest_cost_over_the_robot_disc():
     cost[4, 4] = 10.0
     out = footprint_cost(cost, 2.0)
     assert out[4, 6] == 10.0 and out[2, 4] == 10.0 and out[4, 7] == 2.0 and out[2, 2] == 2.0
+
+
+def test_turning_toward_a_waypoint_is_not_passing_it():
+    """A waypoint briefly behind the heading while the robot turns to it is kept; one driven past re-plans."""
+    planner = SocialPlanner(PlannerParams(memory_s=0.0))
+    planner.set_goal((8.0, 0.0))
+    frame = GridFrame((ROWS, COLS), RES, ORIGIN_X, ORIGIN_Y)
+    f, c = crowd((2.0, 0.0))
+    high = f.features[..., 0] > 0
+    first = planner.update((0.0, 0.0, 0.0), c.cost, frame, high, 0.0)
+    assert first.mode == "local"
+    wp = first.waypoint
+    facing_away = float(np.arctan2(wp[1], wp[0])) + np.pi         # the waypoint is behind the heading
+    held = planner.update((0.0, 0.0, facing_away), c.cost, frame, high, 0.1)
+    assert held.event == "" and np.allclose(held.waypoint, wp)
+    beyond = wp + np.array([0.3, 0.0])                            # driven on past it
+    passed = planner.update((beyond[0], beyond[1], 0.0), c.cost, frame, np.zeros_like(high), 0.2)
+    assert passed.event == "waypoint_behind"
