@@ -75,3 +75,53 @@ def unseen_mask(points_xy: np.ndarray, *, camera_x_m: float, half_fov_rad: float
     rel_x = p[:, 0] - camera_x_m
     bearing = np.arctan2(p[:, 1], rel_x)
     return (np.abs(bearing) > half_fov_rad) | (np.hypot(rel_x, p[:, 1]) < min_range_m)
+
+
+def cleared_by_depth(points_xy: np.ndarray, depth_m: np.ndarray, fx: float, fy: float, cx: float, cy: float, *,
+                     mount_xyz_m: tuple[float, float, float], z_min_m: float, z_max_m: float, max_range_m: float,
+                     margin_m: float = 0.05, spread_m: float = 0.2, row_stride: int = 4) -> np.ndarray:
+    """(N,) bool: robot-frame points (N, 2) that the depth image shows to be empty space (ray-trace clearing).
+
+    A point the camera cannot measure (nearer than its minimum range, where it reports holes) is
+    cleared when every downward ray of its image column that passes over it at a height in
+    [``z_min_m``, camera height] returns a valid depth beyond it: the camera saw the floor or a
+    wall through that place. Whatever stands there (a person, a bench, a post) blocks those rays
+    and leaves holes, so it is kept. Rays that would meet the floor beyond ``max_range_m`` are
+    not used (their holes may just be distance). The same must hold ``spread_m`` to either side
+    of the point (across the view): a person who shifted a little within the blind zone still
+    blocks some of those rays and keeps the point. Points outside the image, behind the camera,
+    or with no such ray are not cleared. Camera frame as :func:`nodes.nav.dwa_core.depth_to_robot`
+    (x right, y down, z forward, level), mounted at ``mount_xyz_m`` (ahead, left, up) of the robot centre.
+    """
+    p = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    depth = np.asarray(depth_m, dtype=np.float64)
+    if len(p) == 0 or depth.ndim != 2 or not (fx > 0 and fy > 0):
+        return np.zeros(len(p), bool)
+    if spread_m > 0:
+        out = np.ones(len(p), bool)
+        for dy in (-spread_m, 0.0, spread_m):       # the point and its neighbours across the view
+            out &= cleared_by_depth(p + [0.0, dy], depth, fx, fy, cx, cy, mount_xyz_m=mount_xyz_m, z_min_m=z_min_m,
+                                    z_max_m=z_max_m, max_range_m=max_range_m, margin_m=margin_m, spread_m=0.0,
+                                    row_stride=row_stride)
+        return out
+    out = np.zeros(len(p), bool)
+    mx, my, mz = mount_xyz_m
+    zc = p[:, 0] - mx                                  # optical depth of each point
+    xc = -(p[:, 1] - my)
+    ok = zc > 0.02
+    u = np.full(len(p), -1)
+    u[ok] = np.round(cx + fx * xc[ok] / zc[ok]).astype(int)
+    ok &= (u >= 0) & (u < depth.shape[1])
+    rows = np.arange(0, depth.shape[0], max(1, int(row_stride)))
+    slope = (rows - cy) / fy                           # downward ray: height drops by slope per metre of depth
+    down = (slope > 0) & (mz / np.maximum(slope, 1e-9) <= max_range_m)
+    rows, slope = rows[down], slope[down]
+    if not len(rows) or not ok.any():
+        return out
+    idx = np.flatnonzero(ok)
+    height = mz - slope[None, :] * zc[idx, None]                       # (n, R) height of each ray over the point
+    relevant = (height >= z_min_m) & (height <= min(z_max_m, mz))
+    d = depth[rows[None, :], u[idx, None]]
+    free = np.isfinite(d) & (d > zc[idx, None] + margin_m)
+    out[idx] = relevant.any(axis=1) & (free | ~relevant).all(axis=1)
+    return out

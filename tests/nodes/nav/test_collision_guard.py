@@ -113,3 +113,22 @@ def test_a_person_walking_into_the_path_stops_the_robot_before_they_arrive():
         with Harness(CollisionGuard, params={"stride_px": 2}) as h:
             outs = h.feed([(0.0, "rgbd", clear), (0.0, "points", flow), (0.01, "cmd", straight)])
         assert cmds(outs)[-1][0] == expected
+
+
+def test_a_person_who_left_the_near_blind_zone_is_forgotten_once_the_floor_shows_through():
+    from test_clearance import _floor_view
+    wide = CameraInfo(width_px=64, height_px=48, fx_px=20.0, fy_px=20.0, cx_px=31.5, cy_px=23.5)   # 116 degrees across
+    near = _floor_view(slice(24, 40), f=20.0)                    # someone nearer than the camera's minimum range
+    seen = _floor_view(f=20.0)
+    seen[:, 28:36] = 0.5                                         # ... who was seen 0.5 m ahead of the camera
+    frames = [seen, near, near, _floor_view(f=20.0), _floor_view(f=20.0)]    # then walked away: the floor shows through
+    per_frame = []
+    with Harness(CollisionGuard, params={"stride_px": 2, "release_s": 0.0}) as h:
+        for k, depth in enumerate(frames):
+            t = 0.1 * k
+            rgbd = RgbdFrame(stamp_ns=int(round(t * 1e9)), depth_m=depth, info=wide, rgb=np.zeros((48, 64, 3), np.uint8))
+            x = 0.0 if k == 0 else 0.2                           # crept 0.2 m closer: 0.3 m from the camera
+            out = h.feed([(t, "odom", odom_at(x, t)), (t, "rgbd", rgbd), (t + 0.01, "cmd", Twist2D(vx_mps=0.8))])
+            per_frame.append(cmds(out)[-1][0])
+    assert per_frame[:3] == [0.0, 0.0, 0.0]                      # seen, then remembered while its column reads holes
+    assert per_frame[-1] > 0.0                                   # gone once rays through the spot reach the floor
