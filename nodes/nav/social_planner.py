@@ -279,8 +279,11 @@ class SocialPlanner:
         beside the person, on the side that is cheaper overall.
         """
         assert self.global_path is not None and self.goal is not None
-        cost = footprint_cost(np.where(self._static_mask(pose, frame), np.inf, cost),
-                              (self.p.robot_radius_m + self.p.crowd_margin_m) / frame.resolution_m)
+        cost = footprint_cost(cost, (self.p.robot_radius_m + self.p.crowd_margin_m) / frame.resolution_m)
+        # the map's obstacles come already grown by the robot's radius (set_map): growing them again
+        # with the footprint left a 4 m hallway 1.8 m of room for the robot centre instead of 3.1 m,
+        # and held the robot in the middle lane, head-on with the oncoming walkers
+        cost = np.where(self._static_mask(pose, frame), np.inf, cost)
         start = tuple(frame.clamp(frame.cell_of(np.zeros(2)))[0])
         dist, pred = cost_from(cost, start, graph=self._graph(cost.shape))
         rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
@@ -328,13 +331,18 @@ class SocialPlanner:
 
     # -- command ----------------------------------------------------------------------------------
     def command(self, pose: tuple[float, float, float]) -> tuple[float, float]:
-        """(v_mps, w_radps) toward the current waypoint (global mode: the carrot); 0 when idle/held."""
-        if self.goal is None or self.mode in ("idle", "hold", "reached", "unreachable"):
+        """(v_mps, w_radps) toward the current waypoint (global mode: the carrot); 0 when idle; held: turn in place."""
+        if self.goal is None or self.mode in ("idle", "reached", "unreachable"):
             return 0.0, 0.0
         if np.hypot(*(self.goal - pose[:2])) <= self.goal_tol_m:
             return 0.0, 0.0
         if self.global_path is None and self._global(pose):
             return 0.0, 0.0
+        if self.mode == "hold":
+            # no cell in view to plan to (facing a wall or a corner): turn on the spot toward the
+            # global path so the camera sees a way out. Standing still re-tried the same empty view
+            # for ever (seen in a hallway trial: 25 s facing the wall after a detour toward it)
+            return 0.0, steer(pose, self.carrot(pose), v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps)[1]
         target = self.carrot(pose) if self.mode == "global" or self.waypoint is None else self.waypoint
         final = bool(np.allclose(target, self.goal))
         # brake to stop on the goal point itself: it is reached on entering the tolerance, and braking

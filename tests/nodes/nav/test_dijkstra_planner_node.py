@@ -155,3 +155,29 @@ def test_turning_toward_a_waypoint_is_not_passing_it():
     beyond = wp + np.array([0.3, 0.0])                            # driven on past it
     passed = planner.update((beyond[0], beyond[1], 0.0), c.cost, frame, np.zeros_like(high), 0.2)
     assert passed.event == "waypoint_behind"
+
+
+def test_a_planner_with_nothing_to_plan_to_turns_in_place_toward_the_global_path():
+    planner = SocialPlanner(PlannerParams(memory_s=0.0))
+    planner.set_goal((8.0, 0.0))
+    frame = GridFrame((ROWS, COLS), RES, ORIGIN_X, ORIGIN_Y)
+    f, c = crowd(None)
+    planner.update((0.0, 0.0, 0.0), c.cost, frame, f.features[..., 0] > 0, 0.0)
+    planner.mode = "hold"                                        # no reachable cell in view
+    v, w = planner.command((0.0, 0.0, np.pi / 2))                # facing away from the path
+    assert v == 0.0 and w < 0.0                                  # turns back toward it on the spot
+
+
+def test_walls_of_the_map_are_grown_by_the_robot_radius_once():
+    """A 4 m corridor (walls at y = +-2) leaves the robot centre ~3.1 m: a plan may run 1.3 m off the axis."""
+    from nodes.nav.dijkstra import GridFrame as F
+    occ = np.zeros((41, 121), np.uint8)
+    occ[0, :] = occ[-1, :] = 1                                   # walls at y = -2 and +2 (0.1 m cells)
+    planner = SocialPlanner(PlannerParams(memory_s=0.0))
+    planner.set_map(occ, F(occ.shape, 0.1, -1.0, -2.0))
+    planner.set_goal((10.0, 0.0))
+    frame = GridFrame((ROWS, COLS), RES, -0.5, ORIGIN_Y)
+    f, c = crowd((2.0, 0.0), radius_m=1.1, origin_x=-0.5)        # a group across the middle of the corridor
+    d = planner.update((0.0, 0.0, 0.0), c.cost, frame, f.features[..., 0] > 0, 0.0)
+    assert d.mode == "local" and np.abs(d.path_xy[:, 1]).max() > 1.2     # passes the group near a wall
+    assert np.abs(d.path_xy[:, 1]).max() < 2.0 - 0.35
