@@ -6,6 +6,7 @@ re-plan events) is the pure module :mod:`nodes.nav.social_planner`.
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import fields
 
 import msgspec
 import numpy as np
@@ -18,25 +19,28 @@ from nodes.nav.social_planner import PlannerParams, SocialPlanner, predict_confl
 from tether import Node
 
 
+_DEFAULT = PlannerParams()
+
+
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    safe_zone_m: float = 0.25
-    obstacle_radius_m: float = 4.0
-    subgoal_m: float = 4.0
-    waypoint_m: float = 2.0
-    waypoint_timeout_s: float = 3.0
-    stray_m: float = 1.5
-    robot_radius_m: float = 0.35
-    inflate_margin_m: float = 0.1
-    v_max_mps: float = 1.0
-    w_max_radps: float = 1.2
-    crowd_margin_m: float = 0.3
-    person_cost: float = 4.0
-    commitment: float = 0.5
-    memory_s: float = 1.5
+    safe_zone_m: float = _DEFAULT.safe_zone_m
+    obstacle_radius_m: float = _DEFAULT.obstacle_radius_m
+    subgoal_m: float = _DEFAULT.subgoal_m
+    waypoint_m: float = _DEFAULT.waypoint_m
+    waypoint_timeout_s: float = _DEFAULT.waypoint_timeout_s
+    stray_m: float = _DEFAULT.stray_m
+    robot_radius_m: float = _DEFAULT.robot_radius_m
+    inflate_margin_m: float = _DEFAULT.inflate_margin_m
+    v_max_mps: float = _DEFAULT.v_max_mps
+    w_max_radps: float = _DEFAULT.w_max_radps
+    crowd_margin_m: float = _DEFAULT.crowd_margin_m
+    person_cost: float = _DEFAULT.person_cost
+    commitment: float = _DEFAULT.commitment
+    memory_s: float = _DEFAULT.memory_s
     predict_s: float = 2.0        # 0 = plan on the features alone (no flow input needed)
-    fov_deg: float = 57.0
-    camera_x_m: float = 0.3
-    min_range_m: float = 0.4
+    fov_deg: float = _DEFAULT.fov_deg
+    camera_x_m: float = _DEFAULT.camera_x_m
+    min_range_m: float = _DEFAULT.min_range_m
     density_feature: str = "density_high"   # the FeatureGrid feature that flags an obstacle (Algorithm 2)
     density_index: int = 0                  # used when the grid carries no feature names
 
@@ -67,12 +71,7 @@ class DijkstraPlanner(Node):
 
     def setup(self) -> None:
         c = self.config
-        self.planner = SocialPlanner(PlannerParams(
-            safe_zone_m=c.safe_zone_m, obstacle_radius_m=c.obstacle_radius_m, subgoal_m=c.subgoal_m,
-            waypoint_m=c.waypoint_m, waypoint_timeout_s=c.waypoint_timeout_s, stray_m=c.stray_m,
-            robot_radius_m=c.robot_radius_m, inflate_margin_m=c.inflate_margin_m, v_max_mps=c.v_max_mps,
-            w_max_radps=c.w_max_radps, crowd_margin_m=c.crowd_margin_m, person_cost=c.person_cost, commitment=c.commitment, memory_s=c.memory_s, fov_deg=c.fov_deg,
-            camera_x_m=c.camera_x_m, min_range_m=c.min_range_m))
+        self.planner = SocialPlanner(PlannerParams(**{f.name: getattr(c, f.name) for f in fields(PlannerParams)}))
         self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
         self._high: np.ndarray | None = None
         self._map: np.ndarray | None = None
