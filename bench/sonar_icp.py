@@ -81,6 +81,12 @@ def errors(estimate: np.ndarray, off: np.ndarray) -> tuple[float, float]:
     return float(rot), float(np.linalg.norm(c[:3, :3] @ pivot + c[:3, 3] - pivot))
 
 
+def summary(rot: list[float], tr: list[float], ms: list[float], ambiguous: int = 0) -> dict:
+    """Median and worst rotation (deg) / translation (m) errors and median time (ms) over the views."""
+    return dict(rot=float(np.median(rot)), trans=float(np.median(tr)), ms=float(np.median(ms)),
+                rot_max=float(np.max(rot)), trans_max=float(np.max(tr)), ambiguous=ambiguous)
+
+
 def run_ours(views, model, settings: IcpSettings) -> dict:
     rot, tr, ms, amb = [], [], [], 0
     for cloud, off in views:
@@ -91,8 +97,7 @@ def run_ours(views, model, settings: IcpSettings) -> dict:
         rot.append(r)
         tr.append(t)
         amb += out.ambiguous
-    return dict(rot=float(np.median(rot)), trans=float(np.median(tr)), ms=float(np.median(ms)),
-                rot_max=float(np.max(rot)), trans_max=float(np.max(tr)), ambiguous=amb)
+    return summary(rot, tr, ms, amb)
 
 
 def run_small_gicp(views, target_pts, kind: str, downsample_m: float, iterations: int) -> dict | None:
@@ -109,8 +114,7 @@ def run_small_gicp(views, target_pts, kind: str, downsample_m: float, iterations
         r, t = errors(res.T_target_source, off)
         rot.append(r)
         tr.append(t)
-    return dict(rot=float(np.median(rot)), trans=float(np.median(tr)), ms=float(np.median(ms)),
-                rot_max=float(np.max(rot)), trans_max=float(np.max(tr)), ambiguous=0)
+    return summary(rot, tr, ms)
 
 
 def run_small_gicp_prebuilt(views, target_pts, downsample_m: float) -> dict | None:
@@ -130,8 +134,7 @@ def run_small_gicp_prebuilt(views, target_pts, downsample_m: float) -> dict | No
         r, t = errors(res.T_target_source, off)
         rot.append(r)
         tr.append(t)
-    return dict(rot=float(np.median(rot)), trans=float(np.median(tr)), ms=float(np.median(ms)),
-                rot_max=float(np.max(rot)), trans_max=float(np.max(tr)), ambiguous=0)
+    return summary(rot, tr, ms)
 
 
 def run_open3d(views, model_pts, model_nrm) -> dict | None:
@@ -151,8 +154,7 @@ def run_open3d(views, model_pts, model_nrm) -> dict | None:
         r, t = errors(res.transformation, off)
         rot.append(r)
         tr.append(t)
-    return dict(rot=float(np.median(rot)), trans=float(np.median(tr)), ms=float(np.median(ms)),
-                rot_max=float(np.max(rot)), trans_max=float(np.max(tr)), ambiguous=0)
+    return summary(rot, tr, ms)
 
 
 def simulated_pass(model: IcpModel, quick: bool) -> list[dict]:
