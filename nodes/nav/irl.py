@@ -47,7 +47,7 @@ from scipy.optimize import minimize
 from scipy.special import logsumexp
 
 from nodes.nav.dijkstra import GridGraph, path_cost, plan_dijkstra
-from nodes.nav.irl_mdp import (STEP_COST, Demo, check_demo, cell_costs, cost_to_exits, maxent_demo,  # noqa: F401
+from nodes.nav.irl_mdp import (STEP_COST, Demo, check_demo, cell_costs, cost_to_exits, maxent_demo,
                                q_values)
 
 
@@ -225,23 +225,18 @@ def expected_value_difference(demos: list[Demo], weights: np.ndarray, true_weigh
 def _exit_value_difference(demo: Demo, true_cost: np.ndarray, learnt: np.ndarray, true_step: float,
                            step: float) -> float:
     """Extra true cost (walk + exit) of leaving the grid the learnt way instead of the true best way."""
-    shape, n = true_cost.shape, true_cost.size
-    exits = demo.exit_cells
-    best, _ = cost_to_exits(true_cost, exits * true_step)         # type: ignore[operator]
-    _, succ = cost_to_exits(learnt, exits * step)                  # type: ignore[operator]
-    cell = int(demo.path[0, 0] * shape[1] + demo.path[0, 1])
-    total, flat = 0.0, true_cost.reshape(-1)
-    for _ in range(n):
-        nxt = int(succ[cell])
-        if nxt < 0:
+    n = true_cost.size
+    exits = demo.exit_cells.reshape(-1)                              # type: ignore[union-attr]
+    best, _ = cost_to_exits(true_cost, demo.exit_cells * true_step)  # type: ignore[operator]
+    _, succ = cost_to_exits(learnt, demo.exit_cells * step)          # type: ignore[operator]
+    start = int(np.ravel_multi_index(tuple(demo.path[0]), true_cost.shape))
+    walk = [start]
+    while succ[walk[-1]] != n:                   # the learnt plan, up to the cell it leaves from
+        if succ[walk[-1]] < 0 or len(walk) > n:
             return float("inf")
-        if nxt == n:
-            break
-        (r0, c0), (r1, c1) = divmod(cell, shape[1]), divmod(nxt, shape[1])
-        total += float(np.hypot(r1 - r0, c1 - c0)) * flat[nxt]
-        cell = nxt
-    total += float(exits.reshape(-1)[cell]) * true_step          # type: ignore[union-attr]
-    return total - float(best.reshape(-1)[int(demo.path[0, 0] * shape[1] + demo.path[0, 1])])
+        walk.append(int(succ[walk[-1]]))
+    cells = np.stack(np.unravel_index(walk, true_cost.shape), axis=1)
+    return path_cost(true_cost, cells) + float(exits[walk[-1]]) * true_step - float(best.reshape(-1)[start])
 
 
 @dataclass(frozen=True)
