@@ -31,6 +31,7 @@ import numpy as np
 
 from nodes.nav.dijkstra import GridFrame, line_cells, to_robot
 from nodes.nav.irl import CostWeights, Demo, action_agreement, expected_value_difference, learn
+from nodes.nav.social_planner import on_rim
 
 log = logging.getLogger("nodes.nav.irl_learn")
 
@@ -78,7 +79,7 @@ def exit_rim(frame: GridFrame, pose: tuple[float, float, float], goal_xy: np.nda
     rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
     xy = frame.xy_of(np.stack([rr.ravel(), cc.ravel()], axis=1))
     r = np.hypot(xy[:, 0], xy[:, 1])
-    rim = (r <= rim_m) & (r > rim_m - 2.0 * frame.resolution_m)
+    rim = on_rim(r, rim_m, frame.resolution_m)
     left = np.hypot(xy[:, 0] - goal_rel[0], xy[:, 1] - goal_rel[1]) / frame.resolution_m
     return np.where(rim, left, np.inf).reshape(frame.shape)
 

@@ -295,7 +295,7 @@ class SocialPlanner:
         if np.hypot(*goal_rel) <= self.p.subgoal_m and frame.inside(goal_cell)[0]:
             rim = (np.abs(cells - goal_cell).max(axis=1) <= 1)           # the goal (or next to it)
         else:
-            rim = (r <= self.p.subgoal_m) & (r > self.p.subgoal_m - 2.0 * frame.resolution_m)
+            rim = on_rim(r, self.p.subgoal_m, frame.resolution_m)
         reachable = np.isfinite(dist.ravel()) & (r <= self.p.subgoal_m)
         ok = rim & reachable
         if not ok.any():        # the rim is walled off (facing a wall, a corner): any reachable cell will do
@@ -378,6 +378,12 @@ def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: Gri
         hit = np.abs(reach - robot_speed_mps * tau) <= slack_m
         mask[cells[hit, 0], cells[hit, 1]] = True
     return mask
+
+
+def on_rim(r_m: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
+    """Cells (by their distance ``r_m`` from the robot) on the local plan's rim: the band two cells
+    deep inside ``radius_m``, where a local plan ends (and a learning demo leaves the grid)."""
+    return (r_m <= radius_m) & (r_m > radius_m - 2.0 * resolution_m)
 
 
 def footprint_cost(cost: np.ndarray, radius_cells: float) -> np.ndarray:
