@@ -10,6 +10,7 @@ import can
 import canopen
 import pytest
 
+from drivers import candump
 from drivers import cia402 as p
 from drivers.can_bus import frame_from_message, open_bus
 from drivers.candump import CandumpPlayer, format_line, parse_line, read_candump, replay, write_candump
@@ -79,8 +80,23 @@ def test_bad_lines_name_the_line_or_are_skipped(caplog):
     assert sum("skipped line" in r.getMessage() for r in caplog.records) == 3
 
 
-def test_real_log_replays_onto_a_bus_into_a_canopen_master(shared_data):
+class VirtualClock:
+    """Stands in for the ``time`` module inside drivers.candump: sleeping advances the clock."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+def test_real_log_replays_onto_a_bus_into_a_canopen_master(shared_data, monkeypatch):
     frames = read_candump(shared_data / REAL)
+    clock = VirtualClock()
+    monkeypatch.setattr(candump, "time", clock)
     channel = "candump-replay"
     src, dst = open_bus("virtual", channel), open_bus("virtual", channel)
     network = canopen.Network(dst)
@@ -89,13 +105,12 @@ def test_real_log_replays_onto_a_bus_into_a_canopen_master(shared_data):
     network.listeners.append(seen.append)
     network.connect()
     try:
-        t0 = time.monotonic()
         assert replay(frames, src, speed=2.0) == 31
-        elapsed = time.monotonic() - t0
         deadline = time.monotonic() + 2.0
         while len(seen) < 31 and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert elapsed > 0.19 / 2                                        # the log spans 193 ms; kept its pace
+        span_s = (frames[-1].stamp_ns - frames[0].stamp_ns) * 1e-9     # the log spans 193 ms: kept its pace at 2x
+        assert clock.now == pytest.approx(span_s / 2, abs=1e-9) and span_s > 0.19
         assert [m.arbitration_id for m in seen] == [f.arbitration_id for f in frames]
         assert all(nodes[n].nmt.state == "PRE-OPERATIONAL" for n in (2, 3, 4))   # boot-ups were seen
     finally:
