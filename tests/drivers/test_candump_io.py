@@ -3,7 +3,6 @@ imports, round-trips through python-can's own reader/writer, and replays onto a 
 from __future__ import annotations
 
 import io
-import threading
 import time
 
 import can
