@@ -93,7 +93,7 @@ def sonar_ping_from(result: PingResult, *, stamp_ns: int, vertical_aperture_rad:
     n = bearings.size
     span = float(bearings.max() - bearings.min()) if n else 0.0
     aperture = span * n / (n - 1) if n > 1 else 0.0
-    device_ns = int(round(result.ping_start_time * 1e6)) * 1000 if result.version == 2 else 0
+    device_ns = device_stamp_ns(result)
     gamma = result.fire.gamma / 255.0 if result.fire.gamma not in (0, 255) else 1.0
     gains = (result.row_gains.astype(np.float32) if result.row_gains is not None else np.zeros(0, np.float32))
     return SonarPing(stamp_ns=stamp_ns, frame_id=frame_id, intensities=result.image,
@@ -106,6 +106,27 @@ def sonar_ping_from(result: PingResult, *, stamp_ns: int, vertical_aperture_rad:
                      device_id=result.header.src)
 
 
+#: Latest device time accepted (s): pingStartTime counts seconds since the sonar booted, so a
+#: century is far beyond any real value while keeping the stamp inside int64 nanoseconds.
+MAX_DEVICE_TIME_S = 100 * 365.25 * 86400
+
+
+def device_stamp_ns(result: PingResult) -> int:
+    """V2 ``pingStartTime`` in ns rounded to the microsecond; 0 when unknown (V1) or not a valid time.
+
+    The field is a double straight off the wire: inf, NaN, negative or absurd values occur in
+    corrupted streams and must not reach integer arithmetic (``int(inf)`` raises).
+    """
+    t = result.ping_start_time
+    if result.version != 2 or not valid_device_time(t):
+        return 0
+    return int(round(t * 1e6)) * 1000
+
+
+def valid_device_time(t: float) -> bool:
+    return bool(np.isfinite(t)) and 0.0 <= t <= MAX_DEVICE_TIME_S
+
+
 class OculusSonar(Node):
     """Output ``ping`` (SonarPing). Counters in ``self.counters``; a summary line at teardown."""
 
@@ -116,7 +137,7 @@ class OculusSonar(Node):
         cfg: Config = self.config
         self.fire = fire_settings(cfg)
         self.counters = dict(pings=0, resyncs=0, bytes_skipped=0, bad_messages=0, bad_status=0, reconnects=0,
-                             status=0, dummies=0, other=0)
+                             status=0, dummies=0, other=0, bad_times=0)
         self._lock = threading.Lock()
         self._sock: socket.socket | None = None
         self._standby_sent = True
@@ -260,6 +281,12 @@ class OculusSonar(Node):
             except ProtocolError as exc:
                 self.counters["bad_messages"] += 1
                 self.log.warning("bad ping message: %s", exc)
+                continue
+            if result.version == 2 and not valid_device_time(result.ping_start_time):
+                self.counters["bad_times"] += 1          # a corrupted time: skip the ping, never die on it
+                if self.counters["bad_times"] in (1, 10, 100, 1000):
+                    self.log.warning("skipped ping %d: its time %r is not a valid device time (%d such so far)",
+                                     result.ping_id, result.ping_start_time, self.counters["bad_times"])
                 continue
             vertical = cfg.vertical_aperture_low_deg if result.fire.master_mode == 1 else cfg.vertical_aperture_high_deg
             ping = sonar_ping_from(result, stamp_ns=self.now_ns(), vertical_aperture_rad=float(np.radians(vertical)),

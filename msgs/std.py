@@ -40,6 +40,10 @@ class InputStats(Message, tag="std.InputStats"):
     handler_errors: int = 0
     handler_ms_mean: float = 0.0
     handler_ms_max: float = 0.0
+    seq_resets: int = 0            # the publisher's seq went backwards or jumped absurdly (restart, bug, attack)
+    dropped_restart: int = 0       # published while this node was down (seq gap across its own restart)
+    link_resets: int = 0           # connection dropped by ZeroMQ (e.g. a frame over the receive limit), redialled
+    queued_bytes: int = 0          # bytes waiting in this input's queue now
 
 
 class NodeStats(Message, tag="std.NodeStats"):
@@ -53,6 +57,8 @@ class NodeStats(Message, tag="std.NodeStats"):
     published: dict[str, int] = {}
     subscribers: dict[str, int] = {}
     errors: int = 0
+    restarts: int = 0              # how many times the launcher restarted this node before this run
+    stats_errors: int = 0          # failures while publishing these statistics (counted, never fatal)
 
 
 class Bytes(Message, tag="std.Bytes"):

@@ -8,7 +8,8 @@ from typing import Any
 from tether.errors import ConfigError, TetherError
 
 
-def _subscribe(topic: str) -> Any:
+def subscribe(topic: str) -> Any:
+    """``(TopicInfo, SUB socket)`` for a topic of a running graph (found in the registry)."""
     import zmq
 
     from tether import registry
@@ -65,7 +66,7 @@ def _echo(args: argparse.Namespace) -> int:
     from tether.codec import Codec
     from tether.message import message_type
 
-    info, sock = _subscribe(args.topic)
+    info, sock = subscribe(args.topic)
     codec, tp = Codec(), message_type(info.type_name)
     shown = 0
     while args.count is None or shown < args.count:
@@ -93,7 +94,7 @@ def _rate(args: argparse.Namespace) -> int:
         seq: int = 0
 
     head_decoder = msgspec.msgpack.Decoder(Head)
-    info, sock = _subscribe(args.topic)
+    info, sock = subscribe(args.topic)
     samples: list[tuple[float, int, int, int]] = []   # (receive time, stamp, seq, bytes)
     t_end = time.monotonic() + args.duration if args.duration else None
     next_report = time.monotonic() + 1.0
@@ -142,16 +143,20 @@ def cmd_node(args: argparse.Namespace) -> int:
     from tether.codec import Codec
     from msgs.std import NodeStats
 
-    _, sock = _subscribe(f"{args.id}/_stats")
+    _, sock = subscribe(f"{args.id}/_stats")
     if not sock.poll(3000):
         raise TetherError(f"node {args.id!r} published no statistics within 3 s")
     frames = sock.recv_multipart(copy=False)
     st = Codec().decode(NodeStats, frames[1:])
-    print(f"{st.node_id}  [{st.node_class}]  pid {st.pid}  up {st.uptime_s:.1f} s  errors {st.errors}")
+    print(f"{st.node_id}  [{st.node_class}]  pid {st.pid}  up {st.uptime_s:.1f} s  errors {st.errors}  "
+          f"restarts {st.restarts}" + (f"  stats-errors {st.stats_errors}" if st.stats_errors else ""))
     for i in st.inputs:
         print(f"  <- {i.name:12s} {i.topic:28s} recv {i.received:8d} handled {i.handled:8d} "
               f"gap-drops {i.dropped_seq_gap:6d} queue-drops {i.dropped_queue:6d} decode-err {i.decode_errors:4d} "
               f"handler-err {i.handler_errors:4d} {i.handler_ms_mean:7.3f} ms mean {i.handler_ms_max:7.2f} ms max")
+        if st.restarts or i.dropped_restart or i.seq_resets or i.link_resets:
+            print(f"     {'':12s} lost while this node restarted {i.dropped_restart}  publisher seq resets "
+                  f"{i.seq_resets}  connections redialled {i.link_resets}")
     for out, n in sorted(st.published.items()):
         print(f"  -> {out:12s} published {n:8d}  subscribers {st.subscribers.get(f'{st.node_id}/{out}', 0)}")
     return 0

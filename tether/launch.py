@@ -30,7 +30,7 @@ from tether.errors import ConfigError
 from tether.node import Node, Ports, Tick
 from tether.runner import load_node_class
 from tether.runtime import RunSpec, Source
-from tether.transport import ipc_endpoint
+from tether.transport import ipc_endpoint, runtime_dir
 
 ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 TIMER_RE = re.compile(r"^timer/(hz|ms)/([0-9]*\.?[0-9]+)$")
@@ -250,7 +250,7 @@ def plan(launch: LaunchFile, *, token: str, curve: dict[str, str] | None = None)
                 subscribers[src] = subscribers.get(src, 0) + 1
     specs = {}
     for n in launch.nodes:
-        binds = [local_ep[n.id]] if n.ports.outputs else []
+        binds = [local_ep[n.id]]         # sinks too: every node publishes its statistics
         if n.id in tcp_ep:
             binds.append(tcp_ep[n.id].replace(f"//{launch.machines[n.machine].host}:", "//*:")
                          if launch.machines[n.machine].host in ("0.0.0.0", "*") else tcp_ep[n.id])
@@ -266,8 +266,15 @@ def plan(launch: LaunchFile, *, token: str, curve: dict[str, str] | None = None)
         expect = {f"{n.id}/{out}": subscribers.get(f"{n.id}/{out}", 0) for out in n.ports.outputs}
         uses_tcp = n.id in tcp_ep or any(s.secure for s in inputs.values())
         specs[n.id] = RunSpec(graph=launch.name, node_id=n.id, node=n.node, params=n.params, binds=binds,
-                              inputs=inputs, expect_subscribers=expect, curve=curve if uses_tcp else None)
+                              inputs=inputs, expect_subscribers=expect, curve=curve if uses_tcp else None,
+                              state_file=str(state_file(launch.name, n.id, token)))
     return specs
+
+
+def state_file(graph: str, node_id: str, token: str) -> Path:
+    """Where a launched node keeps its seq numbers across restarts (see :class:`tether.inputs.SeqStore`)."""
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in f"{graph}.{node_id}")
+    return runtime_dir() / "state" / f"{safe}.{token}.seq"
 
 
 def _source_node(src: str) -> str:

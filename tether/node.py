@@ -39,15 +39,21 @@ class Input:
 
     ``depth`` messages are kept (oldest dropped first, counted); ``latest=True`` keeps
     only the newest, for sensor streams that a slow node should sample, not queue.
+    ``max_queue_bytes`` bounds the same queue in bytes, and sizes ZeroMQ's receive queue
+    for this input from the largest message seen, so a slow node fed large messages
+    holds a bounded amount of memory whatever the message count.
     """
 
     type: type[Message]
     depth: int = 16
     latest: bool = False
+    max_queue_bytes: int = 64 << 20
 
     def __post_init__(self) -> None:
         if self.depth < 1:
             raise ValueError("Input depth must be >= 1")
+        if self.max_queue_bytes < 1:
+            raise ValueError("Input max_queue_bytes must be >= 1")
 
     @property
     def maxlen(self) -> int:

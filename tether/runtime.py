@@ -13,21 +13,24 @@ import os
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import msgspec
 import zmq
 
-from msgs.std import InputStats, NodeStats
+from msgs.std import NodeStats
 from tether.codec import Codec
-from tether.errors import DecodeError
+from tether.inputs import InputState, SeqStore, saturate
 from tether.message import Message
 from tether.node import Context, Node, Tick, iter_outputs
-from tether.transport import CurveKeys, Subscriptions, make_pub, start_authenticator
+from tether.transport import (PUB_QUEUE_BYTES, CurveKeys, LinkWatch, Subscriptions, hwm_for, make_pub,
+                              start_authenticator)
 
 log = logging.getLogger("tether.runtime")
 
 STATS_PERIOD_NS = 1_000_000_000
+LINK_CHECK_NS = 100_000_000
 ERROR_LOG_PERIOD_NS = 5_000_000_000
 READ_AHEAD = 16
 # Plain ints: pyzmq's flag enums cost an enum construction per operation on the hot path.
@@ -58,23 +61,8 @@ class RunSpec:
     expect_subscribers: dict[str, int] = field(default_factory=dict)
     wait_subscribers_s: float = 5.0
     curve: dict[str, str] | None = None
-
-
-class _InputState:
-    __slots__ = ("name", "topic", "type", "queue", "maxlen", "last_seq", "stats", "handler_ns", "handler_max_ns",
-                 "last_error_log_ns", "suppressed", "handler")
-
-    def __init__(self, name: str, topic: str, tp: type[Message], maxlen: int) -> None:
-        self.name, self.topic, self.type, self.maxlen = name, topic, tp, maxlen
-        self.queue: collections.deque[tuple[int, Message]] = collections.deque()
-        self.last_seq = 0
-        self.stats = {"received": 0, "handled": 0, "dropped_seq_gap": 0, "dropped_queue": 0,
-                      "decode_errors": 0, "handler_errors": 0}
-        self.handler_ns = 0
-        self.handler_max_ns = 0
-        self.last_error_log_ns = -ERROR_LOG_PERIOD_NS
-        self.suppressed = 0
-        self.handler: Any = None
+    incarnation: int = 0          # how many times the launcher restarted this node before this run
+    state_file: str = ""          # where the node keeps its seq numbers across restarts ("": nowhere)
 
 
 class NodeRuntime(Context):
@@ -85,6 +73,7 @@ class NodeRuntime(Context):
         self.ctx = ctx or zmq.Context.instance()
         self.stop_event = threading.Event()
         self.curve = CurveKeys.from_json(spec.curve) if spec.curve else None
+        self._socket_of: dict[str, zmq.Socket] = {}
         secure_pub = self.curve is not None and any(b.startswith("tcp://") for b in spec.binds)
         self._auth = start_authenticator(self.ctx, self.curve) if secure_pub else None
         self._codec = Codec()
@@ -93,18 +82,22 @@ class NodeRuntime(Context):
         self._published: dict[str, int] = collections.Counter()
         self._subscribers: dict[str, int] = collections.Counter()
         self._started_ns = time.monotonic_ns()
+        self._stats_errors = 0
+        self._stats_error_logged_ns = -ERROR_LOG_PERIOD_NS
+        self._largest_sent = 0
         config = node_cls.make_config(spec.params)
         self.node = node_cls(config, node_id=spec.node_id, context=self)
         self._topics = {name: f"{spec.node_id}/{name}".encode() for name in self.node.ports.outputs}
         self._stats_topic = f"{spec.node_id}/_stats".encode()
         self.pub = make_pub(self.ctx, spec.binds, self.curve if secure_pub else None) if spec.binds else None
         self._build_inputs()
+        self._open_seq_store()
 
     # -- wiring -----------------------------------------------------------------------
     def _build_inputs(self) -> None:
         ports = self.node.ports
-        self.inputs: dict[str, _InputState] = {}
-        self.routes: dict[bytes, list[_InputState]] = {}
+        self.inputs: dict[str, InputState] = {}
+        self.routes: dict[bytes, list[InputState]] = {}
         self.timers: dict[str, int] = dict(ports.timers)
         subs = Subscriptions(self.ctx, self.curve)
         for name, port in ports.inputs.items():
@@ -112,17 +105,42 @@ class NodeRuntime(Context):
             if src is not None and src.timer_ns:
                 self.timers[name] = src.timer_ns
             if name in self.timers:
-                self.inputs[name] = _InputState(name, f"timer/{name}", Tick, 1)
+                self.inputs[name] = InputState(name, f"timer/{name}", Tick, 1)
                 continue
             if src is None or not src.topic:
                 continue  # unconnected input: it simply never fires
-            state = _InputState(name, src.topic, port.type, port.maxlen)
+            state = InputState(name, src.topic, port.type, port.maxlen, port.max_queue_bytes)
             self.inputs[name] = state
             self.routes.setdefault(src.topic.encode(), []).append(state)
-            subs.add(src.topic, src.endpoint, secure=src.secure)
+            self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure)
         self.subs = subs.sockets
+        self._links = LinkWatch(self.subs, subs.endpoints) if self.subs else None
         self._rcvtimeo = -1
         self._poll_lists: dict[zmq.Socket, list[tuple[zmq.Socket, int]]] = {}
+        self._largest_in: dict[str, int] = {}
+
+    def _open_seq_store(self) -> None:
+        """Seq numbers kept across restarts: what this node missed while down is counted on return."""
+        self._seq_store: SeqStore | None = None
+        if not self.spec.state_file:
+            return
+        routed = [st for st in self.inputs.values() if st.topic in self.spec_topics()]
+        names = [f"in:{st.name}" for st in routed] + [f"out:{out}" for out in self._topics]
+        try:
+            store = SeqStore(Path(self.spec.state_file), names, fresh=self.spec.incarnation == 0)
+        except OSError as exc:
+            self.node.log.warning("cannot keep seq numbers across restarts in %s: %s", self.spec.state_file, exc)
+            return
+        for st in routed:
+            st.slot = store.slots[f"in:{st.name}"]
+            st.restart_seq = store.previous[f"in:{st.name}"]
+        for out in self._topics:
+            self._seq[out] = store.previous[f"out:{out}"]   # outputs continue their numbering
+        self._out_slots = {out: store.slots[f"out:{out}"] for out in self._topics}
+        self._seq_store = store
+
+    def spec_topics(self) -> set[str]:
+        return {src.topic for src in self.spec.inputs.values() if src.topic}
 
     # -- Context ----------------------------------------------------------------------
     def now_ns(self) -> int:
@@ -138,12 +156,18 @@ class NodeRuntime(Context):
             msg = msgspec.structs.replace(msg, seq=seq, stamp_ns=msg.stamp_ns or time.time_ns())
             frames = self._codec.encode(msg)
             if self.pub is not None:
+                nbytes = sum(map(len, frames))
+                if nbytes > self._largest_sent:
+                    self._largest_sent = nbytes
+                    self.pub.setsockopt(zmq.SNDHWM, hwm_for(PUB_QUEUE_BYTES, nbytes))
                 _send(self.pub, self._topics[output], frames)
             self._published[output] += 1
+            if self._seq_store is not None:
+                self._seq_store.set(self._out_slots[output], seq)
 
     # -- receiving --------------------------------------------------------------------
-    def _recv(self, sock: zmq.Socket, flags: int) -> tuple[bytes, list[Any]]:
-        """One message: the topic, then body and array buffers as zero-copy frames.
+    def _recv(self, sock: zmq.Socket, flags: int) -> tuple[bytes, list[Any], int]:
+        """One message: the topic, then body and array buffers as zero-copy frames, and its size in bytes.
 
         ``Frame.more`` instead of ``getsockopt(RCVMORE)``: pyzmq builds an enum per getsockopt,
         which doubled the cost of a small message. A multipart message arrives whole, so the
@@ -152,20 +176,24 @@ class NodeRuntime(Context):
         frame = sock.recv(flags, copy=False)
         topic = frame.bytes
         frames: list[Any] = []
+        nbytes = 0
         if frame.more:
             frame = sock.recv(copy=False)
-            frames.append(frame.bytes)        # the body is small: bytes decode faster than a memoryview
+            body = frame.bytes                # the body is small: bytes decode faster than a memoryview
+            frames.append(body)
+            nbytes = len(body)
             while frame.more:
                 frame = sock.recv(copy=False)
                 frames.append(frame)          # array buffers stay zero-copy
-        return topic, frames
+                nbytes += len(frame)
+        return topic, frames, nbytes
 
-    def _route(self, topic: bytes, frames: list[Any], order: itertools.count) -> None:
+    def _route(self, topic: bytes, frames: list[Any], nbytes: int, order: itertools.count) -> None:
         states = self.routes.get(topic)
         if not states:
             return  # a longer topic sharing our prefix: not ours
         for state in states:
-            self._accept(state, frames, next(order))
+            self._accept(state, frames, next(order), nbytes)
 
     def _drain(self, sock: zmq.Socket, order: itertools.count) -> None:
         # Bounded read-ahead: holding hundreds of large received frames at once costs more (cold
@@ -195,29 +223,41 @@ class NodeRuntime(Context):
         for sock, _ in poller.poll(timeout_ms):
             self._drain(sock, order)
 
-    def _accept(self, state: _InputState, frames: list[Any], index: int) -> None:
+    def _accept(self, state: InputState, frames: list[Any], index: int, nbytes: int = -1) -> None:
+        """Decode one received message into ``state``'s queue; ``nbytes`` is its size (-1: measure it)."""
         state.stats["received"] += 1
+        if nbytes < 0:
+            nbytes = sum(map(len, frames))
         try:
             msg = self._codec.decode(state.type, frames)
-        except DecodeError as exc:
+        except Exception as exc:  # noqa: BLE001 - whatever a crafted frame makes the decoder raise
             state.stats["decode_errors"] += 1
-            self._log_error(state, f"dropped undecodable message on {state.topic}: {exc}")
+            self._log_error(state, f"dropped undecodable message on {state.topic} ({nbytes} bytes): "
+                                   f"{type(exc).__name__}: {exc}")
             return
-        if msg.seq > state.last_seq + 1 and state.last_seq > 0:
-            state.stats["dropped_seq_gap"] += msg.seq - state.last_seq - 1
-        state.last_seq = msg.seq
-        if len(state.queue) >= state.maxlen:
-            state.queue.popleft()
-            state.stats["dropped_queue"] += 1
-        state.queue.append((index, msg))
+        state.track_seq(msg.seq)
+        if nbytes > self._largest_in.get(state.name, 0):
+            self._fit_receive_queue(state, nbytes)
+        state.push(index, msg, nbytes)
 
-    def _log_error(self, state: _InputState, text: str) -> None:
+    def _fit_receive_queue(self, state: InputState, nbytes: int) -> None:
+        """Size ZeroMQ's receive queue from the largest message seen, so it too holds ~max_queue_bytes."""
+        self._largest_in[state.name] = nbytes
+        sock = self._socket_of[state.name]
+        hwm = min(hwm_for(st.max_bytes, self._largest_in.get(st.name, 0)) for st in self.inputs.values()
+                  if self._socket_of.get(st.name) is sock)
+        sock.setsockopt(zmq.RCVHWM, hwm)
+
+    def _log_error(self, state: InputState, text: str) -> None:
         now = time.monotonic_ns()
         if now - state.last_error_log_ns >= ERROR_LOG_PERIOD_NS:
             extra = f" (+{state.suppressed} similar since last report)" if state.suppressed else ""
-            self.node.log.error(text + extra)
             state.last_error_log_ns = now
             state.suppressed = 0
+            try:
+                self.node.log.error(text + extra)
+            except Exception:  # noqa: BLE001 - a failing log handler must not take the node with it
+                self._stats_errors += 1
         else:
             state.suppressed += 1
 
@@ -226,19 +266,21 @@ class NodeRuntime(Context):
         """Handle queued messages oldest-first across inputs; True if any was handled."""
         handled = False
         while True:
-            best: _InputState | None = None
+            best: InputState | None = None
             for state in self.inputs.values():
                 if state.queue and (best is None or state.queue[0][0] < best.queue[0][0]):
                     best = state
             if best is None:
                 return handled
-            _, msg = best.queue.popleft()
+            msg = best.pop()
             self._call(best, msg)
+            if best.slot >= 0:
+                self._seq_store.set(best.slot, msg.seq)   # after the handler: what it published is done
             handled = True
             if self.stop_event.is_set():
                 return handled
 
-    def _call(self, state: _InputState, msg: Message) -> None:
+    def _call(self, state: InputState, msg: Message) -> None:
         t0 = time.perf_counter_ns()
         try:
             if state.handler is None:
@@ -269,29 +311,47 @@ class NodeRuntime(Context):
                     state.stats["dropped_queue"] += late  # missed ticks of a slow node, counted
                 due[name] = when + (late + 1) * period
                 state.stats["received"] += 1
-                state.queue.append((next(order), Tick(stamp_ns=time.time_ns(), period_ns=period)))
-                if len(state.queue) > 1:
-                    state.queue.popleft()
+                state.queue.clear()
+                state.queue.append((next(order), Tick(stamp_ns=time.time_ns(), period_ns=period), 0))
 
     def stats(self) -> NodeStats:
-        inputs = []
-        for state in self.inputs.values():
-            n = max(state.stats["handled"], 1)
-            inputs.append(InputStats(name=state.name, topic=state.topic, **state.stats,
-                                     handler_ms_mean=state.handler_ns / n / 1e6,
-                                     handler_ms_max=state.handler_max_ns / 1e6))
+        errors = sum(s.stats["handler_errors"] + s.stats["decode_errors"] for s in self.inputs.values())
         return NodeStats(node_id=self.spec.node_id, node_class=self.spec.node, pid=os.getpid(),
-                         uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9, inputs=inputs,
-                         published=dict(self._published), subscribers=dict(self._subscribers),
-                         errors=sum(s.stats["handler_errors"] + s.stats["decode_errors"] for s in self.inputs.values()),
-                         stamp_ns=time.time_ns())
+                         uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
+                         inputs=[state.to_stats() for state in self.inputs.values()],
+                         published={k: saturate(v) for k, v in self._published.items()},
+                         subscribers={k: saturate(v) for k, v in self._subscribers.items()},
+                         errors=saturate(errors), restarts=saturate(self.spec.incarnation),
+                         stats_errors=saturate(self._stats_errors), stamp_ns=time.time_ns())
 
     def _publish_stats(self) -> None:
+        """Publish :meth:`stats`; a failure here is counted and logged (rate-limited), never fatal."""
         if self.pub is None:
             return
-        self._read_subscriptions()
-        with self._pub_lock:
-            _send(self.pub, self._stats_topic, self._codec.encode(self.stats()))
+        try:
+            self._read_subscriptions()
+            with self._pub_lock:
+                _send(self.pub, self._stats_topic, self._codec.encode(self.stats()))
+        except Exception as exc:  # noqa: BLE001 - statistics must never be what kills a node
+            self._stats_errors += 1
+            now = time.monotonic_ns()
+            if now - self._stats_error_logged_ns >= ERROR_LOG_PERIOD_NS:
+                self._stats_error_logged_ns = now
+                try:
+                    self.node.log.error("publishing statistics failed (%d so far): %s: %s", self._stats_errors,
+                                        type(exc).__name__, exc)
+                except Exception:  # noqa: BLE001
+                    pass
+
+    def _check_links(self) -> None:
+        """Redial publishers whose connection ZeroMQ dropped (an oversize frame, a dead publisher)."""
+        for endpoint in self._links.poll():
+            hit = [st for name, st in self.inputs.items()
+                   if (src := self.spec.inputs.get(name)) is not None and src.endpoint == endpoint]
+            for st in hit:
+                st.stats["link_resets"] += 1
+            self.node.log.warning("connection to %s (%s) dropped: a frame over the receive limit or the publisher "
+                                  "went away; redialled", endpoint, ", ".join(st.topic for st in hit) or "?")
 
     def _read_subscriptions(self) -> None:
         while True:
@@ -349,7 +409,7 @@ class NodeRuntime(Context):
         order = itertools.count()
         now = time.monotonic_ns()
         due = {name: now for name in self.timers}
-        next_stats = now
+        next_stats = next_link_check = now
         poller = zmq.Poller()
         for sock in self.subs:
             poller.register(sock, zmq.POLLIN)
@@ -359,6 +419,9 @@ class NodeRuntime(Context):
                 if now >= next_stats:
                     self._publish_stats()
                     next_stats = now + STATS_PERIOD_NS
+                if self._links is not None and now >= next_link_check:
+                    self._check_links()
+                    next_link_check = now + LINK_CHECK_NS
                 wake = min([next_stats, *due.values()])
                 timeout_ms = max(0, min(100, (wake - now) // 1_000_000 + (1 if wake > now else 0)))
                 if self.subs:
@@ -390,6 +453,12 @@ class NodeRuntime(Context):
         self.node.stopping.set()
 
     def close(self) -> None:
+        if self._links is not None:
+            self._links.close()
+            self._links = None
+        if self._seq_store is not None:
+            self._seq_store.close()
+            self._seq_store = None
         for sock in self.subs:
             sock.close(linger=0)
         self.subs = []

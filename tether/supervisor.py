@@ -105,6 +105,7 @@ class Supervisor:
 
     # -- processes --------------------------------------------------------------------
     def _start(self, child: Child) -> None:
+        child.spec.incarnation = child.restarts     # a restarted node counts what it missed while down
         env = {**os.environ, **child.env, "PYTHONUNBUFFERED": "1"}
         cmd = [sys.executable, "-m", "tether.runner", msgspec.json.encode(child.spec).decode()]
         child.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env,
@@ -184,6 +185,9 @@ class Supervisor:
                     self.recorder.kill()
             if self._registry_path is not None:
                 registry.unregister(self._registry_path)
+            for child in self.children:
+                if child.spec.state_file:
+                    Path(child.spec.state_file).unlink(missing_ok=True)
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
         failed = [c.id for c in self.children if c.failed]

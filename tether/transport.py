@@ -15,8 +15,18 @@ from typing import Any
 
 import zmq
 
-#: Largest message a node accepts (bytes, all frames); larger ones are dropped by ZeroMQ.
+#: Largest message a node accepts (bytes, all frames); larger ones are dropped by ZeroMQ
+#: (and the connection redialled, see :class:`LinkWatch`).
 MAX_MESSAGE_BYTES = 1 << 30
+#: Bytes a publisher lets wait per subscriber: its send high-water mark follows the largest
+#: message it has sent (ZeroMQ bounds queues in messages only; 1000 x 4 MiB would be 4 GB).
+PUB_QUEUE_BYTES = 64 << 20
+HWM_MAX = 1000
+
+
+def hwm_for(budget_bytes: int, message_bytes: int) -> int:
+    """A ZeroMQ high-water mark (messages) that keeps ``budget_bytes`` of ``message_bytes`` messages."""
+    return max(2, min(HWM_MAX, budget_bytes // max(message_bytes, 1)))
 
 
 def runtime_dir() -> Path:
@@ -81,7 +91,7 @@ def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq
     """The node's one publisher: an XPUB (so it can see subscriptions arrive) bound to ``binds``."""
     sock = ctx.socket(zmq.XPUB)
     sock.setsockopt(zmq.XPUB_VERBOSE, 1)       # every subscribe reaches us, not only the first per topic
-    sock.setsockopt(zmq.SNDHWM, 1000)
+    sock.setsockopt(zmq.SNDHWM, HWM_MAX)
     sock.setsockopt(zmq.LINGER, 500)
     if curve is not None:
         sock.curve_server = True
@@ -94,7 +104,7 @@ def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq
 
 def make_sub(ctx: zmq.Context) -> zmq.Socket:
     sock = ctx.socket(zmq.SUB)
-    sock.setsockopt(zmq.RCVHWM, 1000)
+    sock.setsockopt(zmq.RCVHWM, HWM_MAX)
     sock.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
     sock.setsockopt(zmq.LINGER, 0)
     return sock
@@ -122,6 +132,7 @@ class Subscriptions:
         self._plain: zmq.Socket | None = None
         self._secure: zmq.Socket | None = None
         self._connected: set[tuple[str, bool]] = set()
+        self.endpoints: dict[zmq.Socket, set[str]] = {}
 
     def add(self, topic: str, endpoint: str, *, secure: bool = False) -> zmq.Socket:
         use_curve = self.curve is not None and secure
@@ -132,12 +143,55 @@ class Subscriptions:
         if (endpoint, use_curve) not in self._connected:
             connect_sub(sock, endpoint, self.curve if use_curve else None)
             self._connected.add((endpoint, use_curve))
+            self.endpoints.setdefault(sock, set()).add(endpoint)
         sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
         return sock
 
     @property
     def sockets(self) -> list[zmq.Socket]:
         return [s for s in (self._plain, self._secure) if s is not None]
+
+
+class LinkWatch:
+    """Redials a publisher whose connection ZeroMQ dropped, and says which.
+
+    libzmq (4.3) closes a connection that carries a frame over ``MAXMSGSIZE`` and, that
+    being a protocol error, never dials it again: one oversize frame would cut the input
+    for good. Disconnecting and connecting the endpoint again restores it (measured: the
+    frames sent after the oversize one arrive again within one check period). A publisher
+    that simply went away is redialled the same way, which ZeroMQ would have done anyway.
+    """
+
+    def __init__(self, sockets: list[zmq.Socket], endpoints: dict[zmq.Socket, set[str]]) -> None:
+        self._watch = [(sock, sock.get_monitor_socket(zmq.EVENT_DISCONNECTED), endpoints.get(sock, set()))
+                       for sock in sockets]
+
+    def poll(self) -> list[str]:
+        """Redial every endpoint dropped since the last call; return them (one entry per drop)."""
+        from zmq.utils.monitor import recv_monitor_message
+
+        dropped = []
+        for sock, monitor, known in self._watch:
+            while monitor.poll(0):
+                endpoint = recv_monitor_message(monitor)["endpoint"].decode(errors="replace")
+                if endpoint not in known:
+                    continue       # not one we dialled (a bind-side peer): nothing to redial
+                try:
+                    sock.disconnect(endpoint)
+                except zmq.ZMQError:
+                    pass           # already forgotten by ZeroMQ: connecting again is still right
+                sock.connect(endpoint)
+                dropped.append(endpoint)
+        return dropped
+
+    def close(self) -> None:
+        for sock, monitor, _ in self._watch:
+            try:
+                sock.disable_monitor()
+            except zmq.ZMQError:
+                pass
+            monitor.close(linger=0)
+        self._watch = []
 
 
 def start_authenticator(ctx: zmq.Context, curve: CurveKeys) -> Any:

@@ -236,3 +236,22 @@ def test_config_rejects_bad_values():
         OculusSonar.make_config({"ping_rate": "fast"})
     with pytest.raises(ConfigError, match="stamp"):
         OculusSonar.make_config({"stamp": "gps"})
+
+
+def test_a_ping_whose_time_is_not_a_time_is_counted_and_skipped(run_driver):
+    def ping(ping_id: int, start: float) -> bytes:
+        fire = FireSettings.make(range_m=10.0, bits=8, beams=256)
+        image = np.zeros((30, 256), np.uint8)
+        return encode_ping(image, np.linspace(-6500, 6500, 256).astype(np.int16), fire=fire, version=2,
+                           ping_id=ping_id, range_resolution_m=0.05, ping_start_time=start)
+
+    def script(conn: socket.socket, index: int) -> None:
+        conn.sendall(ping(1, float("inf")) + ping(2, -1.0) + ping(3, float("nan")) + ping(4, 1e300) + ping(5, 12.5))
+        sonar.hold(conn)
+
+    sonar = ScriptedSonar(script)
+    h = run_driver(port=sonar.port, fire_version=2)
+    wait_for(lambda: len(h.of("ping")) >= 1)
+    assert [p.ping_id for p in h.of("ping")] == [5] and h.of("ping")[0].device_stamp_ns == 12_500_000_000
+    assert h.node.counters["bad_times"] == 4
+    sonar.close()
