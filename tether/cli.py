@@ -129,11 +129,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 # -- record / replay ------------------------------------------------------------------------
 def cmd_record(args: argparse.Namespace) -> int:
-    import json
-
     from tether import registry
     from tether.record import Recorder
-    from tether.transport import CurveKeys
 
     available = registry.topics()
     wanted = args.topics or [t for t in available if not t.endswith("/_stats")]
@@ -143,12 +140,13 @@ def cmd_record(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    curves = {json.dumps(available[t].curve, sort_keys=True) for t in wanted if available[t].curve}
-    if len(curves) > 1:
-        raise TetherError("the topics belong to graphs with different CurveZMQ keys: record them separately")
-    curve = CurveKeys.from_json(json.loads(curves.pop())) if curves else None
+    keys = {t: available[t].client_keys() for t in wanted if available[t].secure}
+    stores = {(available[t].keystore, available[t].machine) for t in keys}
+    if len(stores) > 1:
+        raise TetherError("the topics belong to graphs with different CurveZMQ keystores: record them separately")
+    curve = next(iter(keys.values()))[0] if keys else None
     rec = Recorder(args.output, {t: available[t].endpoint for t in wanted}, curve=curve,
-                   secure={t for t in wanted if available[t].curve}).start()
+                   secure={t: server_key for t, (_, server_key) in keys.items()}).start()
     progress = _Progress()
     rec.run_until(stop, args.duration, lambda text: progress(text, force=True))
     progress.done()
@@ -251,6 +249,31 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_keys(args: argparse.Namespace) -> int:
+    from tether import keystore
+
+    folder = keystore.keystore_dir(args.graph, args.keys)
+    if args.action == "init":
+        machines = [m for m in (args.machines or "").split(",") if m]
+        created = keystore.init(folder, machines)
+        print(f"keystore {folder}: created keys for {', '.join(created) or 'no new machine'}")
+        print("copy peers.json to every machine's keystore, and <machine>.key to that machine only (mode 0600)")
+        return 0
+    peers = keystore.read_peers(folder)
+    for machine, public in sorted(peers.items()):
+        path = folder / f"{machine}.key"
+        if path.exists():
+            try:
+                keystore.check_private(path)
+                state = "secret key here"
+            except TetherError as exc:
+                state = f"UNSAFE: {exc}"
+        else:
+            state = "public only"
+        print(f"{machine:16s} {public}  {state}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="tether", description="ROS-free robotics middleware")
     ap.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
@@ -264,8 +287,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record-topics", nargs="+", metavar="PATTERN", help="with --record: only these (e.g. 'sim/*')")
     p.add_argument("--record-exclude", nargs="+", metavar="PATTERN", help="with --record: not these (e.g. '*/rgbd')")
     p.add_argument("--machine", help="start only this machine's nodes")
-    p.add_argument("--keys", help="CurveZMQ key file of the graph (default ~/.config/tether/keys/NAME.json)")
+    p.add_argument("--keys", help="CurveZMQ keystore folder of the graph (default ~/.config/tether/keys/NAME/; "
+                               "see 'tether keys')")
     p.set_defaults(func=cmd_launch)
+
+    p = sub.add_parser("keys", help="create or list a graph's CurveZMQ keystore (one key pair per machine)")
+    p.add_argument("action", choices=("init", "list"))
+    p.add_argument("graph", help="the graph's name (its launch file's 'name')")
+    p.add_argument("--machines", help="with init: comma-separated machine names, e.g. boat,shore")
+    p.add_argument("--keys", help="keystore folder (default ~/.config/tether/keys/GRAPH/)")
+    p.set_defaults(func=cmd_keys)
 
     p = sub.add_parser("check", help="validate pipeline files without starting anything")
     p.add_argument("files", nargs="+")

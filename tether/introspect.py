@@ -15,12 +15,12 @@ def subscribe(topic: str) -> Any:
     from tether import registry
     from tether.transport import make_sub
 
-    from tether.transport import CurveKeys, connect_sub
+    from tether.transport import connect_sub
 
     info = registry.find_topic(topic)
     sock = make_sub(zmq.Context.instance())
     sock.rcvhwm = 100000
-    connect_sub(sock, info.endpoint, CurveKeys.from_json(info.curve) if info.curve else None)
+    connect_sub(sock, info.endpoint, *info.client_keys())
     sock.subscribe(topic.encode())
     return info, sock
 

@@ -231,7 +231,7 @@ def timer_period_ns(src: str) -> int:
     return int(round(1e9 / value_f)) if kind == "hz" else int(round(value_f * 1e6))
 
 
-def plan(launch: LaunchFile, *, token: str, curve: dict[str, str] | None = None) -> dict[str, RunSpec]:
+def plan(launch: LaunchFile, *, token: str, curve: dict[str, Any] | None = None) -> dict[str, RunSpec]:
     """A RunSpec per node: where it binds, where each input connects, who will subscribe."""
     local_ep = {n.id: ipc_endpoint(launch.name, n.id, token) for n in launch.nodes}
     tcp_ep: dict[str, str] = {}
@@ -261,8 +261,10 @@ def plan(launch: LaunchFile, *, token: str, curve: dict[str, str] | None = None)
                 continue
             src_node = launch.node(_source_node(src))
             same = not launch.machines or src_node.machine == n.machine
+            secure = src_node.id in tcp_ep
             inputs[name] = Source(topic=src, endpoint=local_ep[src_node.id] if same else tcp_ep[src_node.id],
-                                  secure=src_node.id in tcp_ep)
+                                  secure=secure, server_key=curve["peers"].get(src_node.machine, "")
+                                  if secure and curve else "")
         expect = {f"{n.id}/{out}": subscribers.get(f"{n.id}/{out}", 0) for out in n.ports.outputs}
         uses_tcp = n.id in tcp_ep or any(s.secure for s in inputs.values())
         specs[n.id] = RunSpec(graph=launch.name, node_id=n.id, node=n.node, params=n.params, binds=binds,

@@ -18,7 +18,7 @@ from tether.codec import wire_to_inline
 from tether.errors import DecodeError
 from tether.log import LogWriter
 from tether.transport import CurveKeys, Subscriptions
-from tether.runner import LOG_FORMAT
+from tether.runner import LOG_FORMAT, read_spec_arg, watch_parent
 
 log = logging.getLogger("tether.record")
 
@@ -27,12 +27,12 @@ class Recorder:
     """Record ``topics`` ({topic: endpoint}) into ``path`` until :meth:`stop`."""
 
     def __init__(self, path: str | Path, topics: Mapping[str, str], *, curve: CurveKeys | None = None,
-                 secure: set[str] | None = None,
+                 secure: Mapping[str, str | bytes] | None = None,
                  ctx: zmq.Context | None = None, metadata: dict[str, str] | None = None) -> None:
         self.path = Path(path)
         self.topics = dict(topics)
         self.curve = curve
-        self.secure = set(secure or ())     # topics whose publisher is a Curve server
+        self.secure = dict(secure or {})    # topic -> server key, for topics whose publisher is a Curve server
         self.ctx = ctx or zmq.Context.instance()
         self.metadata = metadata or {}
         self.count = 0
@@ -51,7 +51,7 @@ class Recorder:
     def _sockets(self) -> list[zmq.Socket]:
         subs = Subscriptions(self.ctx, self.curve)
         for topic, endpoint in self.topics.items():
-            subs.add(topic, endpoint, secure=topic in self.secure)
+            subs.add(topic, endpoint, secure=topic in self.secure, server_key=self.secure.get(topic, b""))
         return subs.sockets
 
     def _run(self) -> None:
@@ -110,21 +110,22 @@ class Recorder:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m tether.record SPEC_JSON``: the launcher's recorder process (stops on SIGTERM/SIGINT).
+    """``python -m tether.record -``: the launcher's recorder process, spec on stdin (stops on SIGTERM/SIGINT).
 
-    SPEC: {"path", "topics": {topic: endpoint}, "secure": [topic], "curve": keys or null, "metadata": {}}.
+    SPEC: {"path", "topics": {topic: endpoint}, "secure": {topic: server key}, "curve": keys or null,
+    "parent_pid": launcher pid, "metadata": {}}.
     """
-    import json
     import signal
     import sys
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
-    spec = json.loads((argv if argv is not None else sys.argv[1:])[0])
+    spec = read_spec_arg((argv if argv is not None else sys.argv[1:])[0])
     curve = CurveKeys.from_json(spec["curve"]) if spec.get("curve") else None
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    rec = Recorder(spec["path"], spec["topics"], curve=curve, secure=set(spec.get("secure", [])),
+    watch_parent(int(spec.get("parent_pid", 0)), stop.set)
+    rec = Recorder(spec["path"], spec["topics"], curve=curve, secure=spec.get("secure") or {},
                    metadata=spec.get("metadata")).start()
     rec.run_until(stop)
     log.info("recorded %d messages (%.1f MB) on %d topics to %s%s", rec.count, rec.bytes / 1e6, len(rec.topics),

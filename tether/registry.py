@@ -1,7 +1,8 @@
 """Registry of running graphs: one JSON file per launcher, so CLI tools can find topics.
 
 Each entry lists the graph's topics with their type and endpoint, and its nodes with
-their pids. Entries of dead launchers are ignored and removed.
+their pids. Entries of dead launchers are ignored and removed. Entries hold public facts
+only: a tool that dials a secured topic loads this machine's keys from the keystore.
 """
 from __future__ import annotations
 
@@ -21,20 +22,33 @@ class TopicInfo:
     type_name: str
     endpoint: str
     graph: str
-    curve: dict[str, str] | None = None
+    secure: bool = False          # the publisher is a CurveZMQ server: dial it with the keystore's keys
+    keystore: str = ""
+    machine: str = ""
+
+    def client_keys(self) -> tuple[Any, bytes]:
+        """``(CurveKeys, server_key)`` to dial this topic, or ``(None, b"")`` when it is not secured."""
+        if not self.secure:
+            return None, b""
+        from tether import keystore
+
+        keys = keystore.load(Path(self.keystore), self.machine)
+        return keys, keys.peers[self.machine]
 
 
 def _dir() -> Path:
     path = runtime_dir() / "graphs"
-    path.mkdir(exist_ok=True)
+    path.mkdir(exist_ok=True, mode=0o700)
     return path
 
 
 def register(entry: dict[str, Any]) -> Path:
     """Write (or rewrite) this process's entry; returns its path."""
     path = _dir() / f"{entry['name']}.{entry.get('machine') or 'local'}.{os.getpid()}.json"
-    tmp = path.with_suffix(".tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)   # may hold curve keys
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.unlink(missing_ok=True)
+    # O_EXCL | O_NOFOLLOW: a symlink planted under the temporary name is refused, not followed.
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
     with os.fdopen(fd, "w") as fh:
         json.dump({**entry, "pid": os.getpid()}, fh)
     os.replace(tmp, path)
@@ -75,8 +89,9 @@ def topics() -> dict[str, TopicInfo]:
     out: dict[str, TopicInfo] = {}
     for entry in running():
         for topic, info in entry.get("topics", {}).items():
-            curve = entry.get("curve") if info.get("secure") else None
-            out[topic] = TopicInfo(topic, info["type"], info["endpoint"], entry["name"], curve)
+            secure = bool(info.get("secure") and entry.get("keystore"))
+            out[topic] = TopicInfo(topic, info["type"], info["endpoint"], entry["name"], secure,
+                                   entry.get("keystore") or "", entry.get("machine") or "")
     return out
 
 

@@ -1,12 +1,21 @@
-"""Entry point of one node process: ``python -m tether.runner SPEC_JSON`` (the launcher's child)."""
+"""Entry point of one node process: ``python -m tether.runner -`` with its RunSpec JSON on stdin.
+
+The spec may carry this machine's CurveZMQ secret key, so the launcher never puts it on
+the command line or in the environment (both readable by other users through /proc).
+A node started by a launcher stops when the launcher dies, however it dies.
+"""
 from __future__ import annotations
 
+import ctypes
 import importlib
 import json
 import logging
+import os
 import signal
 import sys
-from typing import Any
+import threading
+import time
+from typing import Any, Callable
 
 import msgspec
 
@@ -15,6 +24,44 @@ from tether.node import Node
 from tether.runtime import NodeRuntime, RunSpec
 
 LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
+PR_SET_PDEATHSIG = 1
+ORPHAN_GRACE_S = 5.0
+log = logging.getLogger("tether.runner")
+
+
+def read_spec_arg(arg: str) -> Any:
+    """The JSON spec: ``-`` reads it from stdin (the launcher's pipe); anything else is the JSON itself."""
+    if arg == "-":
+        text = sys.stdin.read()
+        sys.stdin.close()
+        return json.loads(text)
+    return json.loads(arg)
+
+
+def watch_parent(parent_pid: int, stop: Callable[[], None]) -> None:
+    """Stop when ``parent_pid`` (the launcher) dies, and exit if stopping takes longer than a grace period.
+
+    Linux delivers SIGTERM on the parent's death (``PR_SET_PDEATHSIG``; set here, so the
+    parent's death between fork and this call is caught by the ``getppid`` check); a
+    thread polling ``getppid`` covers other systems and a node whose SIGTERM handler hangs.
+    """
+    if parent_pid <= 0:
+        return
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass                                    # not Linux: the polling thread alone
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.2)
+        log.error("launcher (pid %d) is gone: stopping", parent_pid)
+        stop()
+        time.sleep(ORPHAN_GRACE_S)
+        log.error("did not stop within %.0f s of the launcher's death: exiting", ORPHAN_GRACE_S)
+        os._exit(3)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 def load_node_class(path: str) -> type[Node]:
@@ -45,6 +92,7 @@ def run_spec(spec: RunSpec, *, install_signals: bool = True) -> int:
             runtime.stop()
         signal.signal(signal.SIGTERM, on_signal)
         signal.signal(signal.SIGINT, on_signal)
+        watch_parent(spec.parent_pid, runtime.stop)
     code = runtime.serve()
     # Terminate ZeroMQ before the interpreter tears objects down: zero-copy frames still queued
     # (within the linger time) must not outlive the buffers they point into.
@@ -56,12 +104,12 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
     if not argv:
-        print("usage: python -m tether.runner SPEC_JSON", file=sys.stderr)
+        print("usage: python -m tether.runner -   (RunSpec JSON on stdin)", file=sys.stderr)
         return 2
     try:
-        spec = msgspec.convert(json.loads(argv[0]), RunSpec)
+        spec = msgspec.convert(read_spec_arg(argv[0]), RunSpec)
         return run_spec(spec)
-    except ConfigError as exc:
+    except (ConfigError, ValueError, msgspec.ValidationError) as exc:
         logging.getLogger("tether").error("%s", exc)
         return 2
 

@@ -46,6 +46,7 @@ class Source:
     endpoint: str = ""
     timer_ns: int = 0
     secure: bool = False      # the publisher is a CurveZMQ server (it has a tcp endpoint)
+    server_key: str = ""      # its machine's public key (z85), when secure
 
 
 @dataclass
@@ -60,7 +61,8 @@ class RunSpec:
     inputs: dict[str, Source] = field(default_factory=dict)
     expect_subscribers: dict[str, int] = field(default_factory=dict)
     wait_subscribers_s: float = 5.0
-    curve: dict[str, str] | None = None
+    curve: dict[str, Any] | None = None     # this machine's CurveKeys (to_json); never on a command line
+    parent_pid: int = 0       # the launcher: the node stops when it goes away (0: not watched)
     incarnation: int = 0          # how many times the launcher restarted this node before this run
     state_file: str = ""          # where the node keeps its seq numbers across restarts ("": nowhere)
 
@@ -112,7 +114,7 @@ class NodeRuntime(Context):
             state = InputState(name, src.topic, port.type, port.maxlen, port.max_queue_bytes)
             self.inputs[name] = state
             self.routes.setdefault(src.topic.encode(), []).append(state)
-            self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure)
+            self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
         self.subs = subs.sockets
         self._links = LinkWatch(self.subs, subs.endpoints) if self.subs else None
         self._rcvtimeo = -1

@@ -17,17 +17,23 @@ from typing import IO
 
 import msgspec
 
-from tether import registry
+from tether import keystore, registry
 from tether.launch import LaunchFile, plan
 from tether.errors import ConfigError
 from tether.runtime import RunSpec
-from tether.transport import CurveKeys
+from tether.transport import sweep_stale_sockets
 
 log = logging.getLogger("tether.launch")
 
 BACKOFF_START_S = 0.5
 BACKOFF_MAX_S = 10.0
 STOP_TIMEOUT_S = 10.0
+MAX_RECORDER_RESTARTS = 5
+
+
+def _next_segment(path: str, n: int) -> str:
+    p = Path(path)
+    return str(p if n == 0 else p.with_name(f"{p.stem}.{n}{p.suffix}"))
 
 
 @dataclass
@@ -45,12 +51,22 @@ class Child:
     exit_codes: list[int] = field(default_factory=list)
 
 
-def keys_path(launch: LaunchFile, override: str | None = None) -> Path:
-    """Where a graph's CurveZMQ keys live (shared by every machine of the graph)."""
-    if override:
-        return Path(override)
-    base = os.environ.get("TETHER_KEYS_DIR") or os.path.join(os.path.expanduser("~"), ".config", "tether", "keys")
-    return Path(base) / f"{launch.name}.json"
+def spawn(module: str, spec_json: bytes, *, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """Start ``python -m module -`` and hand it ``spec_json`` on its stdin.
+
+    Never on the command line nor in the environment: a spec can hold this machine's
+    CurveZMQ secret key, and ``/proc/PID/cmdline`` and ``environ`` are readable by others.
+    Its own session (a Ctrl-C in the terminal reaches the launcher only, which stops
+    children in order); the child watches its launcher and stops when it dies.
+    """
+    proc = subprocess.Popen([sys.executable, "-m", module, "-"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, env=env, text=True, errors="replace", start_new_session=True)
+    try:
+        proc.stdin.write(spec_json.decode())
+        proc.stdin.close()
+    except OSError:
+        pass                     # it died at once: its exit code says so, the reaper reports it
+    return proc
 
 
 class Supervisor:
@@ -64,11 +80,14 @@ class Supervisor:
         self.out = out or sys.stdout
         self.stop_event = threading.Event()
         self._write_lock = threading.Lock()
-        curve = CurveKeys.load_or_create(keys_path(launch, keys)) if launch.machines else None
+        if launch.machines and self.machine not in launch.machines:
+            raise ConfigError(f"{launch.path}: --machine must be one of {sorted(launch.machines)}")
+        self.keystore = keystore.keystore_dir(launch.name, keys)
+        curve = keystore.ensure(self.keystore, list(launch.machines), self.machine) if launch.machines else None
         self.curve = curve
         specs = plan(launch, token=uuid.uuid4().hex[:8], curve=curve.to_json() if curve else None)
-        if launch.machines and self.machine not in launch.machines:
-            raise SystemExit(f"{launch.path}: --machine must be one of {sorted(launch.machines)}")
+        for spec in specs.values():
+            spec.parent_pid = os.getpid()
         self.children = [Child(n.id, specs[n.id], n.restart, n.max_restarts, n.env)
                          for n in launch.nodes if not launch.machines or n.machine == self.machine]
         self.all_specs = specs
@@ -78,6 +97,8 @@ class Supervisor:
             child.spec.expect_subscribers = {t: n + (t in self.record_topics)
                                              for t, n in child.spec.expect_subscribers.items()}
         self.recorder: subprocess.Popen | None = None
+        self.recorder_segments: list[str] = []
+        self.recorder_failures = 0
         self._registry_path: Path | None = None
 
     def _recorded(self, patterns: list[str] | None, exclude: list[str] | None) -> dict[str, str]:
@@ -92,24 +113,37 @@ class Supervisor:
         return keep
 
     def _start_recorder(self) -> None:
-        secure = [t for t in self.record_topics if any(b.startswith("tcp://") for b in self.all_specs[t.split("/")[0]].binds)]
-        spec = {"path": self.record_path, "topics": self.record_topics, "secure": secure,
+        """Start the recorder into the next file segment (``run.mcap``, then ``run.1.mcap``, ...)."""
+        n = len(self.recorder_segments)
+        segment = _next_segment(self.record_path, n)
+        self.recorder_segments.append(segment)
+        spec = {"path": segment, "topics": self.record_topics, "secure": {}, "parent_pid": os.getpid(),
                 "curve": self.curve.to_json() if self.curve else None,
-                "metadata": {"launch": str(self.launch.path), "graph": self.launch.name}}
+                "metadata": {"launch": str(self.launch.path), "graph": self.launch.name, "segment": n}}
         # Its own process: recording a camera stream costs CPU (the mcap writer copies every byte a
         # few times), which must not slow the supervisor's log pumping or restarts.
-        self.recorder = subprocess.Popen([sys.executable, "-m", "tether.record", json.dumps(spec)],
-                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                         errors="replace", start_new_session=True)
+        self.recorder = spawn("tether.record", json.dumps(spec).encode())
         threading.Thread(target=self._pump, args=("record", self.recorder.stdout), daemon=True).start()
+
+    def _watch_recorder(self) -> None:
+        """A dead recorder is an error: say so and record on into a new segment (never run on without a log)."""
+        if self.recorder is None or self.recorder.poll() is None:
+            return
+        self.recorder_failures += 1
+        if self.recorder_failures > MAX_RECORDER_RESTARTS:
+            log.error("the recorder died again (exit %d): %d restarts, giving up recording", self.recorder.returncode,
+                      MAX_RECORDER_RESTARTS)
+            self.recorder = None
+            return
+        log.error("the recorder died (exit %d) writing %s; recording on into %s", self.recorder.returncode,
+                  self.recorder_segments[-1], _next_segment(self.record_path, len(self.recorder_segments)))
+        self._start_recorder()
 
     # -- processes --------------------------------------------------------------------
     def _start(self, child: Child) -> None:
         child.spec.incarnation = child.restarts     # a restarted node counts what it missed while down
         env = {**os.environ, **child.env, "PYTHONUNBUFFERED": "1"}
-        cmd = [sys.executable, "-m", "tether.runner", msgspec.json.encode(child.spec).decode()]
-        child.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env,
-                                      text=True, errors="replace", start_new_session=True)
+        child.proc = spawn("tether.runner", msgspec.json.encode(child.spec), env=env)
         threading.Thread(target=self._pump, args=(child.id, child.proc.stdout), daemon=True).start()
         self._register()
 
@@ -132,9 +166,11 @@ class Supervisor:
                                                "endpoint": spec.binds[0], "secure": secure}
         nodes = {c.id: {"class": c.spec.node, "pid": c.proc.pid if c.proc else 0, "restarts": c.restarts}
                  for c in self.children}
+        # Public facts only: tools that need to dial a secured topic load this machine's keys
+        # from the keystore themselves (a 0600 file), never from the registry.
         self._registry_path = registry.register({"name": self.launch.name, "machine": self.machine,
-                                                 "launch": str(self.launch.path), "topics": topics,
-                                                 "nodes": nodes, "curve": self.curve.to_json() if self.curve else None})
+                                                 "launch": str(self.launch.path), "topics": topics, "nodes": nodes,
+                                                 "keystore": str(self.keystore) if self.curve else None})
 
     def _terminate_all(self) -> None:
         live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
@@ -158,6 +194,9 @@ class Supervisor:
         """Run until Ctrl-C/SIGTERM, ``duration_s``, or every node has ended; 0 unless a node failed."""
         previous = {sig: signal.signal(sig, lambda *_: self.stop_event.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
+            swept = sweep_stale_sockets()
+            if swept:
+                log.info("removed %d stale ipc socket(s) left by killed nodes", swept)
             if self.record_path:
                 self._start_recorder()
             for child in self.children:
@@ -165,6 +204,7 @@ class Supervisor:
             deadline = None if duration_s is None else time.monotonic() + duration_s
             while not self.stop_event.wait(0.05):
                 self._reap()
+                self._watch_recorder()
                 if all(c.done or c.failed for c in self.children):
                     break
                 if deadline is not None and time.monotonic() >= deadline:
@@ -176,13 +216,7 @@ class Supervisor:
                     if not child.done:
                         child.exit_codes.append(child.proc.returncode)
                         child.failed = child.failed or child.proc.returncode != 0
-            if self.recorder is not None:   # stopped after the nodes, so it has their last messages
-                self.recorder.send_signal(signal.SIGTERM)
-                try:
-                    self.recorder.wait(STOP_TIMEOUT_S)
-                except subprocess.TimeoutExpired:
-                    log.error("the recorder did not stop within %.0f s: killed", STOP_TIMEOUT_S)
-                    self.recorder.kill()
+            self._stop_recorder()
             if self._registry_path is not None:
                 registry.unregister(self._registry_path)
             for child in self.children:
@@ -190,10 +224,29 @@ class Supervisor:
                     Path(child.spec.state_file).unlink(missing_ok=True)
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-        failed = [c.id for c in self.children if c.failed]
+        failed = [c.id for c in self.children if c.failed] + (["recorder"] if self.recorder_failures else [])
         if failed:
             log.error("failed: %s", ", ".join(failed))
         return 1 if failed else 0
+
+    def _stop_recorder(self) -> None:
+        """Stopped after the nodes, so it has their last messages; a non-zero exit counts as a failure."""
+        if self.recorder is None:
+            return
+        if self.recorder.poll() is not None:   # died just before the end: counted, no new segment
+            self.recorder_failures += 1
+            log.error("the recorder died (exit %d) writing %s", self.recorder.returncode, self.recorder_segments[-1])
+            return
+        self.recorder.send_signal(signal.SIGTERM)
+        try:
+            code = self.recorder.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            log.error("the recorder did not stop within %.0f s: killed", STOP_TIMEOUT_S)
+            self.recorder.kill()
+            code = self.recorder.wait()
+        if code != 0:
+            self.recorder_failures += 1
+            log.error("the recorder exited with code %d: %s may be incomplete", code, self.recorder_segments[-1])
 
     def _reap(self) -> None:
         now = time.monotonic()

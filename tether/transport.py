@@ -6,14 +6,17 @@ prefix, so receivers compare frame 0 for equality (``cam/image`` never delivers
 """
 from __future__ import annotations
 
-import json
 import os
+import socket
+import stat
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import zmq
+
+from tether.errors import ConfigError
 
 #: Largest message a node accepts (bytes, all frames); larger ones are dropped by ZeroMQ
 #: (and the connection redialled, see :class:`LinkWatch`).
@@ -30,61 +33,96 @@ def hwm_for(budget_bytes: int, message_bytes: int) -> int:
 
 
 def runtime_dir() -> Path:
-    """Where ipc sockets and the registry of running graphs live (``$TETHER_RUNTIME_DIR`` overrides)."""
+    """Where ipc sockets and the registry of running graphs live (``$TETHER_RUNTIME_DIR`` overrides).
+
+    Created 0700; an existing one must be a real directory owned by this user and writable by
+    no one else (the rule ssh and ``XDG_RUNTIME_DIR`` users apply): in the shared temp folder,
+    a directory planted by another user would otherwise host this graph's sockets.
+    """
     base = os.environ.get("TETHER_RUNTIME_DIR") or os.path.join(tempfile.gettempdir(), f"tether-{os.getuid()}")
     path = Path(base)
-    path.mkdir(parents=True, exist_ok=True, mode=0o700)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    check_private_dir(path)
     return path
+
+
+def check_private_dir(path: Path) -> None:
+    """``ConfigError`` (one line naming the fix) unless ``path`` is a directory only this user controls."""
+    info = path.lstat()
+    if stat.S_ISLNK(info.st_mode):
+        raise ConfigError(f"runtime directory {path} is a symlink: remove it (or set TETHER_RUNTIME_DIR to a "
+                          f"directory of your own, mode 0700)")
+    if not stat.S_ISDIR(info.st_mode):
+        raise ConfigError(f"runtime directory {path} is not a directory: remove it")
+    if info.st_uid != os.getuid():
+        raise ConfigError(f"runtime directory {path} belongs to uid {info.st_uid}, not to you: remove it or set "
+                          f"TETHER_RUNTIME_DIR to a directory of your own (mode 0700)")
+    if info.st_mode & 0o022:
+        raise ConfigError(f"runtime directory {path} is writable by others (mode {stat.S_IMODE(info.st_mode):o}): "
+                          f"run: chmod 700 {path}")
 
 
 def ipc_endpoint(graph: str, node_id: str, token: str) -> str:
     """A same-host endpoint for ``node_id`` (unix socket paths must stay short: ~100 bytes)."""
     folder = runtime_dir() / "s"
-    folder.mkdir(exist_ok=True)
+    folder.mkdir(exist_ok=True, mode=0o700)
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in f"{graph}.{node_id}")[:40]
     return f"ipc://{folder}/{safe}.{token}"
 
 
+def sweep_stale_sockets() -> int:
+    """Remove ipc socket files nobody listens on (left by a node killed with SIGKILL); return how many.
+
+    A socket file whose listener is gone refuses connections; one that is alive accepts
+    (and the probe closes at once, which ZeroMQ takes as a peer that left).
+    """
+    folder = runtime_dir() / "s"
+    removed = 0
+    for path in folder.glob("*") if folder.is_dir() else ():
+        try:
+            if not stat.S_ISSOCK(path.lstat().st_mode):
+                continue
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+                probe.connect(str(path))
+        except ConnectionRefusedError:
+            path.unlink(missing_ok=True)
+            removed += 1
+        except OSError:
+            continue
+    return removed
+
+
 @dataclass(frozen=True)
 class CurveKeys:
-    """A graph's CurveZMQ keys: the server pair every publisher uses, the client pair every subscriber uses."""
+    """One machine's CurveZMQ identity: its own key pair and the public keys of the graph's machines.
 
-    server_public: bytes
-    server_secret: bytes
-    client_public: bytes
-    client_secret: bytes
+    Publishers serve with the pair and accept only subscribers whose key is in ``peers``
+    (the allow-list); subscribers dial a publisher with its machine's public key. See
+    :mod:`tether.keystore` for where they are kept.
+    """
 
-    @classmethod
-    def generate(cls) -> "CurveKeys":
-        spub, ssec = zmq.curve_keypair()
-        cpub, csec = zmq.curve_keypair()
-        return cls(spub, ssec, cpub, csec)
+    public: bytes
+    secret: bytes
+    peers: dict[str, bytes]        # machine -> public key (z85)
 
-    def to_json(self) -> dict[str, str]:
-        return {k: getattr(self, k).decode() for k in ("server_public", "server_secret", "client_public", "client_secret")}
-
-    @classmethod
-    def from_json(cls, doc: dict[str, str]) -> "CurveKeys":
-        return cls(**{k: v.encode() for k, v in doc.items()})
+    def to_json(self) -> dict[str, Any]:
+        return {"public": self.public.decode(), "secret": self.secret.decode(),
+                "peers": {m: k.decode() for m, k in self.peers.items()}}
 
     @classmethod
-    def load_or_create(cls, path: Path) -> "CurveKeys":
-        """Keys of one graph, kept in ``path`` (mode 0600) so every machine of the graph shares them."""
-        if path.exists():
-            return cls.from_json(json.loads(path.read_text()))
-        keys = cls.generate()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w") as fh:
-            json.dump(keys.to_json(), fh)
-        try:
-            os.link(tmp, path)      # atomic and exclusive: two launchers starting together agree on one key set
-        except FileExistsError:
-            pass
-        finally:
-            os.unlink(tmp)
-        return cls.from_json(json.loads(path.read_text()))
+    def from_json(cls, doc: dict[str, Any]) -> "CurveKeys":
+        return cls(doc["public"].encode(), doc["secret"].encode(), {m: k.encode() for m, k in doc["peers"].items()})
+
+    @classmethod
+    def generate(cls, machines: tuple[str, ...] = ("local",)) -> "CurveKeys":
+        """A fresh pair for the first of ``machines`` (others get pairs whose secrets are thrown away): tests."""
+        pairs = {m: zmq.curve_keypair() for m in machines}
+        public, secret = pairs[machines[0]]
+        return cls(public, secret, {m: pub for m, (pub, _) in pairs.items()})
 
 
 def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq.Socket:
@@ -95,8 +133,8 @@ def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq
     sock.setsockopt(zmq.LINGER, 500)
     if curve is not None:
         sock.curve_server = True
-        sock.curve_secretkey = curve.server_secret
-        sock.curve_publickey = curve.server_public
+        sock.curve_secretkey = curve.secret
+        sock.curve_publickey = curve.public
     for endpoint in binds:
         sock.bind(endpoint)
     return sock
@@ -110,14 +148,19 @@ def make_sub(ctx: zmq.Context) -> zmq.Socket:
     return sock
 
 
-def connect_sub(sock: zmq.Socket, endpoint: str, curve: CurveKeys | None) -> None:
-    """Connect ``sock`` to a publisher; a Curve-server publisher needs ``curve`` (set before connect)."""
+def connect_sub(sock: zmq.Socket, endpoint: str, curve: CurveKeys | None, server_key: bytes | str = b"") -> None:
+    """Connect ``sock`` to a publisher; a Curve-server publisher needs ``curve`` and its ``server_key``.
+
+    Curve options apply to connections made after they are set, so one socket can dial
+    publishers of several machines (each with its own key); a socket that mixes secured tcp
+    and plain ipc publishers gets a dedicated socket (see :class:`Subscriptions`).
+    """
     if curve is not None:
-        # Curve options apply to connections made after they are set; a socket that mixes
-        # secured tcp and plain ipc publishers gets a dedicated socket (see NodeRuntime).
-        sock.curve_serverkey = curve.server_public
-        sock.curve_publickey = curve.client_public
-        sock.curve_secretkey = curve.client_secret
+        if not server_key:
+            raise ValueError(f"no server key for the secured publisher at {endpoint}")
+        sock.curve_serverkey = server_key.encode() if isinstance(server_key, str) else server_key
+        sock.curve_publickey = curve.public
+        sock.curve_secretkey = curve.secret
     sock.connect(endpoint)
 
 
@@ -134,14 +177,14 @@ class Subscriptions:
         self._connected: set[tuple[str, bool]] = set()
         self.endpoints: dict[zmq.Socket, set[str]] = {}
 
-    def add(self, topic: str, endpoint: str, *, secure: bool = False) -> zmq.Socket:
+    def add(self, topic: str, endpoint: str, *, secure: bool = False, server_key: bytes | str = b"") -> zmq.Socket:
         use_curve = self.curve is not None and secure
         if use_curve:
             self._secure = sock = self._secure or make_sub(self.ctx)
         else:
             self._plain = sock = self._plain or make_sub(self.ctx)
         if (endpoint, use_curve) not in self._connected:
-            connect_sub(sock, endpoint, self.curve if use_curve else None)
+            connect_sub(sock, endpoint, self.curve if use_curve else None, server_key)
             self._connected.add((endpoint, use_curve))
             self.endpoints.setdefault(sock, set()).add(endpoint)
         sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
@@ -195,12 +238,14 @@ class LinkWatch:
 
 
 def start_authenticator(ctx: zmq.Context, curve: CurveKeys) -> Any:
-    """ZAP handler accepting only the graph's client key (authentication, not just encryption)."""
+    """ZAP handler accepting only the graph's machines' keys (authentication, not just encryption)."""
     from zmq.auth.thread import ThreadAuthenticator
+
+    allowed = frozenset(curve.peers.values())
 
     class _Keys:
         def callback(self, domain: str, key: bytes) -> bool:
-            return key == curve.client_public      # pyzmq hands the client key z85-encoded
+            return key in allowed                  # pyzmq hands the client key z85-encoded
 
     auth = ThreadAuthenticator(ctx)
     auth.start()

@@ -206,3 +206,21 @@ class RawFuzzer(Node):
             with open(tmp, "w") as fh:
                 json.dump(self.counts, fh)
             os.replace(tmp, self.config.result_path)
+
+
+class CrasherConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    after_s: float = 0.1
+
+
+class Crasher(Node):
+    """Exits the process with code 3 ``after_s`` seconds after it starts: a restart storm under ``on-failure``."""
+
+    Config = CrasherConfig
+    timers = {"tick": 50.0}
+
+    def setup(self) -> None:
+        self.started = time.monotonic()
+
+    def on_tick(self, tick: Tick) -> None:
+        if time.monotonic() - self.started >= self.config.after_s:
+            os._exit(3)

@@ -44,9 +44,12 @@ def test_two_machines_talk_over_curve_tcp(tmp_path: Path, runtime_env: dict) -> 
     assert shore.returncode == 0 and boat.returncode == 0, shore.stderr + boat_out
     values = [LogReader(log).decode(r).data for r in LogReader(log).messages(["scale/value"])]
     assert len(values) >= 20 and all(v % 2 == 0 for v in values)   # counter values crossed tcp and were doubled
-    keys = json.loads((Path(runtime_env["TETHER_KEYS_DIR"]) / "twomachines.json").read_text())
-    assert set(keys) == {"server_public", "server_secret", "client_public", "client_secret"}
-    assert oct(os.stat(Path(runtime_env["TETHER_KEYS_DIR"]) / "twomachines.json").st_mode & 0o777) == "0o600"
+    store = Path(runtime_env["TETHER_KEYS_DIR"]) / "twomachines"          # one key pair per machine
+    peers = json.loads((store / "peers.json").read_text())
+    assert set(peers) == {"boat", "shore"} and peers["boat"] != peers["shore"]
+    for machine in ("boat", "shore"):
+        key = json.loads((store / f"{machine}.key").read_text())
+        assert key["public"] == peers[machine] and oct(os.stat(store / f"{machine}.key").st_mode & 0o777) == "0o600"
 
 
 def test_curve_rejects_a_subscriber_without_the_graph_keys(runtime_env: dict) -> None:
@@ -59,7 +62,8 @@ def test_curve_rejects_a_subscriber_without_the_graph_keys(runtime_env: dict) ->
     from tether.transport import CurveKeys
 
     port = _free_port()
-    keys = CurveKeys.generate()
+    (boat_pub, boat_sec), (shore_pub, shore_sec) = zmq.curve_keypair(), zmq.curve_keypair()
+    keys = CurveKeys(boat_pub, boat_sec, {"boat": boat_pub, "shore": shore_pub})   # the publisher is on boat
     spec = RunSpec(graph="c", node_id="counter", node="nodes.std.demo:Counter", params={"rate_hz": 50},
                    binds=[f"tcp://127.0.0.1:{port}"], curve=keys.to_json())
     ctx = zmq.Context()
@@ -68,20 +72,18 @@ def test_curve_rejects_a_subscriber_without_the_graph_keys(runtime_env: dict) ->
     thread.start()
     try:
         intruder = ctx.socket(zmq.SUB)
-        stranger = CurveKeys.generate()          # encrypts, knows the server key, but is not the graph's client
-        intruder.curve_serverkey, intruder.curve_publickey, intruder.curve_secretkey = (
-            keys.server_public, stranger.client_public, stranger.client_secret)
+        stranger = zmq.curve_keypair()           # encrypts, knows the server key, but is not on the allow-list
+        intruder.curve_serverkey, intruder.curve_publickey, intruder.curve_secretkey = (boat_pub, *stranger)
         intruder.connect(f"tcp://127.0.0.1:{port}")
         intruder.subscribe(b"counter/value")
         plain = ctx.socket(zmq.SUB)              # no encryption at all
         plain.connect(f"tcp://127.0.0.1:{port}")
         plain.subscribe(b"counter/value")
         friend = ctx.socket(zmq.SUB)
-        friend.curve_serverkey, friend.curve_publickey, friend.curve_secretkey = (
-            keys.server_public, keys.client_public, keys.client_secret)
+        friend.curve_serverkey, friend.curve_publickey, friend.curve_secretkey = (boat_pub, shore_pub, shore_sec)
         friend.connect(f"tcp://127.0.0.1:{port}")
         friend.subscribe(b"counter/value")
-        assert friend.poll(5000)                 # the graph's own client gets data ...
+        assert friend.poll(5000)                 # another machine of the graph gets data ...
         assert not intruder.poll(500) and not plain.poll(100)   # ... the others get nothing
     finally:
         runtime.stop()
