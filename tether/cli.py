@@ -150,6 +150,9 @@ def cmd_record(args: argparse.Namespace) -> int:
     progress = _Progress()
     rec.run_until(stop, args.duration, lambda text: progress(text, force=True))
     progress.done()
+    if rec.failed:
+        raise TetherError(f"recording stopped: {rec.failed}; {rec.count} messages written to {args.output} "
+                          f"stay readable")
     print(f"recorded {rec.count} messages ({rec.bytes / 1e6:.1f} MB) on {len(wanted)} topics to {args.output}"
           + (f"; {rec.errors} malformed dropped" if rec.errors else ""))
     return 0
@@ -223,13 +226,33 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 # -- logs -----------------------------------------------------------------------------------
 def cmd_log(args: argparse.Namespace) -> int:
-    from tether.log import LogReader
+    from tether.log import LogReader, recover_log
+    from tether.logcheck import check_log
 
+    if args.recover:
+        if not args.output:
+            raise ConfigError("tether log --recover IN needs -o OUT")
+        written, damaged, lost = recover_log(args.file, args.output)
+        print(f"recovered {written} messages from {args.file} into {args.output}; {len(damaged)} damaged chunk(s)"
+              + (f", {lost} messages lost" if lost >= 0 else " (the source had no statistics: losses unknown)"))
+        return 0 if written else 1
     info = LogReader(args.file).info()
     print(f"{info.path}: {sum(info.counts.values())} messages, {info.duration_s:.2f} s"
           + ("  (recovered: the file was not closed cleanly)" if info.recovered else ""))
     for topic in sorted(info.topics):
         print(f"  {topic:40s} {info.topics[topic]:28s} {info.counts.get(topic, 0):8d}")
+    if args.no_check:
+        return 0
+    check = check_log(args.file)
+    for bad in check.damaged:
+        print(f"  DAMAGED {bad.describe()}")
+    if check.truncated_at >= 0:
+        print(f"  DAMAGED: unreadable from byte {check.truncated_at} on")
+    if not check.ok:
+        print(f"{args.file}: {len(check.damaged)} of {check.chunks} chunks damaged; "
+              f"'tether log --recover {args.file} -o OUT' keeps the rest")
+        return 1
+    print(f"  {check.chunks} chunks, CRCs ok")
     return 0
 
 
@@ -352,8 +375,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("id", nargs="?")
     p.set_defaults(func=cmd_node)
 
-    p = sub.add_parser("log", help="what a log holds")
+    p = sub.add_parser("log", help="what a log holds, and whether every chunk is intact")
     p.add_argument("file")
+    p.add_argument("--check", action="store_true", help="verify every chunk's CRC (the default; exit 1 on damage)")
+    p.add_argument("--no-check", action="store_true", help="list only, do not read every chunk")
+    p.add_argument("--recover", action="store_true", help="copy every readable message into -o OUT")
+    p.add_argument("-o", "--output", help="with --recover: the new log")
     p.set_defaults(func=cmd_log)
 
     p = sub.add_parser("import", help="convert a foreign log (oculus, candump) to a tether log")

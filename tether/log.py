@@ -8,6 +8,8 @@ mid-recording leaves every message up to the last completed chunk readable;
 """
 from __future__ import annotations
 
+import heapq
+import itertools
 import json
 import logging
 import time
@@ -18,15 +20,16 @@ from typing import IO, Any, Iterable, Iterator
 import msgpack
 from mcap.reader import make_reader
 from mcap.records import Channel, Message as McapMessage, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from tether.codec import Codec, json_schema
 from tether.errors import DecodeError
+from tether.logcheck import ChunkRef, DamagedChunk, chunk_refs, read_chunk
 from tether.message import Message, message_type
 
 log = logging.getLogger("tether.log")
 
+U64_MAX = (1 << 64) - 1
 MESSAGE_ENCODING = "msgpack"
 SCHEMA_ENCODING = "jsonschema"
 
@@ -89,14 +92,17 @@ class LogWriter:
     def write(self, topic: str, msg: Message, *, log_time_ns: int | None = None) -> None:
         """Append a typed message (log time defaults to now; publish time is its stamp)."""
         self.write_encoded(topic, msg.type_name(), self._codec.encode_inline(msg),
-                           log_time_ns=log_time_ns, publish_time_ns=msg.stamp_ns, sequence=msg.seq)
+                           log_time_ns=log_time_ns, publish_time_ns=msg.stamp_ns, sequence=msg.seq % (1 << 32))
 
     def write_encoded(self, topic: str, type_name: str, data: bytes, *, log_time_ns: int | None = None,
                       publish_time_ns: int = 0, sequence: int = 0) -> None:
         """Append an already-encoded (inline msgpack) message."""
-        now = time.time_ns() if log_time_ns is None else log_time_ns
+        now = time.time_ns() if log_time_ns is None or not 0 <= log_time_ns <= U64_MAX else log_time_ns
+        # MCAP times are uint64: a stamp of -1 or beyond 2^64 is kept exactly in the message body and
+        # indexed by the log time instead (an absurd stamp must never stop a recording).
+        publish = publish_time_ns if 0 < publish_time_ns <= U64_MAX else now
         self._writer.add_message(self._channel_id(topic, type_name), log_time=now, data=data,
-                                 publish_time=publish_time_ns or now, sequence=sequence & 0xFFFFFFFF)
+                                 publish_time=publish, sequence=sequence & 0xFFFFFFFF)
         self.count += 1
         self.maybe_flush()
 
@@ -106,7 +112,8 @@ class LogWriter:
             self.flush()
 
     def flush(self) -> None:
-        self._writer.flush()
+        self._writer.flush()         # closes the open chunk ...
+        self._fh.flush()             # ... and hands it to the OS, so a killed recorder keeps it
         self._last_flush = time.monotonic_ns()
 
     def close(self) -> None:
@@ -147,6 +154,7 @@ class LogReader:
             raise FileNotFoundError(f"no log at {self.path}")
         self._codec = Codec()
         self.recovered = False
+        self.damaged: list[DamagedChunk] = []      # chunks skipped by the last messages() pass
         self._summary = None
         with open(self.path, "rb") as fh:
             try:
@@ -174,41 +182,54 @@ class LogReader:
 
     def messages(self, topics: Iterable[str] | None = None, *, start_ns: int | None = None,
                  end_ns: int | None = None) -> Iterator[LogRecord]:
-        """Records in log-time order; ``start_ns``/``end_ns`` are absolute log times (end exclusive)."""
-        wanted = set(topics) if topics is not None else None
-        if self._summary is not None:
-            with open(self.path, "rb") as fh:
-                reader = make_reader(fh)
-                for schema, channel, message in reader.iter_messages(
-                        topics=list(wanted) if wanted is not None else None, starting_at=start_ns, ending_before=end_ns):
-                    yield self._record(schema, channel, message)
-            return
-        yield from self._stream(wanted, start_ns, end_ns)
+        """Records in log-time order; ``start_ns``/``end_ns`` are absolute log times (end exclusive).
 
-    def _stream(self, wanted: set[str] | None, start_ns: int | None, end_ns: int | None) -> Iterator[LogRecord]:
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
-        pending: list[LogRecord] = []
+        Chunks are CRC-checked as they are read; a damaged one is skipped with one log line
+        and listed in :attr:`damaged` (the messages of every other chunk still come).
+        """
+        wanted = set(topics) if topics is not None else None
+        self.damaged = []
         with open(self.path, "rb") as fh:
-            try:
-                for record in StreamReader(fh, skip_magic=False, emit_chunks=False).records:
-                    if isinstance(record, Schema):
-                        schemas[record.id] = record
-                    elif isinstance(record, Channel):
-                        channels[record.id] = record
-                    elif isinstance(record, McapMessage):
-                        channel = channels.get(record.channel_id)
-                        if channel is None or (wanted is not None and channel.topic not in wanted):
-                            continue
-                        if (start_ns is not None and record.log_time < start_ns) or \
-                                (end_ns is not None and record.log_time >= end_ns):
-                            continue
-                        pending.append(self._record(schemas.get(channel.schema_id), channel, record))
-            except Exception as exc:  # noqa: BLE001 - the file ends mid-record: keep what was complete
-                log.warning("%s: log ends early (%s: %s); read %d complete messages",
-                            self.path, type(exc).__name__, exc, len(pending))
-        pending.sort(key=lambda r: r.log_time_ns)
-        yield from pending
+            refs, indexed, truncated_at = chunk_refs(fh)
+            schemas: dict[int, Schema] = dict(self._summary.schemas) if indexed and self._summary else {}
+            channels: dict[int, Channel] = dict(self._summary.channels) if indexed and self._summary else {}
+            if indexed:   # with the summary's channels known, chunks outside the window need not be read
+                refs = [r for r in refs if (start_ns is None or r.end_ns >= start_ns)
+                        and (end_ns is None or r.start_ns < end_ns)]
+            refs.sort(key=lambda r: (r.start_ns, r.offset))
+            heap: list[tuple[int, int, McapMessage]] = []
+            order = itertools.count()
+            i = 0
+            while i < len(refs) or heap:
+                # Load every chunk that may hold a message older than the oldest pending one.
+                if i < len(refs) and (not heap or refs[i].start_ns <= heap[0][0]):
+                    for record in self._chunk(fh, refs[i]):
+                        if isinstance(record, Schema):
+                            schemas[record.id] = record
+                        elif isinstance(record, Channel):
+                            channels[record.id] = record
+                        elif isinstance(record, McapMessage) and (start_ns is None or record.log_time >= start_ns) \
+                                and (end_ns is None or record.log_time < end_ns):
+                            heapq.heappush(heap, (record.log_time, next(order), record))
+                    i += 1
+                    continue
+                _, _, message = heapq.heappop(heap)
+                channel = channels.get(message.channel_id)
+                if channel is None or (wanted is not None and channel.topic not in wanted):
+                    continue     # not wanted, or its channel was defined in a damaged chunk
+                yield self._record(schemas.get(channel.schema_id), channel, message)
+            if truncated_at >= 0:
+                log.warning("%s: log ends early at byte %d; read every complete chunk before it", self.path,
+                            truncated_at)
+
+    def _chunk(self, fh: IO[bytes], ref: ChunkRef) -> list:
+        try:
+            return read_chunk(fh, ref)
+        except Exception as exc:  # noqa: BLE001 - zstd, lz4, CRC and record errors all mean "damaged"
+            bad = DamagedChunk(ref.index, ref.offset, ref.start_ns, ref.end_ns, f"{type(exc).__name__}: {exc}")
+            self.damaged.append(bad)
+            log.error("%s: skipping damaged %s (%d damaged so far)", self.path, bad.describe(), len(self.damaged))
+            return []
 
     @staticmethod
     def _record(schema: Schema | None, channel: Channel, message: McapMessage) -> LogRecord:
@@ -238,3 +259,22 @@ class LogReader:
     def decode_plain(record: LogRecord) -> Any:
         """The record as plain msgpack (dicts, lists, bytes): no type needed."""
         return msgpack.unpackb(record.data, raw=False, strict_map_key=False)
+
+
+def recover_log(src: str | Path, dst: str | Path) -> tuple[int, list[DamagedChunk], int]:
+    """Copy every readable message of ``src`` into a new, complete log ``dst``.
+
+    Returns ``(written, damaged_chunks, lost)`` where ``lost`` is the count the source's
+    statistics promised minus what was written (-1 when the source has no statistics).
+    """
+    reader = LogReader(src)
+    expected = -1
+    if reader._summary is not None and reader._summary.statistics is not None:
+        expected = reader._summary.statistics.message_count
+    written = 0
+    with LogWriter(dst, metadata={"recovered_from": str(src)}) as writer:
+        for rec in reader.messages():
+            writer.write_encoded(rec.topic, rec.type_name, rec.data, log_time_ns=rec.log_time_ns,
+                                 publish_time_ns=rec.publish_time_ns, sequence=rec.sequence)
+            written += 1
+    return written, reader.damaged, (expected - written if expected >= 0 else -1)

@@ -38,6 +38,8 @@ class Recorder:
         self.count = 0
         self.bytes = 0
         self.errors = 0
+        self.failed: str = ""            # why the log could not be written on (disk full, ...); "" while fine
+        self._last_error_log = 0.0
         self._stop = threading.Event()
         self._ready = threading.Event()
         self._thread: threading.Thread | None = None
@@ -61,28 +63,45 @@ class Recorder:
             s.setsockopt(zmq.RCVHWM, 100_000)
             poller.register(s, zmq.POLLIN)
         wanted = {t.encode() for t in self.topics}
-        with LogWriter(self.path, metadata=self.metadata) as writer:
+        try:
+            with LogWriter(self.path, metadata=self.metadata) as writer:
+                self._ready.set()
+                while not self._stop.is_set():
+                    for sock, _ in poller.poll(100):
+                        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+                            frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                            if frames[0].bytes in wanted:
+                                self._write(writer, frames)
+                    writer.maybe_flush()
+        except OSError as exc:     # the file, not a message: disk full, file too large, I/O error
+            self.failed = f"{type(exc).__name__}: {exc}"
+            log.error("recording to %s stopped: %s; the %d messages written before stay readable "
+                      "(tether log --recover)", self.path, self.failed, self.count)
+        finally:
             self._ready.set()
-            while not self._stop.is_set():
-                for sock, _ in poller.poll(100):
-                    while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-                        frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
-                        if frames[0].bytes in wanted:
-                            self._write(writer, frames)
-                writer.maybe_flush()
             for s in socks:
                 s.close(linger=0)
 
     def _write(self, writer: LogWriter, frames: list) -> None:
+        """Write one message; content that cannot be written is counted and logged (rate-limited), never fatal."""
         now = time.time_ns()
         try:
             blob = wire_to_inline(frames[1:])
             head = msgpack.unpackb(frames[1].bytes, raw=False, strict_map_key=False)
-            writer.write_encoded(frames[0].bytes.decode(), str(head.get("type", "")), blob, log_time_ns=now,
-                                 publish_time_ns=int(head.get("stamp_ns") or now), sequence=int(head.get("seq") or 0))
-        except (DecodeError, ValueError, TypeError, msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as exc:
+            if not isinstance(head, dict):
+                raise DecodeError(f"the body is a msgpack {type(head).__name__}, not a message map")
+            stamp, seq = head.get("stamp_ns"), head.get("seq")
+            writer.write_encoded(frames[0].bytes.decode(errors="replace"), str(head.get("type", "")), blob,
+                                 log_time_ns=now, publish_time_ns=stamp if isinstance(stamp, int) else 0,
+                                 sequence=seq if isinstance(seq, int) and seq >= 0 else 0)
+        except OSError:
+            raise                  # the file itself failed: the caller stops and says so
+        except Exception as exc:  # noqa: BLE001 - a message's content must never stop a recording
             self.errors += 1
-            log.error("recorder dropped a malformed message on %s: %s", frames[0].bytes[:80], exc)
+            if time.monotonic() - self._last_error_log >= 5.0:
+                self._last_error_log = time.monotonic()
+                log.error("recorder dropped an unwritable message on %s (%d so far): %s: %s",
+                          frames[0].bytes[:80], self.errors, type(exc).__name__, exc)
             return
         self.count += 1
         self.bytes += sum(len(f.buffer) for f in frames)
@@ -104,7 +123,7 @@ class Recorder:
                 progress(f"recording {self.path.name}: {self.count} msgs, {self.bytes / 1e6:.1f} MB, "
                          f"{rate:.0f} msg/s, {now - t0:.0f} s")
             last_count, last_t = self.count, now
-            if duration_s is not None and now - t0 >= duration_s:
+            if (duration_s is not None and now - t0 >= duration_s) or self.failed:
                 break
         self.stop()
 
@@ -130,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     rec.run_until(stop)
     log.info("recorded %d messages (%.1f MB) on %d topics to %s%s", rec.count, rec.bytes / 1e6, len(rec.topics),
              rec.path, f"; {rec.errors} malformed dropped" if rec.errors else "")
-    return 0
+    return 1 if rec.failed else 0
 
 
 if __name__ == "__main__":

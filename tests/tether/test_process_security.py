@@ -88,8 +88,10 @@ def test_no_secret_key_on_any_command_line_environment_or_registry(tmp_path: Pat
         wait_for_topic("sink/_stats", runtime_env, alive=shore)      # a sink publishes statistics too
         store = Path(runtime_env["TETHER_KEYS_DIR"]) / "sec"
         secrets = [json.loads((store / f"{m}.key").read_text())["secret"] for m in ("boat", "shore")]
-        pids = [p.pid for p in (boat, shore)] + _children(boat.pid) + _children(shore.pid)
-        assert len(pids) >= 6                                         # launchers, 3 nodes, the recorder
+        def _all() -> list[int]:
+            return [p.pid for p in (boat, shore)] + _children(boat.pid) + _children(shore.pid)
+        _wait(lambda: len(_all()) >= 6, 15.0, "launchers, 3 nodes and the recorder did not all start")
+        pids = _all()
         for pid in pids:
             for what in ("cmdline", "environ"):
                 text = Path(f"/proc/{pid}/{what}").read_bytes().decode(errors="replace")
