@@ -34,7 +34,8 @@ from typing import Any, Mapping
 
 import cv2
 import numpy as np
-import yaml
+
+from tether.yamlsafe import load_yaml_file
 
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 AT_GOAL = ("stop", "loop", "respawn")
@@ -115,8 +116,7 @@ def load_scene(source: str | Path | Mapping[str, Any]) -> Scene:
         path = SCENE_DIR / f"{stem}.yaml"
     if not path.is_file():
         raise ValueError(f"no crowd scene {str(source)!r}: bundled scenes are {scene_names()}, or pass a YAML path")
-    with open(path, encoding="utf-8") as fh:
-        data = yaml.safe_load(fh)
+    data = load_yaml_file(path)
     if not isinstance(data, Mapping):
         raise ValueError(f"{path}: a scene file is a YAML mapping (name, walls, pedestrians, ...)")
     return scene_from_dict(data)

@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
 
 from sim.fls_shapes import Box, Cylinder, HeightField, Mesh, Plane
+from tether.yamlsafe import load_yaml_file
 
 __all__ = ["Box", "Cylinder", "HeightField", "Mesh", "Plane", "Platform", "Scene", "SonarModel", "cast_rays",
            "load_scene", "sample_structures", "sonar_frame"]
@@ -219,7 +219,7 @@ def load_scene(scene: str | Path | Mapping[str, Any]) -> Scene:
         if not path.is_file():
             known = sorted(p.stem[4:] for p in SCENE_DIR.glob("fls_*.yaml"))
             raise ValueError(f"no FLS scene {str(scene)!r}: give a YAML path or one of {known}")
-        base, scene = path.parent, yaml.safe_load(path.read_text())
+        base, scene = path.parent, load_yaml_file(path)
     floor = scene.get("seafloor")
     seafloor: Plane | HeightField | None = None
     if floor and floor.get("type", "plane") == "plane":

@@ -6,7 +6,15 @@ class TetherError(Exception):
 
 
 class ConfigError(TetherError):
-    """A launch file, node Config or command-line parameter is wrong."""
+    """A launch file, node Config or command-line parameter is wrong.
+
+    ``key`` names the offending parameter when there is one, so a launch file can point
+    at its line.
+    """
+
+    def __init__(self, message: str, *, key: str = "") -> None:
+        super().__init__(message)
+        self.key = key
 
 
 class DecodeError(TetherError):

@@ -15,28 +15,34 @@
         node: nodes.sonar.polar_imager:PolarImager
         inputs: {ping: sonar/ping, tick: timer/hz/10}
 
-Validation raises :class:`ConfigError` with one line naming the file, node and field.
+Validation raises :class:`ConfigError` with one line naming the file, line, node and key.
+The file is read with :func:`tether.yamlsafe.load_yaml` (aliases bounded before they
+expand, nesting bounded, duplicate keys refused); unknown keys are errors at every level,
+and numbers have ranges (timers in (0, 10 kHz], ``max_restarts`` in [0, 1000], every
+float parameter finite).
 """
 from __future__ import annotations
 
+import difflib
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
-
 from tether.errors import ConfigError
-from tether.node import Node, Ports, Tick
+from tether.node import MAX_TIMER_HZ, Node, Ports, Tick
 from tether.runner import load_node_class
 from tether.runtime import RunSpec, Source
 from tether.transport import ipc_endpoint, runtime_dir
+from tether.yamlsafe import Located, load_yaml, load_yaml_file
 
 ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 TIMER_RE = re.compile(r"^timer/(hz|ms)/([0-9]*\.?[0-9]+)$")
 RESTART_POLICIES = ("never", "on-failure")
 NODE_KEYS = {"id", "node", "params", "inputs", "restart", "max_restarts", "machine", "env"}
 TOP_KEYS = {"name", "nodes", "machines", "description"}
+ENV_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+MAX_RESTARTS = 1000
 
 
 @dataclass
@@ -89,8 +95,8 @@ class LaunchFile:
 def parse_value(text: str) -> Any:
     """A ``--param`` value: YAML scalar/list/map syntax (``20``, ``true``, ``[1, 2]``, ``bilinear``)."""
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError:
+        return load_yaml(text, where="--param")
+    except ConfigError:
         return text
 
 
@@ -106,52 +112,82 @@ def parse_overrides(items: list[str] | None) -> dict[str, dict[str, Any]]:
     return out
 
 
+def _at(where: str, mapping: Any, key: Any = None) -> str:
+    """``FILE:LINE`` of ``key`` in a mapping read by :func:`load_yaml` (of the mapping itself without a key)."""
+    if isinstance(mapping, Located):
+        return f"{where}:{mapping.line_of(key) if key is not None else mapping.line}"
+    return where
+
+
+def _unknown_keys(at: str, raw: Located, allowed: set[str], what: str) -> None:
+    for key in raw:
+        if key not in allowed:
+            close = difflib.get_close_matches(str(key), sorted(allowed), n=1)
+            hint = f"did you mean {close[0]!r}?" if close else f"allowed: {', '.join(sorted(allowed))}"
+            raise ConfigError(f"{_at(at, raw, key)}: {what}unknown key {key!r} ({hint})")
+
+
+def _int_in(at: str, raw: Any, key: str, default: int, lo: int, hi: int, what: str = "") -> int:
+    value = raw.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ConfigError(f"{_at(at, raw, key)}: {what}{key} must be an integer in [{lo}, {hi}], got {value!r}")
+    return value
+
+
 def load_launch(path: str | Path, overrides: Mapping[str, Mapping[str, Any]] | None = None) -> LaunchFile:
-    """Read and validate a launch file; ``overrides`` are {node: {param: value}}."""
+    """Read and validate a launch file; ``overrides`` are {node: {param: value}}.
+
+    Every error is one :class:`ConfigError` line naming the file, the line and the key.
+    """
     path = Path(path)
     where = str(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{where}: no such launch file") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{where}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    if not path.exists():
+        raise ConfigError(f"{where}: no such launch file")
+    doc = load_yaml_file(path)
     if not isinstance(doc, dict):
         raise ConfigError(f"{where}: a launch file is a mapping with 'name' and 'nodes'")
-    unknown = set(doc) - TOP_KEYS
-    if unknown:
-        raise ConfigError(f"{where}: unknown top-level key(s) {sorted(unknown)} (allowed: {sorted(TOP_KEYS)})")
-    name = str(doc.get("name") or path.stem)
-    if not ID_RE.match(name):
-        raise ConfigError(f"{where}: name {name!r} must be letters, digits, '-' or '_'")
-    machines = _machines(where, doc.get("machines") or {})
+    _unknown_keys(where, doc, TOP_KEYS, "")
+    name = doc.get("name", path.stem)
+    if not isinstance(name, str) or not ID_RE.match(name):
+        raise ConfigError(f"{_at(where, doc, 'name')}: name {name!r} must be letters, digits, '-' or '_'")
+    if not isinstance(doc.get("description", ""), str):
+        raise ConfigError(f"{_at(where, doc, 'description')}: description must be text")
+    machines = _machines(where, doc, doc.get("machines") or {})
     raw_nodes = doc.get("nodes")
     if not isinstance(raw_nodes, list) or not raw_nodes:
-        raise ConfigError(f"{where}: 'nodes' must be a non-empty list")
+        raise ConfigError(f"{_at(where, doc, 'nodes')}: 'nodes' must be a non-empty list")
     overrides = dict(overrides or {})
     nodes = [_node_entry(where, i, raw, machines, overrides) for i, raw in enumerate(raw_nodes)]
-    seen: set[str] = set()
-    for entry in nodes:
+    seen: dict[str, NodeEntry] = {}
+    for raw, entry in zip(raw_nodes, nodes):
         if entry.id in seen:
-            raise ConfigError(f"{where}: node id {entry.id!r} is used twice")
-        seen.add(entry.id)
+            raise ConfigError(f"{_at(where, raw, 'id')}: node id {entry.id!r} is used twice")
+        seen[entry.id] = entry
     for node_id in overrides:
         if node_id not in seen:
             raise ConfigError(f"{where}: --param for unknown node {node_id!r} (nodes: {sorted(seen)})")
     launch = LaunchFile(path=path, name=name, nodes=nodes, machines=machines)
-    _check_wiring(where, launch)
+    _check_wiring(where, launch, dict(zip((n.id for n in nodes), raw_nodes)))
     return launch
 
 
-def _machines(where: str, raw: Any) -> dict[str, Machine]:
+def _machines(where: str, doc: Any, raw: Any) -> dict[str, Machine]:
     if not isinstance(raw, dict):
-        raise ConfigError(f"{where}: 'machines' must map a name to {{host, port_base}}")
+        raise ConfigError(f"{_at(where, doc, 'machines')}: 'machines' must map a name to {{host, port_base}}")
     out = {}
     for name, spec in raw.items():
-        spec = spec or {}
-        if not isinstance(spec, dict) or set(spec) - {"host", "port_base"}:
-            raise ConfigError(f"{where}: machine {name!r}: expected keys host, port_base")
-        out[str(name)] = Machine(str(name), str(spec.get("host", "127.0.0.1")), int(spec.get("port_base", 47000)))
+        at = f"{_at(where, raw, name)}: machine {name!r}"
+        if not isinstance(name, str) or not ID_RE.match(name):
+            raise ConfigError(f"{at}: a machine name is letters, digits, '-' or '_'")
+        spec = spec if spec is not None else {}
+        if not isinstance(spec, dict):
+            raise ConfigError(f"{at}: expected a mapping with host, port_base")
+        _unknown_keys(where, spec, {"host", "port_base"}, f"machine {name!r}: ")
+        host = spec.get("host", "127.0.0.1")
+        if not isinstance(host, str) or not host or len(host) > 253 or any(c.isspace() for c in host):
+            raise ConfigError(f"{_at(where, spec, 'host')}: machine {name!r}: host must be a host name or address")
+        port = _int_in(where, spec, "port_base", 47000, 1024, 65000, f"machine {name!r}: ")
+        out[name] = Machine(name, host, port)
     return out
 
 
@@ -161,54 +197,83 @@ def _node_entry(where: str, index: int, raw: Any, machines: dict[str, Machine],
         raise ConfigError(f"{where}: nodes[{index}] must be a mapping with id and node")
     node_id = raw.get("id")
     if not isinstance(node_id, str) or not ID_RE.match(node_id):
-        raise ConfigError(f"{where}: nodes[{index}]: id {node_id!r} must start with a letter "
+        raise ConfigError(f"{_at(where, raw, 'id')}: nodes[{index}]: id {node_id!r} must start with a letter "
                           "and use letters, digits, '-' or '_'")
-    at = f"{where}: node {node_id!r}"
-    unknown = set(raw) - NODE_KEYS
-    if unknown:
-        raise ConfigError(f"{at}: unknown key(s) {sorted(unknown)} (allowed: {sorted(NODE_KEYS)})")
+    what = f"node {node_id!r}: "
+    _unknown_keys(where, raw, NODE_KEYS, what)
     if not isinstance(raw.get("node"), str):
-        raise ConfigError(f"{at}: 'node' must be 'module.path:ClassName'")
+        raise ConfigError(f"{_at(where, raw, 'node')}: {what}'node' must be 'module.path:ClassName'")
     try:
         cls = load_node_class(raw["node"])
     except ConfigError as exc:
-        raise ConfigError(f"{at}: {exc}") from None
-    params = dict(raw.get("params") or {})
+        raise ConfigError(f"{_at(where, raw, 'node')}: {what}{exc}") from None
+    raw_params = raw.get("params")
+    if raw_params is not None and not isinstance(raw_params, dict):
+        raise ConfigError(f"{_at(where, raw, 'params')}: {what}'params' must be a mapping of name: value")
+    params = dict(raw_params or {})
     params.update(overrides.get(node_id, {}))
     try:
         config = cls.make_config(params)
         ports = cls.resolve_ports(config)
     except ConfigError as exc:
-        raise ConfigError(f"{at}: {exc}") from None
+        overridden = exc.key in overrides.get(node_id, {})
+        at = "--param" if overridden else _at(where, raw_params if exc.key in (raw_params or {}) else raw,
+                                              exc.key if exc.key in (raw_params or {}) else "params")
+        raise ConfigError(f"{at}: {what}{exc}") from None
     except Exception as exc:  # noqa: BLE001 - a Config.__post_init__ saying what is wrong
-        raise ConfigError(f"{at}: params: {type(exc).__name__}: {exc}") from None
+        raise ConfigError(f"{_at(where, raw, 'params')}: {what}params: {type(exc).__name__}: {exc}") from None
     inputs = raw.get("inputs") or {}
-    if not isinstance(inputs, dict):
-        raise ConfigError(f"{at}: 'inputs' must map input names to 'node/output'")
+    if not isinstance(inputs, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in inputs.items()):
+        raise ConfigError(f"{_at(where, raw, 'inputs')}: {what}'inputs' must map input names to 'node/output'")
     restart = raw.get("restart", "never")
     if restart not in RESTART_POLICIES:
-        raise ConfigError(f"{at}: restart {restart!r} must be one of {RESTART_POLICIES}")
-    machine = str(raw.get("machine") or "")
-    if machine and machine not in machines:
-        raise ConfigError(f"{at}: machine {machine!r} is not declared under 'machines'")
+        raise ConfigError(f"{_at(where, raw, 'restart')}: {what}restart {restart!r} must be one of {RESTART_POLICIES}")
+    max_restarts = _int_in(where, raw, "max_restarts", 3, 0, MAX_RESTARTS, what)
+    machine = raw.get("machine") or ""
+    if not isinstance(machine, str) or (machine and machine not in machines):
+        raise ConfigError(f"{_at(where, raw, 'machine')}: {what}machine {machine!r} is not declared under 'machines'")
     if machines and not machine:
-        raise ConfigError(f"{at}: the file declares machines, so every node names its 'machine'")
-    return NodeEntry(id=node_id, node=raw["node"], params=params, inputs={str(k): str(v) for k, v in inputs.items()},
-                     restart=restart, max_restarts=int(raw.get("max_restarts", 3)), machine=machine,
-                     env={str(k): str(v) for k, v in (raw.get("env") or {}).items()}, cls=cls, ports=ports)
+        raise ConfigError(f"{_at(where, raw)}: {what}the file declares machines, so every node names its 'machine'")
+    return NodeEntry(id=node_id, node=raw["node"], params=params, inputs=dict(inputs), restart=restart,
+                     max_restarts=max_restarts, machine=machine, env=_env(where, raw, what), cls=cls, ports=ports)
 
 
-def _check_wiring(where: str, launch: LaunchFile) -> None:
+def _env(where: str, raw: Any, what: str) -> dict[str, str]:
+    env = raw.get("env")
+    if env is None:
+        return {}
+    if not isinstance(env, dict):
+        raise ConfigError(f"{_at(where, raw, 'env')}: {what}'env' must map NAME: value, not a {type(env).__name__}")
+    out = {}
+    for key, value in env.items():
+        at = f"{_at(where, env, key)}: {what}env {key!r}"
+        if not isinstance(key, str) or not ENV_RE.match(key):
+            raise ConfigError(f"{at}: a variable name is letters, digits and '_', not starting with a digit")
+        if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+            raise ConfigError(f"{at}: the value must be text or a number, not {type(value).__name__}")
+        text = str(value)
+        if "\0" in text or len(text) > 32768:
+            raise ConfigError(f"{at}: the value holds a NUL byte or is longer than 32768 characters")
+        out[key] = text
+    return out
+
+
+def _check_wiring(where: str, launch: LaunchFile, raws: Mapping[str, Any]) -> None:
     by_id = {n.id: n for n in launch.nodes}
     for entry in launch.nodes:
-        at = f"{where}: node {entry.id!r}"
+        raw_inputs = raws[entry.id].get("inputs")
         for name, src in entry.inputs.items():
+            at = f"{_at(where, raw_inputs, name)}: node {entry.id!r}"
             port = entry.ports.inputs.get(name)
             if port is None:
                 raise ConfigError(f"{at}: unknown input {name!r} (inputs: {sorted(entry.ports.inputs) or 'none'})")
             if TIMER_RE.match(src):
                 if port.type is not Tick:
                     raise ConfigError(f"{at}: input {name!r} takes {port.type.type_name()}, not a timer")
+                try:
+                    timer_period_ns(src)
+                except ConfigError as exc:
+                    raise ConfigError(f"{at}: input {name!r}: {exc}") from None
                 continue
             src_id, slash, output = src.partition("/")
             if not slash or src_id not in by_id:
@@ -225,10 +290,10 @@ def _check_wiring(where: str, launch: LaunchFile) -> None:
 
 def timer_period_ns(src: str) -> int:
     kind, value = TIMER_RE.match(src).groups()  # type: ignore[union-attr]
-    value_f = float(value)
-    if value_f <= 0:
-        raise ConfigError(f"timer {src!r} needs a positive value")
-    return int(round(1e9 / value_f)) if kind == "hz" else int(round(value_f * 1e6))
+    hz = float(value) if kind == "hz" else (1e3 / float(value) if float(value) > 0 else 0.0)
+    if not 0 < hz <= MAX_TIMER_HZ or (kind == "ms" and float(value) > 1e7):
+        raise ConfigError(f"timer {src!r} must tick between every 10^7 ms and {MAX_TIMER_HZ:g} Hz")
+    return int(round(1e9 / hz)) if kind == "hz" else int(round(float(value) * 1e6))
 
 
 def plan(launch: LaunchFile, *, token: str, curve: dict[str, Any] | None = None) -> dict[str, RunSpec]:

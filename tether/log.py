@@ -63,6 +63,7 @@ class LogWriter:
         self._writer.start(profile="tether", library="tether")
         if metadata:
             self._writer.add_metadata("tether", {k: str(v) for k, v in metadata.items()})
+        self._fh.flush()         # a writer killed before its first chunk still leaves a valid start
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str], int] = {}
         self._codec = Codec()

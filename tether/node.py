@@ -12,7 +12,10 @@ The same class runs in a launched pipeline, alone (``tether run``), in
 """
 from __future__ import annotations
 
+import difflib
 import logging
+import math
+import re
 import threading
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Iterable, Mapping
@@ -21,6 +24,9 @@ import msgspec
 
 from tether.errors import ConfigError
 from tether.message import Message
+
+
+MAX_TIMER_HZ = 10_000.0        # a timer faster than this is a typo (or an attack), not a design
 
 
 class Tick(Message, tag="std.Tick"):
@@ -109,8 +115,10 @@ class Node:
         timers: dict[str, int] = {}
         for name, rate in raw_timers.items():
             rate_hz = getattr(config, rate) if isinstance(rate, str) else rate
-            if not rate_hz or rate_hz <= 0:
-                raise ConfigError(f"{cls.__name__}: timer {name!r} needs a positive rate, got {rate_hz!r}")
+            if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float)) \
+                    or not 0 < rate_hz <= MAX_TIMER_HZ:      # also False for NaN
+                raise ConfigError(f"{cls.__name__}: timer {name!r} needs a rate in (0, {MAX_TIMER_HZ}] Hz, "
+                                  f"got {rate_hz!r}", key=rate if isinstance(rate, str) else "")
             timers[name] = int(round(1e9 / float(rate_hz)))
             inputs.setdefault(name, Input(Tick, depth=1, latest=True))
         for name in inputs:
@@ -121,10 +129,23 @@ class Node:
     @classmethod
     def make_config(cls, params: Mapping[str, Any] | None = None) -> msgspec.Struct:
         """Validate ``params`` against ``Config``; raise ``ConfigError`` naming the field."""
+        name = f"{cls.__module__}:{cls.__name__} params"
+        params = dict(params or {})
+        fields = tuple(getattr(cls.Config, "__struct_fields__", ()))
+        for key in params:
+            if key not in fields:
+                close = difflib.get_close_matches(str(key), fields, n=1)
+                hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(fields) or 'none'}"
+                raise ConfigError(f"{name}: unknown key {key!r} ({hint})", key=str(key))
+        for key, value in params.items():
+            where = _non_finite(value)
+            if where is not None:
+                raise ConfigError(f"{name}: {key}{where} must be a finite number, got {value!r}"[:300], key=str(key))
         try:
-            return msgspec.convert(dict(params or {}), cls.Config, strict=False)
+            return msgspec.convert(params, cls.Config, strict=False)
         except msgspec.ValidationError as exc:
-            raise ConfigError(f"{cls.__module__}:{cls.__name__} params: {exc}") from None
+            found = re.search(r"at `\$\.([A-Za-z0-9_]+)", str(exc))
+            raise ConfigError(f"{name}: {exc}", key=found.group(1) if found else "") from None
 
     @classmethod
     def is_source(cls) -> bool:
@@ -159,6 +180,23 @@ class Node:
         """Call ``on_<input>`` and publish whatever it returns."""
         for output, out in iter_outputs(self.handler(input_name)(msg)):
             self.publish(output, out)
+
+
+def _non_finite(value: Any, depth: int = 0) -> str | None:
+    """Where inside ``value`` a NaN or infinity sits ("" for the value itself), or None."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else ""
+    if depth < 8 and isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            inner = _non_finite(item, depth + 1)
+            if inner is not None:
+                return f"[{i}]{inner}"
+    if depth < 8 and isinstance(value, Mapping):
+        for k, item in value.items():
+            inner = _non_finite(item, depth + 1)
+            if inner is not None:
+                return f".{k}{inner}"
+    return None
 
 
 def iter_outputs(result: Any) -> Iterable[tuple[str, Message]]:

@@ -23,7 +23,6 @@ from typing import Literal
 
 import msgspec
 import numpy as np
-import yaml
 
 from msgs.geometry import Pose3D
 from msgs.sensor import PointCloud
@@ -32,6 +31,7 @@ from nodes.sonar.arcs import arcs_from_scan
 from nodes.sonar.icp import IcpModel, IcpSettings, align
 from nodes.sonar.model import load_mesh, sample_mesh, sample_seabed, sample_structures, tripod_model
 from tether import Input, Node
+from tether.yamlsafe import load_yaml_file
 
 
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -91,7 +91,7 @@ def load_model(cfg: Config) -> tuple[np.ndarray, np.ndarray]:
     if not path.is_file():
         raise ValueError(f"model {cfg.model!r}: not 'tripod', 'tripod_symmetric' or an existing .ply/.obj/.yaml file")
     if path.suffix.lower() in (".yaml", ".yml"):
-        scene = yaml.safe_load(path.read_text()) or {}
+        scene = load_yaml_file(path) or {}
         floor = (scene.get("seafloor") or {}).get("z_m")
         pts, nrm = sample_structures(scene.get("structures", []), cfg.spacing_m, base=path.parent,
                                      seabed_z_m=None if floor is None else float(floor))

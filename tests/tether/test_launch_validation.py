@@ -4,6 +4,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -32,7 +33,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 CASES = [
     ("name: g\nnodes: [\n", "not valid YAML"),
     ("- a\n- b\n", "a launch file is a mapping"),
-    ("name: g\nnodez: []\n", "unknown top-level key"),
+    ("name: g\nnodez: []\n", "unknown key 'nodez' \\(did you mean 'nodes'\\?\\)"),
     ("name: g\nnodes: []\n", "non-empty list"),
     ("name: g\nnodes:\n  - {id: 1x, node: nodes.std.demo:Counter}\n", "id '1x'"),
     ("name: g\nnodes:\n  - {id: a, node: nodes.std.nothere:Counter}\n", "node 'a': cannot import module 'nodes.std.nothere'"),
@@ -40,7 +41,7 @@ CASES = [
     ("name: g\nnodes:\n  - {id: a, node: nodes.std.demo}\n", "'module.path:ClassName'"),
     ("name: g\nnodes:\n  - {id: a, node: tether.errors:ConfigError}\n", "is not a tether Node"),
     ("name: g\nnodes:\n  - {id: a, node: nodes.std.demo:Counter, params: {rate_hz: fast}}\n", "node 'a'.*rate_hz"),
-    ("name: g\nnodes:\n  - {id: a, node: nodes.std.demo:Counter, params: {rate_hz: 0}}\n", "positive rate"),
+    ("name: g\nnodes:\n  - {id: a, node: nodes.std.demo:Counter, params: {rate_hz: 0}}\n", r"rate in \(0, 10000"),
     ("name: g\nnodes:\n  - {id: a, node: nodes.std.demo:Counter}\n  - {id: a, node: nodes.std.demo:Counter}\n", "'a' is used twice"),
     ("name: g\nnodes:\n  - {id: a, node: nodes.std.demo:Counter}\n  - {id: b, node: nodes.std.demo:Scale, inputs: {valu: a/value}}\n",
      "node 'b': unknown input 'valu'"),
@@ -66,6 +67,67 @@ def test_each_validation_error_names_file_node_and_field(tmp_path: Path, text: s
     assert str(path) in str(info.value) and "\n" not in str(info.value)
 
 
+LAUGHS = "".join(f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}" if i else "x"] * 9) + "]\n" for i in range(9))
+HEAD = "name: g\nnodes:\n  - id: a\n    node: nodes.std.demo:Counter\n"
+
+# (file text, the line the error must name, what it must say): the malformed files that
+# were accepted, hung `tether check` or ended in a traceback before.
+HOSTILE = [
+    (LAUGHS + "name: g\nnodes: [*l8]\n", 6, "billion laughs"),     # l5 is the first past 10^5
+    ("name: g\nx: &x [*x]\nnodes: []\n", 2, "refers to the node that contains it"),
+    ("name: g\nnodes: " + "[" * 5000 + "]" * 5000 + "\n", 2, "nested deeper than 64"),
+    ("name: g\nname: h\nnodes: []\n", 2, "duplicate key 'name' \\(first on line 1\\)"),
+    (HEAD + "    id: b\n", 5, "duplicate key 'id'"),
+    (HEAD + "    params:\n      rate_hz: 5\n      rate_hz: 6\n", 7, "duplicate key 'rate_hz'"),
+    (HEAD + "    params: {rate_hz: 1e30}\n", 5, r"rate in \(0, 10000"),
+    (HEAD + "    params: {rate_hz: .inf}\n", 5, "rate_hz must be a finite number"),
+    (HEAD + "    params: {rate_hz: .nan}\n", 5, "rate_hz must be a finite number"),
+    (HEAD + "    params:\n      start: 1\n      rate_hx: 5\n", 7, "unknown key 'rate_hx' \\(did you mean 'rate_hz'\\?\\)"),
+    (HEAD + "    params: [rate_hz, 5]\n", 5, "'params' must be a mapping"),
+    (HEAD + "    max_restarts: -5\n", 5, r"max_restarts must be an integer in \[0, 1000\]"),
+    (HEAD + "    max_restarts: 1.5\n", 5, "max_restarts must be an integer"),
+    (HEAD + "    max_restarts: true\n", 5, "max_restarts must be an integer"),
+    (HEAD + "    env: [A, B]\n", 5, "'env' must map NAME: value, not a list"),
+    (HEAD + "    env: {A: [1]}\n", 5, "must be text or a number"),
+    (HEAD + "    env: {1A: x}\n", 5, "a variable name is"),
+    (HEAD + "    env: {A: \"x\\0y\"}\n", 5, "NUL"),
+    (HEAD + "    restart: [on-failure]\n", 5, "restart"),
+    (HEAD + "    inputs: [a]\n", 5, "'inputs' must map"),
+    (HEAD + "    inputs: {tick: timer/hz/0}\n", 5, "input 'tick': timer 'timer/hz/0' must tick between"),
+    (HEAD + "    inputs:\n      tick: timer/hz/1000000000\n", 6, "10000 Hz"),
+    (HEAD + "    inputs:\n      tick: timer/ms/0.00001\n", 6, "10000 Hz"),
+    ("name: g\nmachines: {m: {host: h, port_base: 99999}}\nnodes:\n  - {id: a, node: nodes.std.demo:Counter, machine: m}\n",
+     2, r"port_base must be an integer in \[1024, 65000\]"),
+    ("name: g\nmachines: {m: {host: h, port: 1}}\nnodes:\n  - {id: a, node: nodes.std.demo:Counter, machine: m}\n",
+     2, "unknown key 'port'"),
+    ("name: g\nmachines: [m]\nnodes:\n  - {id: a, node: nodes.std.demo:Counter}\n", 2, "'machines' must map"),
+    ("name: [g]\nnodes:\n  - {id: a, node: nodes.std.demo:Counter}\n", 1, "name \\['g'\\] must be"),
+    ("name: g\nnodes:\n  - {id: a, node: nodes.std.demo:Counter}\n  - {id: a, node: nodes.std.demo:Scale}\n", 4,
+     "'a' is used twice"),
+    ("name: g\nnodes:\n  - {id: a, node: nodes.std.demo:Counter, {x: 1}: 2}\n", 3, "key must be a scalar"),
+]
+
+
+@pytest.mark.parametrize("text, line, message", HOSTILE)
+def test_hostile_launch_files_are_one_line_naming_file_and_line(tmp_path: Path, text: str, line: int,
+                                                                 message: str) -> None:
+    path = tmp_path / "g.yaml"
+    path.write_text(text)
+    t0 = time.monotonic()
+    with pytest.raises(ConfigError, match=message) as info:
+        load_launch(path)
+    assert time.monotonic() - t0 < 5.0                    # bombs are refused before they expand
+    assert str(info.value).startswith(f"{path}:{line}: ") and "\n" not in str(info.value)
+
+
+def test_an_anchor_merged_and_overridden_is_fine(tmp_path: Path) -> None:
+    path = tmp_path / "g.yaml"
+    path.write_text("name: g\nnodes:\n  - &c {id: a, node: nodes.std.demo:Counter, params: {rate_hz: 5}}\n"
+                    "  - {<<: *c, id: b}\n")
+    launch = load_launch(path)
+    assert [n.id for n in launch.nodes] == ["a", "b"] and launch.node("b").params == {"rate_hz": 5}
+
+
 def test_missing_file_and_bad_override(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="no such launch file"):
         load_launch(tmp_path / "nope.yaml")
@@ -76,6 +138,8 @@ def test_missing_file_and_bad_override(tmp_path: Path) -> None:
         parse_overrides(["gain=3"])
     with pytest.raises(ConfigError, match="gain"):
         load_launch(path, parse_overrides(["scale.gain=[1,2]"]))
+    with pytest.raises(ConfigError, match="^--param: node 'scale'.*gain must be a finite number"):
+        load_launch(path, parse_overrides(["scale.gain=.inf"]))
 
 
 def test_good_file_plans_exact_topics_and_subscriber_counts(tmp_path: Path) -> None:

@@ -141,7 +141,11 @@ def test_a_killed_recorder_is_restarted_into_a_new_segment_and_the_launch_fails(
         return found[0] if found else 0
 
     _wait(lambda: recorder() != 0, 10.0, "no recorder")
-    time.sleep(1.0)
+
+    def logged() -> int:
+        return sum(1 for _ in LogReader(log).messages()) if log.exists() else 0
+
+    _wait(lambda: logged() > 0, 15.0, "the first segment never got a chunk")
     os.kill(recorder(), signal.SIGKILL)
     second = tmp_path / "run.1.mcap"
     _wait(lambda: second.exists() and second.stat().st_size > 0, 15.0, "no second segment")
