@@ -19,7 +19,7 @@ import re
 import threading
 import time
 from pathlib import Path
-from typing import Iterable, Iterator, TextIO
+from typing import Callable, Iterable, Iterator, TextIO
 
 import can
 import msgspec
@@ -50,14 +50,17 @@ def parse_line(line: str) -> CanFrame | None:
     stamp_ns = _seconds_to_ns(m["ts"])
     common = dict(stamp_ns=stamp_ns, channel=m["ch"], is_rx=(m["dir"] or "R").upper() == "R")
     if extended and raw_id & CAN_ERR_FLAG:
-        return CanFrame(arbitration_id=raw_id & 0x1FFFFFFF, data=bytes.fromhex(rest[:16]) if rest else b"",
-                        is_extended_id=True, is_error_frame=True, dlc=len(rest) // 2, **common)
+        data = bytes.fromhex(rest[:16]) if rest else b""
+        return CanFrame(arbitration_id=raw_id & 0x1FFFFFFF, data=data, is_extended_id=True, is_error_frame=True,
+                        dlc=len(data), **common)
     if raw_id > (0x1FFFFFFF if extended else 0x7FF):
         raise ValueError(f"CAN id {id_text} does not fit {'29' if extended else '11'} bits in {text!r}")
     is_fd = rest.startswith("#")
     if is_fd:
         rest = rest[2:]                                  # '#' + flags nibble
     if rest[:1] in ("R", "r") and not is_fd:
+        if len(rest) > 2:
+            raise ValueError(f"a remote frame's length is one hex digit (0-F): {text!r}")
         dlc = int(rest[1:], 16) if len(rest) > 1 else 0
         return CanFrame(arbitration_id=raw_id, is_extended_id=extended, is_remote_frame=True, dlc=dlc, **common)
     payload = rest.split("_", 1)[0].replace(".", "")
@@ -69,8 +72,13 @@ def parse_line(line: str) -> CanFrame | None:
     return CanFrame(arbitration_id=raw_id, data=data, is_extended_id=extended, is_fd=is_fd, dlc=len(data), **common)
 
 
+MAX_STAMP_S = ((1 << 63) - 1) // 1_000_000_000     # 2262: the last second an int64 ns stamp holds
+
+
 def _seconds_to_ns(text: str) -> int:
     whole, _, frac = text.partition(".")
+    if len(whole) > 12 or int(whole) > MAX_STAMP_S:
+        raise ValueError(f"time {text[:40]} s is past what a nanosecond stamp holds (year 2262)")
     return int(whole) * 1_000_000_000 + int((frac + "000000000")[:9])
 
 
@@ -92,28 +100,40 @@ def format_line(frame: CanFrame, *, direction: bool = False, channel: str = "can
     return f"{ts} {ch} {ident}#{body}{suffix}"
 
 
-def iter_frames(lines: Iterable[str], *, errors: str = "raise") -> Iterator[CanFrame]:
-    """Parse lines lazily; ``errors='skip'`` logs and skips bad lines instead of raising."""
+MAX_LINE = 512          # a CAN FD line with 64 data bytes is < 200 characters
+
+
+def iter_frames(lines: Iterable[str], *, errors: str = "raise",
+                on_skip: Callable[[int, str], None] | None = None) -> Iterator[CanFrame]:
+    """Parse lines lazily; ``errors='skip'`` skips bad lines instead of raising, calling
+    ``on_skip(line_number, reason)`` (default: a log line each)."""
     if errors not in ("raise", "skip"):
         raise ValueError("errors must be 'raise' or 'skip'")
     for number, line in enumerate(lines, start=1):
         try:
+            if len(line) > MAX_LINE:
+                raise ValueError(f"a line of {len(line)} characters (at most {MAX_LINE})")
             frame = parse_line(line)
         except ValueError as exc:
             if errors == "raise":
                 raise ValueError(f"line {number}: {exc}") from None
-            log.warning("skipped line %d: %s", number, exc)
+            (on_skip or _log_skip)(number, str(exc)[:200])
             continue
         if frame is not None:
             yield frame
 
 
-def read_candump(source: str | Path | TextIO, *, errors: str = "raise") -> list[CanFrame]:
+def _log_skip(number: int, reason: str) -> None:
+    log.warning("skipped line %d: %s", number, reason)
+
+
+def read_candump(source: str | Path | TextIO, *, errors: str = "raise",
+                 on_skip: Callable[[int, str], None] | None = None) -> list[CanFrame]:
     """All frames of a ``candump -L`` / python-can ``.log`` file (path or open text file)."""
     if isinstance(source, (str, Path)):
         with open(source, encoding="ascii", errors="replace") as f:
-            return list(iter_frames(f, errors=errors))
-    return list(iter_frames(source, errors=errors))
+            return list(iter_frames(f, errors=errors, on_skip=on_skip))
+    return list(iter_frames(source, errors=errors, on_skip=on_skip))
 
 
 def write_candump(frames: Iterable[CanFrame], target: str | Path | TextIO, *, pylog: bool = False) -> int:

@@ -8,6 +8,7 @@ import sys
 import threading
 import time
 import uuid
+from pathlib import Path
 from typing import Any, Sequence
 
 from tether.errors import ConfigError, TetherError
@@ -256,11 +257,28 @@ def cmd_log(args: argparse.Namespace) -> int:
     return 0
 
 
+def _size(text: str) -> int:
+    """``65536``, ``64K``, ``64M``, ``1G`` -> bytes."""
+    units = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}
+    scale = units.get(text[-1:].upper(), 1)
+    try:
+        value = int(float(text[:-1] if scale > 1 else text) * scale)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size like 65536, 64K or 64M") from None
+    if not 1 <= value <= 1 << 40:
+        raise argparse.ArgumentTypeError(f"{text!r}: a size between 1 B and 1 TiB")
+    return value
+
+
 def cmd_import(args: argparse.Namespace) -> int:
     from tether.imports import IMPORTERS
 
-    n = IMPORTERS[args.kind](args.file, args.output, topic=args.topic)
-    print(f"imported {n} messages from {args.file} into {args.output}")
+    result = IMPORTERS[args.kind](args.file, args.output, topic=args.topic, max_bytes=args.max_bytes)
+    print(result.summary(args.file, args.output))
+    if result.imported == 0:
+        Path(args.output).unlink(missing_ok=True)
+        print(f"tether: error: nothing could be imported from {args.file}; no log written", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -388,6 +406,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--topic", help="topic to write (default sonar/ping or can/frame)")
+    p.add_argument("--max-bytes", type=_size, default=None,
+                   help="the most one record may take once decompressed (e.g. 64M; default 64 MiB)")
     p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("export", help="export a log for other tools")

@@ -6,13 +6,14 @@ import io
 import time
 
 import can
+import numpy as np
 import canopen
 import pytest
 
 from drivers import candump
 from drivers import cia402 as p
 from drivers.can_bus import frame_from_message, open_bus
-from drivers.candump import CandumpPlayer, format_line, parse_line, read_candump, replay, write_candump
+from drivers.candump import CandumpPlayer, format_line, iter_frames, parse_line, read_candump, replay, write_candump
 from msgs.can import CanFrame
 from tether.testing import Harness
 
@@ -131,3 +132,43 @@ def test_frame_message_conversion_keeps_fields():
     f = frame_from_message(m)
     assert (f.stamp_ns, f.arbitration_id, f.data, f.is_extended_id, f.channel, f.dlc) == \
            (12_500_000_000, 0x1ABCDEF0, b"\x01\x02", True, "can1", 2)
+
+
+@pytest.mark.parametrize("line, why", [
+    ("(99999999999999999999999.000000) can0 701#00", "past what a nanosecond stamp holds"),
+    ("(9223372037.000000) can0 701#00", "past what a nanosecond stamp holds"),
+    ("(1.0) can0 123#R" + "F" * 40, "one hex digit"),
+    ("(1.0) can0 123#" + "AB" * 9, "9 data bytes in a classic CAN frame"),
+    ("(1.0) can0 123##0" + "AB" * 65, "65 data bytes in a CAN FD frame"),
+    ("(1.0) can0 701#" + "0" * 600, "a line of"),
+])
+def test_hostile_lines_are_refused_with_a_reason(line, why):
+    with pytest.raises(ValueError, match=why):
+        list(iter_frames([line]))
+
+
+def test_an_error_frame_with_a_long_payload_keeps_eight_bytes():
+    f = parse_line("(1.0) can0 20000080#" + "AB" * 100)
+    assert f.is_error_frame and f.data == b"\xab" * 8 and f.dlc == 8
+
+
+def test_mutated_real_log_imports_without_a_traceback(tmp_path, shared_data):
+    from tether.imports import import_candump
+
+    lines = (shared_data / REAL).read_text().splitlines()
+    rng = np.random.default_rng(9)
+    hostile = ["(99999999999999999999999.000000) can0 701#00", "(1.0) can0 123#R" + "F" * 20,
+               "(1.0) can0 2" + "0" * 7 + "#" + "AB" * 300, "\x00\xff garbage"]
+    for trial in range(20):
+        mutated = list(lines)
+        for _ in range(5):
+            i = int(rng.integers(len(mutated)))
+            if rng.random() < 0.5:
+                mutated[i] = hostile[int(rng.integers(len(hostile)))]
+            else:
+                j = int(rng.integers(len(mutated[i]) or 1))
+                mutated[i] = mutated[i][:j] + chr(int(rng.integers(32, 127))) + mutated[i][j + 1:]
+        src = tmp_path / f"m{trial}.log"
+        src.write_text("\n".join(mutated) + "\n")
+        result = import_candump(src, tmp_path / "m.mcap")
+        assert len(lines) - 5 <= result.imported <= len(lines) and result.skipped <= 5

@@ -39,3 +39,15 @@ def test_import_real_candump_log(tmp_path: Path, runtime_env: dict, shared_data:
     assert {2, 3, 4} <= boot_ups
     stamps = [f.stamp_ns for f in frames]
     assert stamps == sorted(stamps) and stamps[0] > 0
+
+
+def test_import_skips_and_counts_bad_lines_and_fails_when_nothing_is_left(tmp_path, runtime_env):
+    good = tmp_path / "mixed.log"
+    good.write_text("(1.0) can0 701#00\n(99999999999999999999.0) can0 701#00\n(1.0) can0 123#RFFFF\n(2.0) can0 702#05\n")
+    res = tether("import", "candump", str(good), "-o", str(tmp_path / "m.mcap"), env=runtime_env)
+    assert res.returncode == 0 and "imported 2 messages" in res.stdout and "skipped 2 bad records" in res.stdout
+    assert "line 2:" in res.stderr and "line 3:" in res.stderr and "Traceback" not in res.stderr
+    bad = tmp_path / "bad.log"
+    bad.write_text("(99999999999999999999.0) can0 701#00\n")
+    res = tether("import", "candump", str(bad), "-o", str(tmp_path / "b.mcap"), env=runtime_env)
+    assert res.returncode == 1 and "nothing could be imported" in res.stderr and not (tmp_path / "b.mcap").exists()
