@@ -13,6 +13,7 @@ are re-exported here.
 from __future__ import annotations
 
 import collections
+import math
 from typing import Callable
 
 import can
@@ -53,7 +54,10 @@ class Cia402Bus(Node):
         self._axles = [d.axle_drive() for d in cfg.drives]
         self._setpoints: dict[str, int] | None = None
         self._cmd_ns: int | None = None
-        self._bad_cmds = 0
+        self._cmd_stamp_ns = 0
+        self._rejected = {"bad": 0, "stale": 0}
+        self._clamped = 0
+        self._last_reject_log_ns = self._last_clamp_log_ns = 0
         self._next_state_ns = 0
         self._ready: bool | None = None
         self._frames: collections.deque[CanFrame] = collections.deque(maxlen=20_000)
@@ -72,24 +76,53 @@ class Cia402Bus(Node):
         return open_bus(cfg.interface, cfg.channel, cfg.bitrate, **bus_options(cfg))
 
     def on_cmd(self, cmd: WheelCommand) -> None:
-        try:
-            self._setpoints = setpoints_from_command(cmd.v_front_mps, cmd.delta_front_rad, cmd.v_rear_mps,
-                                                     cmd.delta_rear_rad, self._axles,
-                                                     steer_limit_rad=self.config.steer_limit_rad)
-        except ValueError as exc:                    # NaN / inf: not a command; the watchdog runs on
-            self._bad_cmds += 1
-            self.log.error("ignored wheel command (%d so far): %s", self._bad_cmds, exc)
+        cfg: Config = self.config  # type: ignore[assignment]
+        now = self.now_ns()
+        values = (cmd.v_front_mps, cmd.delta_front_rad, cmd.v_rear_mps, cmd.delta_rear_rad)
+        if not all(math.isfinite(v) for v in values):   # NaN / inf: not a command; the watchdog runs on
+            self._reject("bad", f"non-finite wheel command {values}")
             return
-        self._cmd_ns = self.now_ns()
+        if cmd.stamp_ns and abs(now - cmd.stamp_ns) > cfg.cmd_timeout_s * 1e9:
+            # Judged by its stamp as well as by arrival: a command delayed or replayed is not one.
+            self._reject("stale", f"wheel command stamped {(now - cmd.stamp_ns) * 1e-9:+.3f} s from now")
+            return
+        vf, df, vr, dr = values
+        fastest = max(abs(vf), abs(vr))
+        if fastest > cfg.max_speed_mps:
+            scale = cfg.max_speed_mps / fastest         # both axles alike: the path's curvature is kept
+            vf, vr = vf * scale, vr * scale
+            self._clamped += 1
+            if self._clamped == 1 or now - self._last_clamp_log_ns > 5e9:
+                self._last_clamp_log_ns = now
+                self.log.warning("wheel command of %.3g m/s scaled to max_speed_mps %.3g (%d so far)",
+                                 fastest, cfg.max_speed_mps, self._clamped)
+        self._setpoints = setpoints_from_command(vf, df, vr, dr, self._axles, steer_limit_rad=cfg.steer_limit_rad)
+        self._cmd_ns = now
+        self._cmd_stamp_ns = cmd.stamp_ns
+
+    def _reject(self, kind: str, why: str) -> None:
+        count = self._rejected[kind] = self._rejected[kind] + 1
+        now = self.now_ns()
+        if count == 1 or now - self._last_reject_log_ns > 5e9:
+            self._last_reject_log_ns = now
+            self.log.error("ignored wheel command (%d %s so far): %s", count, kind, why)
+
+    def _fresh(self, now: int) -> bool:
+        """Commands are fresh by arrival *and* by stamp (0 = unstamped: arrival only)."""
+        limit = self.config.cmd_timeout_s * 1e9
+        if self._cmd_ns is None or now - self._cmd_ns > limit:
+            return False
+        return not self._cmd_stamp_ns or abs(now - self._cmd_stamp_ns) <= limit
 
     def on_reset(self, msg: Empty) -> None:
         self.master.reset()
 
     def on_tick(self, tick: object) -> list[tuple[str, object]]:
         now = self.now_ns()
-        fresh = self._cmd_ns is not None and now - self._cmd_ns <= self.config.cmd_timeout_s * 1e9
+        fresh = self._fresh(now)
         if not fresh and self._setpoints is not None and self.master.ready() and not self.master.latched:
-            self.log.warning("no wheel command for %.2f s: quick stop", self.config.cmd_timeout_s)
+            self.log.warning("no fresh wheel command (by arrival and stamp) for %.2f s: quick stop",
+                             self.config.cmd_timeout_s)
             self._setpoints = None
         self.master.step(now * 1e-9, self._setpoints if fresh else None)
         out: list[tuple[str, object]] = []
@@ -129,9 +162,14 @@ class Cia402Bus(Node):
 
     def teardown(self) -> None:
         self.master.close()
-        if self.master.errors or self._bad_cmds or self._bus.recv_errors:
-            self.log.warning("CAN errors: %d bus callbacks, %d bad commands, %d undecodable frames",
-                             self.master.errors, self._bad_cmds, self._bus.recv_errors)
+        if self.master.errors or any(self._rejected.values()) or self._clamped or self._bus.recv_errors:
+            self.log.warning("CAN errors: %d bus callbacks, %d undecodable frames; commands: %d non-finite, "
+                             "%d stale, %d scaled to max_speed_mps", self.master.errors, self._bus.recv_errors,
+                             self._rejected["bad"], self._rejected["stale"], self._clamped)
+        for d in self.master.drives.values():
+            if d.emcy_history:
+                self.log.info("%s EMCY history: %s", d.name, ", ".join(
+                    f"0x{e.code:04X} {e.text} @{e.time_s:.3f}s" for e in d.emcy_history))
 
 
 class _Tap(can.Listener):

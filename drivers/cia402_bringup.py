@@ -4,9 +4,12 @@ configuration sequence (device type, heartbeats, PDOs, mode, ramps, safe set-poi
 """
 from __future__ import annotations
 
+import collections
 import logging
+import math
 import threading
 import time
+from dataclasses import dataclass
 
 import canopen
 
@@ -15,6 +18,19 @@ from drivers.cia402_config import Config, DriveConfig
 from tether import DriverError
 
 log = logging.getLogger("drivers.canopen402")
+
+
+EMCY_HISTORY = 32
+
+
+@dataclass(frozen=True)
+class EmcyRecord:
+    """One emergency message as received: when (master clock, s), code, error register, text."""
+
+    time_s: float
+    code: int
+    register: int
+    text: str
 
 
 class Drive:
@@ -37,6 +53,11 @@ class Drive:
         self.emcy_code = 0
         self.fault = ""
         self.next_try = 0.0
+        self.last_feedback: float | None = None     # clock of the last statusword / position PDO
+        self.emcy_history: collections.deque[EmcyRecord] = collections.deque(maxlen=EMCY_HISTORY)
+        self.error_code: int | None = None          # 0x603F, read after an in-service fault
+        self.read_error_code = False
+        self.last_fault_reset = -math.inf
 
     @property
     def name(self) -> str:
@@ -140,6 +161,9 @@ def bring_up(network: canopen.Network, d: Drive, cfg: Config, *, skip: set[int],
     for index, value in ramps.items():
         if index not in skip:
             sdo_write(d, index, 0, int(round(value * k)), 4)
+        elif index == p.PROFILE_VELOCITY:
+            log.warning("%s: no profile velocity 0x6081 in its object dictionary: its steering rate is the "
+                        "drive's own default, not steer_speed_radps", d.name)
     d.position = p.unwrap_int32(None, sdo_read(d, p.POSITION_ACTUAL, 0, 4, signed=True))
     # A safe set-point before anything can enable: stand still / stay where you are.
     d.target = 0 if wheel else int(d.position)

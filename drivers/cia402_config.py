@@ -60,6 +60,9 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     retry_s: float = 1.0                 # bring-up retry of a missing drive
     reset_comm: bool = True              # NMT reset communication before configuring
     max_fault_resets: int = 3            # for faults present before a drive was ever enabled
+    fault_reset_interval_s: float = 0.5  # between two of those resets (a drive needs time to clear)
+    feedback_timeout_ms: int = 200       # statusword/position PDOs older than this (or 3 PDO periods) trip
+    max_speed_mps: float = 3.0           # wheel speed commands beyond this are scaled down (counted)
     wheel_accel_mps2: float = 3.0
     quick_stop_decel_mps2: float = 6.0
     steer_speed_radps: float = 4.0
@@ -109,6 +112,16 @@ def check_config(cfg: Config) -> None:
             raise ValueError(f"drive {d.name!r}: node id must be 1..127 and differ from master_node_id")
     if cfg.rate_hz <= 0 or cfg.cmd_timeout_s <= 0 or cfg.heartbeat_ms <= 0:
         raise ValueError("rate_hz, cmd_timeout_s and heartbeat_ms must be > 0")
+    if cfg.feedback_timeout_ms < 0 or cfg.max_speed_mps <= 0 or cfg.fault_reset_interval_s < 0 \
+            or cfg.steer_speed_radps <= 0:
+        raise ValueError("feedback_timeout_ms and fault_reset_interval_s must be >= 0 (0: off), "
+                         "max_speed_mps and steer_speed_radps > 0")
+
+
+def feedback_bound_s(cfg: Config) -> float:
+    """How long a drive's feedback PDOs may be silent: ``feedback_timeout_ms`` or three PDO periods."""
+    period_s = 1.0 / cfg.sync_hz if cfg.sync_hz > 0 else cfg.tpdo_event_ms / 1000.0
+    return max(cfg.feedback_timeout_ms / 1000.0, 3.0 * period_s)
 
 
 def bus_options(cfg: Config) -> dict:

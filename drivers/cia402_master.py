@@ -29,8 +29,8 @@ import can
 import canopen
 
 from drivers import cia402 as p
-from drivers.cia402_bringup import Drive, bring_up
-from drivers.cia402_config import Config, check_config, check_object_dictionary
+from drivers.cia402_bringup import Drive, EmcyRecord, bring_up, sdo_read
+from drivers.cia402_config import Config, check_config, check_object_dictionary, feedback_bound_s
 from tether import DriverError
 
 log = logging.getLogger("drivers.canopen402")      # one logger for the whole driver
@@ -84,6 +84,7 @@ class Cia402Master:
                 d.booted.set()
                 if d.configured:       # rebooted in service: it lost its configuration
                     d.configured = False
+                    d.last_feedback = None
                     self.trip(f"{d.name} rebooted")
         return cb
 
@@ -95,6 +96,7 @@ class Cia402Master:
                 self.errors += 1
                 log.error("%s: %s", d.name, exc)
                 return
+            d.emcy_history.append(EmcyRecord(self._clock(), e.code, e.register, e.text))
             if e.is_reset:
                 d.emcy_code, d.fault = 0, ""
                 return
@@ -109,10 +111,13 @@ class Cia402Master:
             if len(data) < 2:
                 self.errors += 1
                 return
-            was_enabled = d.was_enabled
+            was_enabled, was_faulted = d.was_enabled, d.state in (p.FAULT, p.FAULT_REACTION_ACTIVE)
             d.set_statusword(struct.unpack_from("<H", data)[0])
             d.mode = struct.unpack_from("<b", data, 2)[0] if len(data) >= 3 else d.mode
+            d.last_feedback = self._clock()
             if d.state in (p.FAULT, p.FAULT_REACTION_ACTIVE) and was_enabled and d.configured:
+                if not was_faulted:
+                    d.read_error_code = True          # 0x603F says why; read it outside the callback
                 self.trip(f"{d.name} faulted in service (statusword 0x{d.statusword:04X})")
         return cb
 
@@ -123,6 +128,7 @@ class Cia402Master:
                 return
             raw_pos, d.velocity = struct.unpack_from("<ii", data)
             d.position = p.unwrap_int32(d.position, raw_pos)
+            d.last_feedback = self._clock()
         return cb
 
     # -- bring-up ----------------------------------------------------------------------
@@ -157,6 +163,8 @@ class Cia402Master:
     def bring_up_pending(self) -> None:
         """Try to bring up every drive that is not configured and not waiting for its retry time."""
         for d in self.drives.values():
+            if d.configured and d.read_error_code and not self._stop.is_set():
+                self._read_error_code(d)
             if d.configured or self._clock() < d.next_try or self._stop.is_set():
                 continue
             try:
@@ -168,6 +176,17 @@ class Cia402Master:
             except Exception:  # noqa: BLE001 - the bring-up thread must outlive any surprise
                 d.next_try = self._clock() + self.cfg.retry_s
                 log.exception("%s (node %d): bring-up failed unexpectedly", d.name, d.spec.node_id)
+
+    def _read_error_code(self, d: Drive) -> None:
+        """Upload 0x603F (the drive's own error code) after an in-service fault, once."""
+        d.read_error_code = False
+        try:
+            d.error_code = sdo_read(d, p.ERROR_CODE, 0, 2)
+        except (DriverError, can.CanError) as exc:
+            log.error("%s (node %d): reading error code 0x603F failed: %s", d.name, d.spec.node_id, exc)
+            return
+        text = p.EMCY_CODES.get(d.error_code, p.EMCY_CODES.get(d.error_code & 0xFF00, "unknown"))
+        log.error("%s (node %d): error code 0x603F = 0x%04X (%s)", d.name, d.spec.node_id, d.error_code, text)
 
     def bring_up(self, d: Drive) -> None:
         """Configure one drive and start it (raises DriverError with the step that failed)."""
@@ -216,10 +235,20 @@ class Cia402Master:
             self._next_master_hb = now_s + cfg.master_heartbeat_ms / 1000.0
             self._send(p.HEARTBEAT + cfg.master_node_id, b"\x05")
         lost_after = cfg.heartbeat_ms * cfg.heartbeat_loss_factor / 1000.0
+        feedback_bound = feedback_bound_s(cfg)
+        clock = self._clock()
         for d in self.drives.values():
-            if d.configured and d.last_hb is not None and self._clock() - d.last_hb > lost_after:
+            if d.configured and d.last_hb is not None and clock - d.last_hb > lost_after:
                 d.nmt_state = "LOST"
                 self.trip(f"heartbeat of {d.name} lost")
+            if not d.configured or cfg.feedback_timeout_ms == 0:
+                continue
+            if d.last_feedback is None:
+                d.last_feedback = clock               # started: its PDOs must come from now on
+            elif clock - d.last_feedback > feedback_bound:
+                # The heartbeat may still come: a drive whose PDOs stop cannot be steered or watched.
+                self.trip(f"feedback PDOs of {d.name} (node {d.spec.node_id}) silent for "
+                          f"{(clock - d.last_feedback) * 1e3:.0f} ms (bound {feedback_bound * 1e3:.0f} ms)")
         faulted = any(d.state in (p.FAULT, p.FAULT_REACTION_ACTIVE) for d in self.drives.values())
         run = setpoints is not None and not self.latched and self.ready() and not faulted
         for d in self.drives.values():
@@ -228,16 +257,20 @@ class Cia402Master:
 
     def _command(self, d: Drive, setpoints: dict[str, int] | None) -> None:
         wheel = d.spec.role == "wheel"
+        cfg = self.cfg
         if setpoints is not None:
             target_state = p.OPERATION_ENABLED
-        elif d.state == p.FAULT and not d.was_enabled and d.fault_resets < self.cfg.max_fault_resets:
-            target_state = p.SWITCH_ON_DISABLED          # reset a fault we inherited; never powers up
+        elif d.state == p.FAULT and not d.was_enabled and d.fault_resets < cfg.max_fault_resets:
+            # Reset a fault we inherited (never powers up), paced: a drive needs time to clear it.
+            paced = self._clock() - d.last_fault_reset >= cfg.fault_reset_interval_s
+            target_state = p.SWITCH_ON_DISABLED if paced or d.cw_prev & p.CW_FAULT_RESET else p.QUICK_STOP_ACTIVE
         else:
             target_state = p.QUICK_STOP_ACTIVE
         cw = p.next_controlword(d.state, target_state, d.cw_prev)
-        if cw == p.CW_FAULT_RESET:
+        if cw == p.CW_FAULT_RESET and not d.cw_prev & p.CW_FAULT_RESET:
             d.fault_resets += 1
-            if d.fault_resets == self.cfg.max_fault_resets:
+            d.last_fault_reset = self._clock()
+            if d.fault_resets == cfg.max_fault_resets:
                 log.error("%s: fault persists after %d resets", d.name, d.fault_resets)
         enabled = d.state == p.OPERATION_ENABLED and setpoints is not None
         if wheel:
@@ -245,6 +278,9 @@ class Cia402Master:
             self._rpdo(d, cw, d.target)
             return
         if setpoints is not None:
+            # The steering rate is bounded by the drive itself: profile velocity 0x6081 =
+            # steer_speed_radps, written at bring-up (streaming slewed set-points instead would
+            # race the profile-position handshake); the angle by the fold to steer_limit_rad.
             d.target = setpoints[d.name]
         if not enabled:
             d.latched_target = None

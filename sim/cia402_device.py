@@ -260,6 +260,8 @@ class SimDrive:
                     self._send_tpdo(i)
 
     def _send_tpdo(self, i: int) -> None:
+        if self.faults.pdo_mute:
+            return
         data = b""
         for sub in range(1, self._get(0x1A00 + i, 0) + 1):
             entry = self._get(0x1A00 + i, sub)

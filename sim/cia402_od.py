@@ -25,6 +25,7 @@ class DriveFaults:
     sdo_silent: set[tuple[int, int]] = field(default_factory=set)         # never answered (timeout)
     junk: bytes = b"\0\0\0\0"               # bytes after the indicated size in upload responses
     mute: bool = False                      # transmits nothing (heartbeat loss)
+    pdo_mute: bool = False                  # transmits no PDO; heartbeat, EMCY and SDO go on
     deaf: bool = False                      # receives nothing (cable cut with mute)
     position_offset: int = 0                # initial position actual, e.g. near 2**31 for wrap tests
     sticky_fault: bool = False              # fault reset does not clear the fault

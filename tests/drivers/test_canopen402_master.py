@@ -131,7 +131,8 @@ def test_heartbeat_loss_stops_every_motor(deaf):
             bank.drives["front_wheel"].faults.mute = True
             bank.drives["front_wheel"].faults.deaf = deaf
         assert cycle(master, 3.0, until=lambda: all_still(bank)), speeds(bank)
-        assert "heartbeat" in master.latched
+        # The PDO bound (200 ms) usually fires before the heartbeat's (300 ms): either names the drive.
+        assert "heartbeat of front_" in master.latched or "feedback PDOs of front_" in master.latched
         if deaf:   # it never heard the quick stop: it stopped itself on the lost master heartbeat
             assert bank.drives["front_wheel"].state == p.FAULT and 0x8130 in bank.drives["front_wheel"].emcy_sent
 
@@ -157,7 +158,9 @@ def test_drive_in_fault_at_start_is_reset_then_runs():
 def test_persistent_fault_at_start_keeps_everything_still():
     with rig({"rear_steer": DriveFaults(start_in_fault=0x7300, sticky_fault=True)}) as (master, bank):
         assert cycle(master, 3.0, None, until=master.ready)
-        cycle(master, 1.0)                                          # commanded, but one drive cannot run
+        cycle(master, 0.3)                                          # commanded, but one drive cannot run
+        assert master.drives["rear_steer"].fault_resets == 1        # paced: one per fault_reset_interval_s
+        cycle(master, 1.5)
         assert all_still(bank)
         assert master.drives["rear_steer"].fault_resets == master.cfg.max_fault_resets
         assert all(d.state != p.OPERATION_ENABLED for d in bank.drives.values())
@@ -243,3 +246,30 @@ def test_object_dictionaries_from_the_shared_eds_and_dcf(shared_data):
 def test_runs_with_the_eds_object_dictionary(shared_data):
     with rig(eds=str(shared_data / "can" / "ros2_canopen_cia402_slave.eds")) as (master, bank):
         up_and_running(master, bank)
+
+
+def test_feedback_pdos_that_stop_while_the_heartbeat_goes_on_stop_every_motor():
+    with rig() as (master, bank):
+        up_and_running(master, bank)
+        with bank.lock:
+            bank.drives["rear_wheel"].faults.pdo_mute = True       # heartbeat and SDO still answer
+        t0 = time.monotonic()
+        assert cycle(master, 3.0, until=lambda: bool(master.latched))
+        assert time.monotonic() - t0 < 1.0 and "feedback PDOs of rear_wheel (node 3)" in master.latched
+        assert master.drives["rear_wheel"].nmt_state != "LOST"     # it was not the heartbeat
+        assert cycle(master, 3.0, until=lambda: all_still(bank)), speeds(bank)
+
+
+def test_emcy_history_texts_and_the_error_code_read_after_an_in_service_fault():
+    with rig() as (master, bank):
+        up_and_running(master, bank)
+        for code in (0x8120, 0x8210):                               # warnings: error passive, PDO length
+            bank.bus.send(can.Message(arbitration_id=p.EMCY + 2, data=p.emcy_frame(code, 0x10), is_extended_id=False))
+        with bank.lock:
+            bank.drives["front_steer"].inject_fault(0x2310)
+        d = master.drives["front_steer"]
+        assert cycle(master, 3.0, until=lambda: d.error_code is not None), d.emcy_history
+        assert [e.code for e in d.emcy_history][:3] == [0x8120, 0x8210, 0x2310]
+        assert d.emcy_history[0].text == "CAN in error passive mode"
+        assert d.emcy_history[1].text == "PDO not processed due to length error"
+        assert d.error_code == 0x2310 and "EMCY 0x8120" in master.latched   # the first EMCY already tripped

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from drivers.canopen402 import DEFAULT_DRIVES, Cia402Bus
@@ -109,7 +110,7 @@ def test_non_finite_command_is_counted_and_does_not_feed_the_watchdog(virtual_dr
         assert paced(h, 5.0, until=lambda: tracking(h)), latest_states(h)
         bad = WheelCommand(v_front_mps=math.nan, delta_front_rad=0.0, v_rear_mps=0.5, delta_rear_rad=0.0)
         assert paced(h, 3.0, cmd=bad, until=lambda: stopped(h)), latest_states(h)
-        assert h.node._bad_cmds > 0
+        assert h.node._rejected["bad"] > 0
         assert all(v == 0.0 for n, v in bank.actuals().items() if "wheel" in n)
     finally:
         h.close()
@@ -132,3 +133,38 @@ def test_reset_input_clears_a_latched_fault(virtual_drives):
         assert paced(h, 5.0, until=lambda: tracking(h)), latest_states(h)
     finally:
         h.close()
+
+
+def test_absurd_speed_is_scaled_to_the_limit_and_counted(virtual_drives):
+    channel, bank = virtual_drives
+    h = Harness(Cia402Bus, params={"interface": "virtual", "channel": channel, "publish_frames": False,
+                                   "max_speed_mps": 1.0})
+    try:
+        fast = WheelCommand(v_front_mps=1e4, delta_front_rad=0.3, v_rear_mps=5e3, delta_rear_rad=-0.3)
+        want = WheelCommand(v_front_mps=1.0, delta_front_rad=0.3, v_rear_mps=0.5, delta_rear_rad=-0.3)
+        assert paced(h, 6.0, cmd=fast, until=lambda: tracking(h, want)), latest_states(h)
+        s = latest_states(h)
+        assert s["rear_wheel"].velocity_unit == pytest.approx(0.5, abs=0.01)        # the ratio is kept
+        assert h.node._clamped > 0
+        assert max(abs(v) for n, v in bank.actuals().items() if "wheel" in n) <= 1.0 * DEFAULT_DRIVES[0].counts_per_unit + 1
+    finally:
+        h.close()
+
+
+def test_commands_stamped_in_the_past_do_not_keep_the_wheels_turning(virtual_drives, caplog):
+    channel, bank = virtual_drives
+    h = Harness(Cia402Bus, params={"interface": "virtual", "channel": channel, "publish_frames": False})
+    try:
+        assert paced(h, 5.0, until=lambda: tracking(h)), latest_states(h)
+        t0 = time.monotonic() - h.now_ns() * 1e-9
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end and not stopped(h):              # arrive on time, stamped 5 s ago
+            t = time.monotonic() - t0
+            old = msgspec.structs.replace(CMD, stamp_ns=int((t - 5.0) * 1e9))
+            h.feed([(t, "cmd", old)], until_s=t)
+            time.sleep(0.02)
+        assert stopped(h), latest_states(h)
+        assert h.node._rejected["stale"] > 0
+    finally:
+        h.close()
+    assert any("stamped -5" in r.getMessage() or "stamped +5" in r.getMessage() for r in caplog.records)

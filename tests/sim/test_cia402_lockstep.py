@@ -20,12 +20,12 @@ QUIET = {"eval": {"png": ""}, "can": {"publish_frames": False}}
 RUN = {"front_wheel": 65_000, "front_steer": 20_000, "rear_wheel": 65_000, "rear_steer": -20_000}
 
 
-def rig(faults=None):
+def rig(faults=None, **config):
     hub = SyncCanHub()
     bank = LockstepDriveBank(hub.bus("drives"), {d.name: make_drive(d, (faults or {}).get(d.name), 0.0)
                                                  for d in DEFAULT_DRIVES})
     t = [0.0]
-    master = Cia402Master(hub.bus("master"), Config(), clock=lambda: t[0])
+    master = Cia402Master(hub.bus("master"), Config(**config), clock=lambda: t[0])
     master.start()
     return hub, bank, master, t
 
@@ -50,8 +50,12 @@ def test_master_and_drives_on_the_synchronous_hub_run_in_virtual_time():
     assert run() == (trace, frames)                         # same frames, same motion, every run
 
 
-def test_heartbeat_loss_is_judged_on_the_virtual_clock():
-    hub, bank, master, t = rig()
+@pytest.mark.parametrize("feedback_ms, reason, t_max", [
+    (0, "heartbeat of rear_steer lost", 0.61),                       # PDO bound off: the heartbeat's
+    (200, "feedback PDOs of rear_steer (node 4) silent for", 0.52),  # the PDOs' bound comes first
+])
+def test_heartbeat_and_feedback_loss_are_judged_on_the_virtual_clock(feedback_ms, reason, t_max):
+    hub, bank, master, t = rig(feedback_timeout_ms=feedback_ms)
     for k in range(300):
         t[0] = k * 1e-3
         hub.advance(t[0])
@@ -66,8 +70,8 @@ def test_heartbeat_loss_is_judged_on_the_virtual_clock():
             master.step(t[0], RUN)
             if master.latched:
                 break
-    # lost after 3 x 100 ms of *virtual* time, however long the loop took in real time
-    assert master.latched == "heartbeat of rear_steer lost" and 0.5 < t[0] <= 0.61
+    # lost after 3 x 100 ms (heartbeat) or 200 ms (PDOs) of *virtual* time, however long the loop took
+    assert master.latched.startswith(reason) and 0.49 < t[0] <= t_max
     master.close()
     bank.bus.shutdown()
 
