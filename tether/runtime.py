@@ -10,6 +10,7 @@ import collections
 import itertools
 import logging
 import os
+import stat
 import threading
 import time
 from dataclasses import dataclass, field
@@ -467,6 +468,13 @@ class NodeRuntime(Context):
         if self.pub is not None:
             self.pub.close()
             self.pub = None
+            for endpoint in self.spec.binds:           # ZeroMQ unlinks ipc files lazily, or not at exit
+                if endpoint.startswith("ipc://"):
+                    try:
+                        if stat.S_ISSOCK(os.lstat(endpoint[6:]).st_mode):
+                            os.unlink(endpoint[6:])
+                    except OSError:
+                        pass
         if self._auth is not None:
             self._auth.stop()
             self._auth = None

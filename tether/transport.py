@@ -18,12 +18,24 @@ import zmq
 
 from tether.errors import ConfigError
 
-#: Largest message a node accepts (bytes, all frames); larger ones are dropped by ZeroMQ
-#: (and the connection redialled, see :class:`LinkWatch`).
-MAX_MESSAGE_BYTES = 1 << 30
-#: Bytes a publisher lets wait per subscriber: its send high-water mark follows the largest
-#: message it has sent (ZeroMQ bounds queues in messages only; 1000 x 4 MiB would be 4 GB).
-PUB_QUEUE_BYTES = 64 << 20
+def _env_bytes(name: str, default: int) -> int:
+    """A byte budget from the environment (a deployment knob, per node via a launch file's ``env``)."""
+    text = os.environ.get(name, "")
+    if not text:
+        return default
+    if not text.isdigit() or not 1024 <= int(text) <= 1 << 31:
+        raise ConfigError(f"{name}={text!r}: an integer number of bytes in [1024, 2^31]")
+    return int(text)
+
+
+#: Largest message a node accepts (bytes, all frames; ``TETHER_MAX_MESSAGE_BYTES``, default
+#: 1 GiB); larger ones are dropped by ZeroMQ (and the connection redialled, see :class:`LinkWatch`).
+MAX_MESSAGE_BYTES = _env_bytes("TETHER_MAX_MESSAGE_BYTES", 1 << 30)
+#: Bytes a publisher lets wait per subscriber (``TETHER_PUB_QUEUE_BYTES``, default 64 MiB): its
+#: send high-water mark follows the largest message it has sent (ZeroMQ bounds queues in
+#: messages only; 1000 x 4 MiB would be 4 GB). Past it, messages to that subscriber are
+#: dropped (the subscriber counts them as a seq gap).
+PUB_QUEUE_BYTES = _env_bytes("TETHER_PUB_QUEUE_BYTES", 64 << 20)
 HWM_MAX = 1000
 
 

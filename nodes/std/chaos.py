@@ -123,12 +123,13 @@ class RawFuzzer(Node):
     Cases: header extremes on valid messages (seq 0, 2^63, 2^64-1 then a reset to 1;
     stamp -1, 0, 2^63-1), and malformed ones (a 0-byte body, random bytes, truncated
     msgpack, a non-map body, the wrong message type, huge declared lengths, an array
-    whose shape disagrees with its buffer, a missing buffer frame, oversize frames).
-    ``malformed_*`` cases must each be a counted decode error at every receiver.
+    whose shape disagrees with its buffer, a missing buffer frame); with ``oversize_bytes``
+    also a ``big`` stream (see :meth:`_send_big`). ``malformed_*`` cases must each be a
+    counted decode error at every receiver.
     """
 
     Config = RawFuzzerConfig
-    outputs = {"value": Float64, "image": Image}
+    outputs = {"value": Float64, "image": Image, "big": Float64}
 
     def setup(self) -> None:
         self.rng = np.random.default_rng(self.config.seed)
@@ -147,8 +148,7 @@ class RawFuzzer(Node):
             ("malformed_array_shape", self._array_shape), ("malformed_array_frame", self._array_frame),
             ("valid_image", self._image),
         ]
-        if self.config.oversize_bytes > 0:
-            self._value_cases.append(("oversize", lambda: [b"\0" * self.config.oversize_bytes]))
+        self._big_seq = 0
 
     # -- cases ------------------------------------------------------------------------
     def _seq_extreme(self) -> list[bytes]:
@@ -195,10 +195,26 @@ class RawFuzzer(Node):
             name, make = cases[int(self.rng.integers(len(cases)))]
             self._send(output, make())
             self.counts[name] = self.counts.get(name, 0) + 1
+            if self.config.oversize_bytes > 0:
+                self._send_big()
             if time.monotonic() >= next_write:
                 next_write += 1.0
                 self._write()
         self._write()
+
+    def _send_big(self) -> None:
+        """On ``big``: valid Float64 with consecutive seq, and one oversize frame in ten.
+
+        A receiver whose limit is below ``oversize_bytes`` loses its connection at each
+        oversize frame; what it misses while redialling shows as a seq gap (counted).
+        """
+        if self.rng.random() < 0.1:
+            self._send("big", [b"\0" * self.config.oversize_bytes])
+            self.counts["oversize"] = self.counts.get("oversize", 0) + 1
+            return
+        self._big_seq += 1
+        self._send("big", [_pack(_head("std.Float64", seq=self._big_seq, stamp_ns=time.time_ns(), data=1.0))])
+        self.counts["big_valid"] = self.counts.get("big_valid", 0) + 1
 
     def _write(self) -> None:
         if self.config.result_path:
