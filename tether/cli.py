@@ -290,6 +290,36 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_slam_optimize(args: argparse.Namespace) -> int:
+    from nodes.slam.graph_io import read_graph, write_graph
+    from nodes.slam.pose_graph import GraphError, check_graph, chi2, optimize
+
+    try:
+        graph = read_graph(args.file)
+        found = check_graph(graph)
+        print(f"{args.file}: {graph.n} poses, {len(graph.edges)} edges"
+              + (f", {found.duplicates} duplicate edges (kept)" if found.duplicates else ""))
+
+        def progress(iteration: int, cost: float, lam: float) -> None:
+            print(f"  iteration {iteration:3d}  cost {cost:.6g}  lambda {lam:.2g}", file=sys.stderr, flush=True)
+
+        result = optimize(graph, initial=args.initial, method=args.method, robust=args.robust,
+                          kernel_width=args.kernel_width, anchor=args.anchor, max_iterations=args.max_iterations,
+                          rel_tol=args.rel_tol, progress=progress)
+    except GraphError as exc:
+        raise ConfigError(str(exc)) from None
+    print(f"chi2 {result.chi2_initial:.6f} -> {result.chi2:.6f} (g2o convention; GTSAM's: "
+          f"{chi2(graph, result.poses, convention='gtsam'):.6f}), {result.iterations} iterations, "
+          f"{result.time_s:.3f} s CPU, {result.message}")
+    if args.robust == "gnc":
+        print(f"rejected {len(result.outliers)} edges: "
+              + ", ".join(f"{graph.ids[graph.edges[k, 0]]}->{graph.ids[graph.edges[k, 1]]}" for k in result.outliers[:20]))
+    if args.output:
+        write_graph(args.output, graph, result.poses)
+        print(f"wrote {args.output}")
+    return 0 if result.converged else 1
+
+
 def cmd_keys(args: argparse.Namespace) -> int:
     from tether import keystore
 
@@ -415,6 +445,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("slam", help="pose-graph tools")
+    slam = p.add_subparsers(dest="slam_cmd", required=True)
+    q = slam.add_parser("optimize", help="optimise a g2o / TORO SE(2) pose graph")
+    q.add_argument("file", help="input graph (.g2o, or TORO .graph; the format is read from its tags)")
+    q.add_argument("-o", "--output", help="write the optimised graph here (.graph = TORO, else g2o)")
+    q.add_argument("--initial", choices=("given", "odometry", "chordal"),
+                   help="start from the file's vertices, the odometry chain, or a chordal relaxation "
+                        "(default: given when every vertex has a pose, else odometry)")
+    q.add_argument("--method", choices=("lm", "gn"), default="lm")
+    q.add_argument("--robust", choices=("huber", "cauchy", "gnc"), help="robust kernel, or gnc to reject false loop closures")
+    q.add_argument("--kernel-width", type=float, help="kernel width (Mahalanobis units; for gnc the chi2 gate)")
+    q.add_argument("--anchor", type=int, help="vertex id held fixed (default: FIX lines, else the first vertex)")
+    q.add_argument("--max-iterations", type=int, default=100)
+    q.add_argument("--rel-tol", type=float, default=1e-10, help="stop when a step lowers chi2 by less than this fraction")
+    q.set_defaults(func=cmd_slam_optimize)
     return ap
 
 
