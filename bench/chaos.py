@@ -57,7 +57,7 @@ nodes:
      env: {{TETHER_MAX_MESSAGE_BYTES: "{limit}"}}}}
   - {{id: victim_image, node: "nodes.std.chaos:SlowSink", machine: a, inputs: {{image: fuzz/image}},
      params: {{delay_ms: 0}}}}
-  - {{id: blob, node: "nodes.std.perf:BlobSource", machine: b, params: {{count: 1000000, rows: 1024, cols: 4096}}}}
+  - {{id: blob, node: "nodes.std.perf:BlobSource", machine: b, params: {{count: 1000000000, rows: 1024, cols: 4096}}}}
   - {{id: slow, node: "nodes.std.chaos:SlowSink", machine: b, inputs: {{image: blob/image}},
      params: {{delay_ms: 200}}}}
 """
