@@ -76,4 +76,6 @@ def test_mosaic_blends_without_seams_where_images_overlap():
     v, u = np.mgrid[:image.shape[0], :image.shape[1]].astype(np.float32)
     truth = cv2.remap(big, u + np.float32(x0), v + np.float32(y0), cv2.INTER_LINEAR)   # mosaic pixel -> world
     assert np.abs(image[inner] - truth[inner]).mean() < 0.01             # the same picture, no seam
-    assert weight.min() == 0.0 and image[weight == 0].max() == 0.0
+    assert weight[0].max() < 0.2 and weight[:, 0].max() < 0.2               # feathered to the images' edges
+    lone, lone_weight, _ = mosaic.compose_mosaic(images[:1] + images[3:4], poses[[0, 3]])
+    assert lone_weight.min() == 0.0 and lone[lone_weight == 0].max() == 0.0   # a gap stays empty
