@@ -11,34 +11,19 @@ import pytest
 
 from nodes.slam import fourier, mosaic
 from nodes.slam.pose_graph import between
-
-ORDER = [(0, 0), (0, 1), (0, 2), (0, 3), (1, 3), (1, 2), (1, 1), (1, 0)]      # 1-2-3-4 / 8-7-6-5
-SIZE = 320
-
-
-def seafloor(rng: np.random.Generator, h: int = 600, w: int = 1000) -> np.ndarray:
-    img = np.zeros((h, w), np.float32)
-    for sigma, amp in ((2, 0.5), (6, 1.0), (20, 1.5)):
-        layer = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), sigma)
-        img += amp * (layer - layer.mean()) / layer.std()
-    return (1 / (1 + np.exp(-img))).astype(np.float32)
-
+from sim.subimages import ORDER, SIZE, seafloor, subimage_scene
 
 def experiment(seed: int, rotate: bool) -> tuple[float, float, float, mosaic.Links]:
-    rng = np.random.default_rng(seed)
-    big = seafloor(rng)
-    truth = np.array([[220 + 160 * c, 220 + 160 * r, rng.uniform(-0.3, 0.3) if rotate else 0.0] for r, c in ORDER])
-    nav = truth + rng.normal(scale=[8, 8, 0.03 if rotate else 0.0], size=truth.shape)   # a navigation prior
-    images = [mosaic.cut(big, p, SIZE) * rng.gamma(4, 0.25, (SIZE, SIZE)).astype(np.float32) for p in truth]
-    links = mosaic.register_all(images, prior=nav, known_angles=not rotate,
+    scene = subimage_scene(seed, rotate=rotate)
+    links = mosaic.register_all(scene.images, prior=scene.nav, known_angles=not rotate,
                                 angle_search=math.radians(3) if rotate else 0.0)
-    chained = mosaic.chain(links, len(images), truth[0], prior=nav)
-    graph = mosaic.solve(links, len(images), chained).poses
+    chained = mosaic.chain(links, len(scene.images), scene.truth[0], prior=scene.nav)
+    graph = mosaic.solve(links, len(scene.images), chained).poses
 
     def rmse(poses: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(np.sum((poses[:, :2] - truth[:, :2]) ** 2, axis=1))))
+        return float(np.sqrt(np.mean(np.sum((poses[:, :2] - scene.truth[:, :2]) ** 2, axis=1))))
 
-    return rmse(nav), rmse(chained), rmse(graph), links
+    return rmse(scene.nav), rmse(chained), rmse(graph), links
 
 
 def test_relative_pose_inverts_the_expected_registration():
