@@ -45,7 +45,7 @@ machines:
   a: {{host: 127.0.0.1, port_base: {port_a}}}
   b: {{host: 127.0.0.1, port_base: {port_b}}}
 nodes:
-  - {{id: counter, node: "nodes.std.chaos:FiniteCounter", machine: a, params: {{rate_hz: {rate}, count: {count}}}}}
+  - {{id: counter, node: "nodes.std.demo:Counter", machine: a, params: {{rate_hz: {rate}, count: {count}, start: 1}}}}
   - {{id: relay, node: "nodes.std.demo:Scale", machine: b, inputs: {{value: counter/value}},
      restart: on-failure, max_restarts: 5}}
   - {{id: sink, node: "nodes.std.chaos:QuietSink", machine: a, inputs: {{value: relay/value}}}}

@@ -25,28 +25,6 @@ U64_MAX = (1 << 64) - 1
 I64_MAX = (1 << 63) - 1
 
 
-class FiniteCounterConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    rate_hz: float = 100.0
-    count: int = 1000
-
-
-class FiniteCounter(Node):
-    """Publishes 1, 2, ... ``count`` on ``value`` at ``rate_hz``, then nothing: a stream whose total is known."""
-
-    Config = FiniteCounterConfig
-    outputs = {"value": Float64}
-    timers = {"tick": "rate_hz"}
-
-    def setup(self) -> None:
-        self.sent = 0
-
-    def on_tick(self, tick: Tick) -> dict[str, Float64] | None:
-        if self.sent >= self.config.count:
-            return None
-        self.sent += 1
-        return {"value": Float64(data=float(self.sent), stamp_ns=tick.stamp_ns)}
-
-
 class QuietSink(Node):
     """Takes ``value`` and does nothing with it (the runtime's counters are what is measured)."""
 

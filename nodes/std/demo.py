@@ -10,10 +10,11 @@ from tether import Node, Tick
 class CounterConfig(msgspec.Struct, frozen=True, kw_only=True):
     rate_hz: float = 10.0
     start: float = 0.0
+    count: int = 0              # > 0: stop after this many (a stream whose total is known); 0: forever
 
 
 class Counter(Node):
-    """Publishes start, start+1, ... on ``value`` at ``rate_hz``."""
+    """Publishes start, start+1, ... on ``value`` at ``rate_hz`` (``count`` of them, or forever)."""
 
     Config = CounterConfig
     outputs = {"value": Float64}
@@ -21,8 +22,12 @@ class Counter(Node):
 
     def setup(self) -> None:
         self._next = self.config.start
+        self.sent = 0
 
-    def on_tick(self, tick: Tick) -> dict[str, Float64]:
+    def on_tick(self, tick: Tick) -> dict[str, Float64] | None:
+        if 0 < self.config.count <= self.sent:
+            return None
+        self.sent += 1
         value, self._next = self._next, self._next + 1.0
         return {"value": Float64(data=value, stamp_ns=tick.stamp_ns)}
 

@@ -39,3 +39,30 @@ def wait_for_topic(topic: str, env: dict[str, str], *, timeout_s: float = 30.0,
     while topic not in tether("topic", "list", "--all", env=env).stdout:
         assert time.monotonic() < deadline, f"{topic} was never registered"
         assert alive is None or alive.poll() is None, "the process publishing it exited"
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def two_machines(tmp_path: Path, name: str, more_nodes: str = "") -> Path:
+    """A launch file: a counter on machine 'boat' feeding a scaler on 'shore' (tcp + CurveZMQ),
+    plus ``more_nodes`` (YAML list items, indented like the others)."""
+    import textwrap
+
+    base = free_port()
+    path = tmp_path / "two.yaml"
+    path.write_text(textwrap.dedent(f"""
+        name: {name}
+        machines:
+          boat:  {{host: 127.0.0.1, port_base: {base}}}
+          shore: {{host: 127.0.0.1, port_base: {base + 10}}}
+        nodes:
+          - {{id: counter, node: nodes.std.demo:Counter, params: {{rate_hz: 20}}, machine: boat}}
+          - {{id: scale, node: nodes.std.demo:Scale, inputs: {{value: counter/value}}, machine: shore}}
+    """) + textwrap.indent(textwrap.dedent(more_nodes).strip("\n") + "\n", "  "))
+    return path

@@ -11,29 +11,12 @@ import time
 from pathlib import Path
 
 
-from conftest import REPO, tether, wait_for_topic
+from conftest import REPO, free_port, tether, two_machines, wait_for_topic
 from tether.log import LogReader, LogWriter
 
 
-def _free_port() -> int:
-    import socket
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_two_machines_talk_over_curve_tcp(tmp_path: Path, runtime_env: dict) -> None:
-    base = _free_port()
-    path = tmp_path / "two.yaml"
-    path.write_text(textwrap.dedent(f"""
-        name: twomachines
-        machines:
-          boat:  {{host: 127.0.0.1, port_base: {base}}}
-          shore: {{host: 127.0.0.1, port_base: {base + 10}}}
-        nodes:
-          - {{id: counter, node: nodes.std.demo:Counter, params: {{rate_hz: 20}}, machine: boat}}
-          - {{id: scale, node: nodes.std.demo:Scale, inputs: {{value: counter/value}}, machine: shore}}
-    """))
+    path = two_machines(tmp_path, "twomachines")
     log = tmp_path / "shore.mcap"
     cmd = [sys.executable, "-m", "tether.cli", "launch", str(path), "--duration", "4"]
     boat = subprocess.Popen([*cmd, "--machine", "boat"], cwd=REPO, env=runtime_env, stdout=subprocess.PIPE,
@@ -61,7 +44,7 @@ def test_curve_rejects_a_subscriber_without_the_graph_keys(runtime_env: dict) ->
     from tether.runtime import NodeRuntime, RunSpec
     from tether.transport import CurveKeys
 
-    port = _free_port()
+    port = free_port()
     (boat_pub, boat_sec), (shore_pub, shore_sec) = zmq.curve_keypair(), zmq.curve_keypair()
     keys = CurveKeys(boat_pub, boat_sec, {"boat": boat_pub, "shore": shore_pub})   # the publisher is on boat
     spec = RunSpec(graph="c", node_id="counter", node="nodes.std.demo:Counter", params={"rate_hz": 50},

@@ -15,15 +15,9 @@ from typing import Callable
 
 import pytest
 
-from conftest import REPO, wait_for_topic
+from conftest import REPO, two_machines, wait_for_topic
 from tether.errors import ConfigError
 from tether.log import LogReader
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _wait(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
@@ -59,20 +53,10 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def _two_machines(tmp_path: Path, extra: str = "") -> Path:
-    base = _free_port()
-    path = tmp_path / "two.yaml"
-    path.write_text(textwrap.dedent(f"""
-        name: sec
-        machines:
-          boat:  {{host: 127.0.0.1, port_base: {base}}}
-          shore: {{host: 127.0.0.1, port_base: {base + 10}}}
-        nodes:
-          - {{id: counter, node: nodes.std.demo:Counter, params: {{rate_hz: 20}}, machine: boat}}
-          - {{id: scale, node: nodes.std.demo:Scale, inputs: {{value: counter/value}}, machine: shore}}
-          - {{id: sink, node: "nodes.std.chaos:QuietSink", inputs: {{value: scale/value}}, machine: shore}}
-    """) + extra)
-    return path
+def _two_machines(tmp_path: Path) -> Path:
+    return two_machines(tmp_path, "sec", """
+        - {id: sink, node: "nodes.std.chaos:QuietSink", inputs: {value: scale/value}, machine: shore}
+    """)
 
 
 def _launch(path: Path, env: dict, *args: str) -> subprocess.Popen:
