@@ -38,7 +38,9 @@ def crop(img: np.ndarray) -> np.ndarray:
 def test_exact_subpixel_shifts_are_recovered(dx, dy):
     base = texture(1)
     s = phase_correlate(crop(base), crop(shifted(base, dx, dy)))
-    assert s.dx == pytest.approx(dx, abs=0.05) and s.dy == pytest.approx(dy, abs=0.05)
+    # Below FOLLOW_FRACTION of the size one pass runs, and the fixed window's pull is <= 0.05 px there.
+    tol = 0.03 if max(abs(dx), abs(dy)) > fourier.FOLLOW_FRACTION * N else 0.05
+    assert s.dx == pytest.approx(dx, abs=tol) and s.dy == pytest.approx(dy, abs=tol)
     assert s.pnr > 20 and is_reliable(s)
     sd = np.sqrt(np.diag(s.covariance))
     assert np.all(sd > 0) and np.all(sd < 0.5)
