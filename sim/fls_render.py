@@ -169,7 +169,14 @@ def render_ping(scene: Scene, pose: np.ndarray, settings: PingSettings = PingSet
     cos_inc = np.abs(np.einsum("ij,ij->i", normals, dirs))
     pattern = np.repeat(2.0 ** (-(2 * phi / vert) ** 2), settings.n_beams)       # -3 dB at the aperture edges
     absorb = 10.0 ** (-2 * mode["absorption_db_per_m"] * np.where(hit, t, 0.0) / 10)
-    echo = np.where(hit, refl[labels] * cos_inc * pattern * absorb * (vert / max(n_el - 1, 1)), 0.0)
+    refl_hit = refl[labels]
+    floor = scene.seafloor
+    if floor is not None and getattr(floor, "texture", None) is not None:
+        on_floor = hit & (labels == 0)                # a textured seabed: reflectivity where each ray lands
+        points = origin + t[on_floor, None] * dirs[on_floor]
+        refl_hit = refl_hit.copy()
+        refl_hit[on_floor] = floor.reflectivity_at(points[:, 0], points[:, 1])
+    echo = np.where(hit, refl_hit * cos_inc * pattern * absorb * (vert / max(n_el - 1, 1)), 0.0)
     shape = (n_el, settings.n_beams)
     tt = np.where(hit, t, 0.0).reshape(shape)
     lo, hi, w, col = _intervals(tt, echo.reshape(shape), labels.reshape(shape), hit.reshape(shape),

@@ -4,6 +4,7 @@ A scene is ``sim/scenes/fls_<name>.yaml`` (or a dict with the same keys)::
 
     name: tripod
     seafloor: {type: plane, z_m: -6.0, reflectivity: 0.3}
+    #   + texture: {seed: 3, size_m: [80, 80], cell_m: 0.05, scales_m: [0.1, 0.3, 1.0]} (or image: floor.png)
     #   or {type: heightfield, heights_m: [[...], ...], origin_m: [x0, y0], cell_m: 1.0}
     structures:
       - {type: cylinder, from_m: [0, 6, -6], to_m: [0, 0, -2], radius_m: 0.4, reflectivity: 0.9}
@@ -11,6 +12,7 @@ A scene is ``sim/scenes/fls_<name>.yaml`` (or a dict with the same keys)::
       - {type: mesh, obj: wreck.obj}          # or vertices_m: [[x, y, z], ...], faces: [[i, j, k], ...]
     sonar: {tilt_deg: 15, frequency: low, low: {...}, high: {...}, elevation_rays: 40, ...}
     platform: {start_m: [1, -30], end_m: [1, 30], depth_m: 1.0, speed_mps: 1.5}
+    #   or waypoints_m: [[x, y], ...] (a survey pattern), run out and back
 
 World frame: x east, y north, z up, sea surface at z = 0. The sonar frame is FRD, as in the
 paper's eq. (15)-(17): x along the boresight, y to starboard, z down; a return at range r,
@@ -27,7 +29,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from sim.fls_shapes import Box, Cylinder, HeightField, Mesh, Plane
+from sim.fls_shapes import Box, Cylinder, HeightField, Mesh, Plane, Texture
 from tether.yamlsafe import load_yaml_file
 
 __all__ = ["Box", "Cylinder", "HeightField", "Mesh", "Plane", "Platform", "Scene", "SonarModel", "cast_rays",
@@ -65,12 +67,35 @@ class SonarModel:
 
 @dataclass(frozen=True)
 class Platform:
-    """A boat running straight from ``start`` to ``end`` and back, the sonar ``depth_m`` below the surface."""
+    """A boat running straight from ``start`` to ``end`` and back -- or along ``waypoints`` (a
+    polyline, e.g. a lawn-mower survey) and back -- the sonar ``depth_m`` below the surface."""
 
     start: np.ndarray
     end: np.ndarray
     depth_m: float = 1.0
     speed_mps: float = 1.5
+    waypoints: np.ndarray | None = None
+
+    def path(self) -> np.ndarray:
+        return self.waypoints if self.waypoints is not None else np.stack([self.start, self.end])
+
+    def position_heading(self, t_s: float) -> tuple[np.ndarray, float]:
+        """Position (2,) and heading (rad, CCW from +x) at ``t_s`` on the out-and-back run."""
+        pts = self.path()
+        seg = np.diff(pts, axis=0)
+        lengths = np.linalg.norm(seg, axis=1)
+        total = float(lengths.sum())
+        if total <= 0:
+            return pts[0].copy(), 0.0
+        s = (self.speed_mps * t_s) % (2 * total)
+        back = s > total
+        s = 2 * total - s if back else s
+        k = int(min(np.searchsorted(np.cumsum(lengths), s, side="right"), len(lengths) - 1))
+        along = s - float(np.cumsum(lengths)[k] - lengths[k])
+        direction = seg[k] / max(lengths[k], 1e-12)
+        xy = pts[k] + direction * min(along, lengths[k])
+        heading = -direction if back else direction
+        return xy, float(np.arctan2(heading[1], heading[0]))
 
 
 @dataclass(frozen=True)
@@ -89,15 +114,8 @@ class Scene:
     def sonar_pose(self, t_s: float) -> np.ndarray:
         """4x4 transform sonar (FRD head, tilted) -> world at time ``t_s`` on the back-and-forth run."""
         p = self.platform
-        leg = p.end - p.start
-        length = float(np.linalg.norm(leg))
-        s = (p.speed_mps * t_s) % (2 * length) if length > 0 else 0.0
-        forward = s <= length
-        xy = p.start + leg * (s / length if forward else (2 * length - s) / length) if length > 0 else p.start
-        heading = leg / length if length > 0 else np.array([1.0, 0.0])
-        heading = heading if forward else -heading
-        return sonar_frame(np.array([xy[0], xy[1], -p.depth_m]), float(np.arctan2(heading[1], heading[0])),
-                           self.sonar.tilt_rad)
+        xy, yaw = p.position_heading(t_s)
+        return sonar_frame(np.array([xy[0], xy[1], -p.depth_m]), yaw, self.sonar.tilt_rad)
 
 
 def sonar_frame(position_m: np.ndarray, yaw_rad: float, tilt_rad: float) -> np.ndarray:
@@ -209,6 +227,33 @@ def _structure(spec: Mapping[str, Any], base: Path) -> Cylinder | Box | Mesh:
     raise ValueError(f"structure type must be cylinder, box or mesh, got {kind!r} in {dict(spec)}")
 
 
+def _texture(spec: Mapping[str, Any] | None, base: Path) -> Texture | None:
+    """``{seed, size_m: [w, h], cell_m, origin_m}`` (procedural, sim.subimages.seafloor) or ``{image: file.png, ...}``."""
+    if not spec:
+        return None
+    cell = float(spec.get("cell_m", 0.05))
+    if cell <= 0:
+        raise ValueError(f"texture cell_m must be positive, got {cell}")
+    if "image" in spec:
+        import cv2
+
+        values = cv2.imread(str(base / spec["image"]), cv2.IMREAD_GRAYSCALE)
+        if values is None:
+            raise ValueError(f"texture image {spec['image']!r} cannot be read")
+        values = values.astype(np.float32) / 255.0
+    else:
+        from sim.subimages import seafloor as procedural
+
+        w, h = (float(v) for v in spec.get("size_m", (100.0, 100.0)))
+        rows, cols = int(round(h / cell)), int(round(w / cell))
+        if rows * cols > 50_000_000:
+            raise ValueError(f"texture of {rows} x {cols} cells is too large; raise cell_m")
+        values = procedural(np.random.default_rng(int(spec.get("seed", 0))), rows, cols,
+                            scales_px=tuple(float(s) / cell for s in spec.get("scales_m", (0.1, 0.3, 1.0))))
+    origin = spec.get("origin_m", (-values.shape[1] * cell / 2, -values.shape[0] * cell / 2))
+    return Texture(values.astype(np.float32), (float(origin[0]), float(origin[1])), cell)
+
+
 def load_scene(scene: str | Path | Mapping[str, Any]) -> Scene:
     """A :class:`Scene` from a name (``sim/scenes/fls_<name>.yaml``), a YAML path, or a dict."""
     base = SCENE_DIR
@@ -222,11 +267,12 @@ def load_scene(scene: str | Path | Mapping[str, Any]) -> Scene:
         base, scene = path.parent, load_yaml_file(path)
     floor = scene.get("seafloor")
     seafloor: Plane | HeightField | None = None
+    texture = _texture(floor.get("texture"), base) if floor else None
     if floor and floor.get("type", "plane") == "plane":
-        seafloor = Plane(float(floor["z_m"]), float(floor.get("reflectivity", 0.3)))
+        seafloor = Plane(float(floor["z_m"]), float(floor.get("reflectivity", 0.3)), texture)
     elif floor:
         seafloor = HeightField(np.asarray(floor["heights_m"], float), tuple(floor.get("origin_m", (0.0, 0.0))),
-                               float(floor["cell_m"]), float(floor.get("reflectivity", 0.3)))
+                               float(floor["cell_m"]), float(floor.get("reflectivity", 0.3)), texture=texture)
     s = dict(scene.get("sonar", {}))
     modes = {k: {n: float(v) for n, v in {**SonarModel().modes[k], **s.pop(k, {})}.items()} for k in ("low", "high")}
     tilt = np.radians(float(s.pop("tilt_deg", 15.0)))
@@ -237,8 +283,13 @@ def load_scene(scene: str | Path | Mapping[str, Any]) -> Scene:
     if sonar.frequency not in modes:
         raise ValueError(f"sonar frequency must be 'low' or 'high', got {sonar.frequency!r}")
     p = scene.get("platform", {})
+    waypoints = None
+    if "waypoints_m" in p:
+        waypoints = np.asarray(p["waypoints_m"], float)
+        if waypoints.ndim != 2 or waypoints.shape[1] != 2 or len(waypoints) < 2 or not np.isfinite(waypoints).all():
+            raise ValueError(f"platform waypoints_m: a list of at least two [x, y] points, got {p['waypoints_m']!r}")
     platform = Platform(_arr(p.get("start_m", (0.0, -30.0)), 2), _arr(p.get("end_m", (0.0, 30.0)), 2),
-                        float(p.get("depth_m", 1.0)), float(p.get("speed_mps", 1.5)))
+                        float(p.get("depth_m", 1.0)), float(p.get("speed_mps", 1.5)), waypoints)
     return Scene(name=str(scene.get("name", "")), seafloor=seafloor,
                  structures=tuple(_structure(x, base) for x in scene.get("structures", [])),
                  sonar=sonar, platform=platform, description=str(scene.get("description", "")))

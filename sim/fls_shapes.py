@@ -19,12 +19,38 @@ def _cells(size: float, spacing_m: float) -> np.ndarray:
     return ((np.arange(n) + 0.5) / n - 0.5) * size
 
 
+@dataclass(frozen=True, eq=False)
+class Texture:
+    """A reflectivity map on the seafloor: ``values`` (H, W) in [0, 1], cell (0, 0) centred at
+    ``origin_m`` (x east, y north), ``cell_m`` apart; the mean maps to the surface's reflectivity."""
+
+    values: np.ndarray
+    origin_m: tuple[float, float]
+    cell_m: float
+
+    def factor_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Bilinear texture / its mean at world (x, y); 1 outside the map."""
+        v = self.values
+        fx = (np.asarray(x) - self.origin_m[0]) / self.cell_m
+        fy = (np.asarray(y) - self.origin_m[1]) / self.cell_m
+        inside = (fx >= 0) & (fy >= 0) & (fx < v.shape[1] - 1) & (fy < v.shape[0] - 1)
+        ix, iy = np.clip(fx, 0, v.shape[1] - 2).astype(int), np.clip(fy, 0, v.shape[0] - 2).astype(int)
+        ax, ay = np.clip(fx - ix, 0, 1), np.clip(fy - iy, 0, 1)
+        top = v[iy, ix] * (1 - ax) + v[iy, ix + 1] * ax
+        bottom = v[iy + 1, ix] * (1 - ax) + v[iy + 1, ix + 1] * ax
+        return np.where(inside, (top * (1 - ay) + bottom * ay) / max(float(v.mean()), 1e-9), 1.0)
+
+
 @dataclass(frozen=True)
 class Plane:
-    """Horizontal seafloor at ``z_m``."""
+    """Horizontal seafloor at ``z_m`` (with an optional reflectivity ``texture``)."""
 
     z_m: float
     reflectivity: float = 0.3
+    texture: Texture | None = None
+
+    def reflectivity_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return self.reflectivity * (self.texture.factor_at(x, y) if self.texture is not None else np.ones(np.shape(x)))
 
     def intersect(self, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         dz = dirs[:, 2]
@@ -46,6 +72,10 @@ class HeightField:
     cell_m: float
     reflectivity: float = 0.3
     samples: int = 64              # samples along each ray's band between min and max height
+    texture: Texture | None = None
+
+    def reflectivity_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return self.reflectivity * (self.texture.factor_at(x, y) if self.texture is not None else np.ones(np.shape(x)))
 
     def depth_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         h = self.heights_m

@@ -232,21 +232,23 @@ def phase_correlate(fixed: np.ndarray, moving: np.ndarray, *, fixed_mask: np.nda
         raise ValueError("band is a fraction of Nyquist in (0, 1]")
     h, w = np.shape(fixed)
     plan = _plan(h, w, float(band))
+    masks = (fixed_mask, moving_mask)
     if shift_hint is not None:
         if not (abs(shift_hint[0]) < w - 8 and abs(shift_hint[1]) < h - 8):
             return Shift(0.0, 0.0, 0.0, np.full((2, 2), np.inf), 0.0, 1.0)   # the hint says: no overlap
         windows = _overlap_windows(h, w, shift_hint[0], shift_hint[1])
+        masks = _shared_masks(fixed_mask, moving_mask, shift_hint[0], shift_hint[1])
     else:
         windows = (plan.window, plan.window)
-    first = _correlate(fixed, moving, fixed_mask, moving_mask, plan, floor, newton_steps, taper_px, *windows)
+    first = _correlate(fixed, moving, *masks, plan, floor, newton_steps, taper_px, *windows)
     if first is None:
         return Shift(0.0, 0.0, 0.0, np.full((2, 2), np.inf), 0.0, 1.0)   # a blank image: nothing to correlate
     if shift_hint is not None:                # the circular correlation's alias nearest the hint
         first = _nearest_alias(first, shift_hint, h, w)
     result = first
     if follow_window and (shift_hint is not None or max(abs(first.dx) / w, abs(first.dy) / h) > FOLLOW_FRACTION):
-        second = _correlate(fixed, moving, fixed_mask, moving_mask, plan, floor, newton_steps, taper_px,
-                            *_overlap_windows(h, w, first.dx, first.dy))
+        second = _correlate(fixed, moving, *_shared_masks(fixed_mask, moving_mask, first.dx, first.dy), plan, floor,
+                            newton_steps, taper_px, *_overlap_windows(h, w, first.dx, first.dy))
         if second is not None:
             second = _nearest_alias(second, (first.dx, first.dy), h, w)
             if math.hypot(second.dx - first.dx, second.dy - first.dy) < 2.0:
@@ -270,6 +272,33 @@ def _overlap_windows(h: int, w: int, dx: float, dy: float) -> tuple[np.ndarray, 
     ay, by = segment(h, dy)
     ax, bx = segment(w, dx)
     return np.outer(ay, ax), np.outer(by, bx)
+
+
+def _shift_mask(mask: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """``mask`` moved by the integer nearest (dx, dy), zero-filled."""
+    kx, ky = int(round(dx)), int(round(dy))
+    h, w = mask.shape
+    out = np.zeros_like(mask)
+    if abs(kx) < w and abs(ky) < h:
+        out[max(0, ky):h + min(0, ky), max(0, kx):w + min(0, kx)] = \
+            mask[max(0, -ky):h - max(0, ky), max(0, -kx):w - max(0, kx)]
+    return out
+
+
+def _shared_masks(fixed_mask: np.ndarray | None, moving_mask: np.ndarray | None, dx: float, dy: float
+                  ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Each image's mask cut to what the other also sees at shift (dx, dy).
+
+    A validity mask fixed to the sensor (a fan) sits at the same place in both images: its
+    softened edges then correlate best at zero shift and pull the estimate there (0.9 px
+    of 20 here). Cut to the shared part, the two supports move with the content instead.
+    """
+    if fixed_mask is None and moving_mask is None:
+        return None, None
+    shape = (fixed_mask if fixed_mask is not None else moving_mask).shape
+    a = np.ones(shape, bool) if fixed_mask is None else np.asarray(fixed_mask, bool)
+    b = np.ones(shape, bool) if moving_mask is None else np.asarray(moving_mask, bool)
+    return a & _shift_mask(b, -dx, -dy), b & _shift_mask(a, dx, dy)
 
 
 def _nearest_alias(shift: Shift, hint: tuple[float, float], h: int, w: int) -> Shift:
