@@ -72,13 +72,20 @@ class Registration:
 
 
 # -- helpers -----------------------------------------------------------------------------------
-def _prepare(image: np.ndarray, mask: np.ndarray | None, taper_px: float, window: np.ndarray | None = None) -> np.ndarray:
-    """Zero-mean, windowed, mask-softened float32 image."""
+def _prepare(image: np.ndarray, mask: np.ndarray | None, taper_px: float, window: np.ndarray | None = None,
+             log_intensity: bool = False) -> np.ndarray:
+    """Zero-mean, windowed, mask-softened float32 image (log-compressed first when asked and non-negative)."""
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 2 or min(img.shape) < 8:
         raise ValueError(f"an image is a 2-D array of at least 8 x 8, got shape {img.shape}")
     if not np.isfinite(img).all():
         img = np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0)
+    if log_intensity and img.size and float(img.min()) >= 0.0:
+        # Speckle multiplies the echo: in the log it adds, and its bright tail no longer dominates.
+        scale = float(img[mask].mean()) if mask is not None and np.any(mask) else float(img.mean())
+        if scale <= 0:
+            return np.zeros_like(img)                   # a blank image: nothing to compress
+        img = np.log(img + np.float32(0.05 * scale))
     window = _plan(img.shape[0], img.shape[1], 1.0).window if window is None else window
     if mask is not None:
         valid = np.asarray(mask, dtype=np.float32)
@@ -201,7 +208,7 @@ def phase_correlate(fixed: np.ndarray, moving: np.ndarray, *, fixed_mask: np.nda
                     moving_mask: np.ndarray | None = None, band: float = DEFAULT_BAND,
                     floor: float = DEFAULT_FLOOR, newton_steps: int = NEWTON_STEPS,
                     taper_px: float = 4.0, follow_window: bool = True,
-                    shift_hint: tuple[float, float] | None = None) -> Shift:
+                    shift_hint: tuple[float, float] | None = None, log_intensity: bool = True) -> Shift:
     """The shift (dx, dy) of ``moving`` relative to ``fixed`` (same shape), sub-pixel.
 
     Parameters
@@ -217,6 +224,8 @@ def phase_correlate(fixed: np.ndarray, moving: np.ndarray, *, fixed_mask: np.nda
         towards zero (0.12 px at a shift of 3 % of the width on a clean texture; the bench's
         clean family goes from 0.048 to 0.0012 px, its speckled ones do not change), so it runs
         past ``FOLLOW_FRACTION`` of the size or with a hint, at twice the time.
+    log_intensity : correlate the log of non-negative images (multiplicative speckle becomes
+        additive; on the bench's tuning set the pooled median error drops from 0.150 to 0.128 px).
     shift_hint : (dx, dy) expected (navigation, the current estimate): the windows cover the
         expected overlap from the first pass, and of the circular correlation's aliases the
         one nearest the hint is kept -- what makes shifts of half an image and more work.
@@ -240,7 +249,7 @@ def phase_correlate(fixed: np.ndarray, moving: np.ndarray, *, fixed_mask: np.nda
         masks = _shared_masks(fixed_mask, moving_mask, shift_hint[0], shift_hint[1])
     else:
         windows = (plan.window, plan.window)
-    first = _correlate(fixed, moving, *masks, plan, floor, newton_steps, taper_px, *windows)
+    first = _correlate(fixed, moving, *masks, plan, floor, newton_steps, taper_px, *windows, log_intensity)
     if first is None:
         return Shift(0.0, 0.0, 0.0, np.full((2, 2), np.inf), 0.0, 1.0)   # a blank image: nothing to correlate
     if shift_hint is not None:                # the circular correlation's alias nearest the hint
@@ -248,7 +257,7 @@ def phase_correlate(fixed: np.ndarray, moving: np.ndarray, *, fixed_mask: np.nda
     result = first
     if follow_window and (shift_hint is not None or max(abs(first.dx) / w, abs(first.dy) / h) > FOLLOW_FRACTION):
         second = _correlate(fixed, moving, *_shared_masks(fixed_mask, moving_mask, first.dx, first.dy), plan, floor,
-                            newton_steps, taper_px, *_overlap_windows(h, w, first.dx, first.dy))
+                            newton_steps, taper_px, *_overlap_windows(h, w, first.dx, first.dy), log_intensity)
         if second is not None:
             second = _nearest_alias(second, (first.dx, first.dy), h, w)
             if math.hypot(second.dx - first.dx, second.dy - first.dy) < 2.0:
@@ -308,11 +317,11 @@ def _nearest_alias(shift: Shift, hint: tuple[float, float], h: int, w: int) -> S
 
 
 def _correlate(fixed, moving, fixed_mask, moving_mask, plan: _Plan, floor: float, newton_steps: int,
-               taper_px: float, window_f: np.ndarray, window_g: np.ndarray) -> Shift | None:
+               taper_px: float, window_f: np.ndarray, window_g: np.ndarray, log_intensity: bool = False) -> Shift | None:
     h, w = plan.shape
     band = plan.band
-    f = _prepare(fixed, fixed_mask, taper_px, window_f)
-    g = _prepare(moving, moving_mask, taper_px, window_g)
+    f = _prepare(fixed, fixed_mask, taper_px, window_f, log_intensity)
+    g = _prepare(moving, moving_mask, taper_px, window_g, log_intensity)
     cross = (np.conj(sfft.rfft2(f, workers=1)) * sfft.rfft2(g, workers=1))[plan.keep]
     magnitude = np.abs(cross)
     scale = float(np.median(magnitude)) if magnitude.size else 0.0
