@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 import scipy.fft as sfft
 
-DEFAULT_BAND = 0.15          # cut-off of the cross-power taper, fraction of Nyquist (the best on bench/phase_correlation.py's tuning set)
+DEFAULT_BAND = 0.25          # cut-off of the cross-power taper, fraction of Nyquist (bench/phase_correlation.py's tuning rule)
 DEFAULT_FLOOR = 0.05         # whitening floor, fraction of the band's median cross-power magnitude
 NEWTON_STEPS = 3
 FOLLOW_FRACTION = 0.02       # a second, content-centred pass past this shift (fraction of the size)
