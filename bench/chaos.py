@@ -67,7 +67,7 @@ VICTIMS = ("victim_relay", "victim_sink", "victim_image", "victim_big")
 def _launcher(graph: Path, machine: str, env: dict[str, str], log: Path, record: Path | None) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "tether.cli", "launch", str(graph), "--machine", machine]
     if record is not None:
-        cmd += ["--record", str(record), "--record-topics", "counter/value", "sink/*", "fuzz/value"]
+        cmd += ["--record", str(record), "--record-topics", "counter/value,sink/*,fuzz/value"]
     return subprocess.Popen(cmd, cwd=REPO, env=env, stdout=open(log, "w"), stderr=subprocess.STDOUT)
 
 

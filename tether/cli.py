@@ -66,8 +66,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
     from tether.supervisor import Supervisor
 
     launch = load_launch(args.file, parse_overrides(args.param))
-    sup = Supervisor(launch, machine=args.machine, record=args.record, record_topics=args.record_topics,
-                     record_exclude=args.record_exclude, keys=args.keys)
+    sup = Supervisor(launch, machine=args.machine, record=args.record,
+                     record_topics=_flat(args.record_topics), record_exclude=_flat(args.record_exclude), keys=args.keys)
     names = ", ".join(c.id for c in sup.children)
     log.info("launching %s (%s)%s", launch.name, names, f" for {args.duration:g} s" if args.duration else "")
     return sup.run(args.duration)
@@ -76,7 +76,16 @@ def cmd_launch(args: argparse.Namespace) -> int:
 def cmd_check(args: argparse.Namespace) -> int:
     from tether.launch import load_launch, parse_overrides
 
-    for path in args.files:
+    files: list[str] = []
+    for item in args.files:
+        if Path(item).is_dir():
+            found = sorted(str(f) for f in Path(item).glob("*.yaml"))
+            if not found:
+                raise ConfigError(f"{item}: a directory with no .yaml launch file in it")
+            files += found
+        else:
+            files.append(item)
+    for path in files:
         launch = load_launch(path, parse_overrides(args.param))
         unconnected = [f"{n.id}.{name}" for n in launch.nodes for name in n.ports.inputs
                        if name not in n.inputs and name not in n.ports.timers]
@@ -156,7 +165,7 @@ def cmd_record(args: argparse.Namespace) -> int:
                           f"stay readable")
     print(f"recorded {rec.count} messages ({rec.bytes / 1e6:.1f} MB) on {len(wanted)} topics to {args.output}"
           + (f"; {rec.errors} malformed dropped" if rec.errors else ""))
-    return 0
+    return _nothing_done(rec.count, args, f"nothing was received on {', '.join(wanted)}")
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -177,8 +186,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
                         progress=lambda k, total: progress(f"replay {k}/{total} messages"))
         progress.done()
         print(f"fed {n} messages into {args.into}; outputs in {args.record}")
-        return 0
+        return _nothing_done(n, args, f"no message of {args.file} reached {args.into}: check --map, --topics, "
+                                      "--start/--end")
     return _replay_publish(args, window, LogReader(args.file), play)
+
+
+def _nothing_done(count: int, args: argparse.Namespace, why: str) -> int:
+    """Zero work is not success: one warning and exit 1, unless --allow-empty."""
+    if count > 0 or getattr(args, "allow_empty", False):
+        return 0
+    print(f"tether: warning: {why} (--allow-empty to accept)", file=sys.stderr)
+    return 1
 
 
 def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: Any) -> int:
@@ -202,14 +220,19 @@ def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: An
     progress = _Progress()
     try:
         stop.wait(args.delay)   # subscribers that attach within this time miss nothing
-        n = play(reader, sock, window, stop,
-                 lambda k, rec: progress(f"replay {k}/{total}  t={(rec.log_time_ns - info.start_ns) / 1e9:7.2f} s"))
+        def show(k: int, rec: Any) -> None:
+            lap = f"loop {(k - 1) // total + 1}, " if args.loop and total else ""
+            shown = (k - 1) % total + 1 if args.loop and total else k
+            progress(f"replay {lap}{shown}/{total}  t={(rec.log_time_ns - info.start_ns) / 1e9:7.2f} s")
+
+        n = play(reader, sock, window, stop, show)
     finally:
         registry.unregister(entry)
         sock.close(linger=1000)
     progress.done()
     print(f"replayed {n} messages from {args.file}")
-    return 0
+    return _nothing_done(n, args, f"nothing replayed from {args.file}: its topics are {sorted(info.topics)}, "
+                                  f"{(info.end_ns - info.start_ns) / 1e9:.1f} s long")
 
 
 # -- topic / node (tether/introspect.py) ------------------------------------------------------
@@ -255,6 +278,18 @@ def cmd_log(args: argparse.Namespace) -> int:
         return 1
     print(f"  {check.chunks} chunks, CRCs ok")
     return 0
+
+
+def _patterns(text: str) -> list[str]:
+    """``'a/*,b/c'`` -> ['a/*', 'b/c'] (an option value that cannot swallow the next argument)."""
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    if not items:
+        raise argparse.ArgumentTypeError(f"{text!r}: give topic names or patterns, comma-separated")
+    return items
+
+
+def _flat(groups: list[list[str]] | None) -> list[str] | None:
+    return [t for group in groups for t in group] if groups else None
 
 
 def _size(text: str) -> int:
@@ -345,9 +380,19 @@ def cmd_keys(args: argparse.Namespace) -> int:
     return 0
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("tether")
+    except PackageNotFoundError:
+        return "(not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="tether", description="ROS-free robotics middleware")
     ap.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
+    ap.add_argument("--version", action="version", version=f"tether {_version()}")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("launch", help="run a pipeline file")
@@ -355,8 +400,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="stop after S seconds")
     p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE", help="override a node parameter")
     p.add_argument("--record", metavar="FILE", help="record the graph's topics to an MCAP log")
-    p.add_argument("--record-topics", nargs="+", metavar="PATTERN", help="with --record: only these (e.g. 'sim/*')")
-    p.add_argument("--record-exclude", nargs="+", metavar="PATTERN", help="with --record: not these (e.g. '*/rgbd')")
+    p.add_argument("--record-topics", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
+                   help="with --record: only these (e.g. 'sim/*,nav/pose'; repeatable)")
+    p.add_argument("--record-exclude", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
+                   help="with --record: not these (e.g. '*/rgbd'; repeatable)")
     p.add_argument("--machine", help="start only this machine's nodes")
     p.add_argument("--keys", help="CurveZMQ keystore folder of the graph (default ~/.config/tether/keys/NAME/; "
                                "see 'tether keys')")
@@ -380,30 +427,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_graph)
 
     p = sub.add_parser("run", help="run one node alone")
-    p.add_argument("node", metavar="MODULE:Class")
-    p.add_argument("--id")
-    p.add_argument("--param", action="append", metavar="KEY=VALUE")
+    p.add_argument("node", metavar="MODULE:Class", help="the node class, e.g. nodes.std.demo:Counter")
+    p.add_argument("--id", help="its id (topics are ID/OUTPUT; default: the class name in lower case)")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="a Config parameter (unknown keys are errors)")
     p.add_argument("--input", action="append", metavar="NAME=TOPIC", help="connect an input to a running topic or timer/hz/N")
-    p.add_argument("--duration", type=float)
+    p.add_argument("--duration", type=float, help="stop after S seconds")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("record", help="record running topics to an MCAP log")
-    p.add_argument("topics", nargs="*")
-    p.add_argument("-o", "--output", required=True)
-    p.add_argument("--duration", type=float)
+    p.add_argument("topics", nargs="*", help="topics to record (default: every running topic but */_stats)")
+    p.add_argument("-o", "--output", required=True, help="the MCAP file to write")
+    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was received")
     p.set_defaults(func=cmd_record)
 
     p = sub.add_parser("replay", help="publish a log, or run a node on it (--into)")
-    p.add_argument("file")
+    p.add_argument("file", help="the MCAP log")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor (0 = as fast as possible)")
     p.add_argument("--start", type=float, default=0.0, help="seconds from the log's start")
     p.add_argument("--end", type=float, help="seconds from the log's start")
-    p.add_argument("--loop", action="store_true")
-    p.add_argument("--topics", nargs="+")
+    p.add_argument("--loop", action="store_true", help="start again at the end (publishing only)")
+    p.add_argument("--topics", nargs="+", help="only these topics")
     p.add_argument("--delay", type=float, default=0.5, help="seconds to let subscribers attach before playing")
     p.add_argument("--into", metavar="MODULE:Class", help="run this node on the log")
-    p.add_argument("--map", action="append", metavar="INPUT=TOPIC")
-    p.add_argument("--param", action="append", metavar="KEY=VALUE")
+    p.add_argument("--map", action="append", metavar="INPUT=TOPIC", help="with --into: feed INPUT from TOPIC")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE", help="with --into: a Config parameter")
+    p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was replayed")
     p.add_argument("--record", metavar="OUT", help="with --into: where the node's outputs go")
     p.add_argument("--lockstep", action="store_true", help="with --into: deterministic, as fast as the node goes")
     p.set_defaults(func=cmd_replay)

@@ -1,0 +1,63 @@
+"""CLI verbs say what happened (issue 23 §1): unknown parameters are errors with a suggestion,
+zero work is not success, topic patterns cannot swallow a positional argument, directories
+are checked file by file, and there is a --version."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from conftest import REPO, tether
+from msgs.std import Float64
+from tether.log import LogWriter
+
+
+def _log(path: Path, n: int = 5) -> Path:
+    with LogWriter(path) as w:
+        for i in range(n):
+            w.write("a/value", Float64(data=float(i), seq=i + 1, stamp_ns=1_000_000_000 + i * 10_000_000),
+                    log_time_ns=1_000_000_000 + i * 10_000_000)
+    return path
+
+
+def test_a_mistyped_parameter_is_an_error_naming_the_key_and_the_closest(tmp_path: Path, runtime_env: dict) -> None:
+    res = tether("launch", "launch/counter.yaml", "--duration", "1", "--param", "scale.gian=3", env=runtime_env)
+    assert res.returncode == 2 and "unknown key 'gian' (did you mean 'gain'?)" in res.stderr
+    assert res.stderr.strip().count("\n") == 0 and "Traceback" not in res.stderr
+    res = tether("run", "nodes.std.demo:Counter", "--param", "rate_hx=5", "--duration", "1", env=runtime_env)
+    assert res.returncode == 2 and "did you mean 'rate_hz'" in res.stderr
+    res = tether("replay", str(_log(tmp_path / "a.mcap")), "--into", "nodes.std.demo:Scale", "--map", "value=a/value",
+                 "--param", "gian=2", "--record", str(tmp_path / "o.mcap"), "--lockstep", env=runtime_env)
+    assert res.returncode == 2 and "did you mean 'gain'" in res.stderr
+
+
+def test_replaying_nothing_is_not_success(tmp_path: Path, runtime_env: dict) -> None:
+    log = _log(tmp_path / "a.mcap")
+    res = tether("replay", str(log), "--rate", "0", "--delay", "0", "--start", "100", env=runtime_env)
+    assert res.returncode == 1 and "nothing replayed" in res.stderr and "a/value" in res.stderr
+    res = tether("replay", str(log), "--rate", "0", "--delay", "0", "--start", "100", "--allow-empty", env=runtime_env)
+    assert res.returncode == 0
+    res = tether("replay", str(log), "--rate", "0", "--delay", "0", env=runtime_env)
+    assert res.returncode == 0 and "replayed 5 messages" in res.stdout
+    res = tether("replay", str(log), "--into", "nodes.std.demo:Scale", "--map", "value=a/other",
+                 "--record", str(tmp_path / "o.mcap"), "--lockstep", env=runtime_env)
+    assert res.returncode != 0
+
+
+def test_record_topics_take_commas_and_leave_the_file_alone(tmp_path: Path, runtime_env: dict) -> None:
+    log = tmp_path / "sel.mcap"
+    res = tether("launch", "--record", str(log), "--record-topics", "counter/*,scale/value", "launch/counter.yaml",
+                 "--duration", "2", "--param", "counter.rate_hz=20", env=runtime_env)
+    assert res.returncode == 0, res.stderr
+    from tether.log import LogReader
+
+    assert set(LogReader(log).info().topics) == {"counter/value", "scale/value"}
+
+
+def test_check_a_directory_and_version(tmp_path: Path, runtime_env: dict) -> None:
+    res = tether("check", "launch", env=runtime_env)
+    assert res.returncode == 0 and res.stdout.count(": ok (") == len(list((REPO / "launch").glob("*.yaml")))
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    res = tether("check", str(empty), env=runtime_env)
+    assert res.returncode == 2 and "no .yaml launch file" in res.stderr
+    res = tether("--version", env=runtime_env)
+    assert res.returncode == 0 and res.stdout.startswith("tether ")
