@@ -205,8 +205,10 @@ def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: An
     from tether import registry
     from tether.transport import ipc_endpoint
 
+    from tether.replay import select_topics
+
     info = reader.info()
-    topics = {t: tp for t, tp in info.topics.items() if not args.topics or t in args.topics}
+    topics = {t: info.topics[t] for t in select_topics(info.topics, args.topics)}
     endpoint = ipc_endpoint("replay", "log", uuid.uuid4().hex[:8])
     sock = zmq.Context.instance().socket(zmq.PUB)
     sock.sndhwm = 10000
@@ -447,7 +449,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start", type=float, default=0.0, help="seconds from the log's start")
     p.add_argument("--end", type=float, help="seconds from the log's start")
     p.add_argument("--loop", action="store_true", help="start again at the end (publishing only)")
-    p.add_argument("--topics", nargs="+", help="only these topics")
+    p.add_argument("--topics", nargs="+", help="only these topics (names or globs like 'sonar/*')")
     p.add_argument("--delay", type=float, default=0.5, help="seconds to let subscribers attach before playing")
     p.add_argument("--into", metavar="MODULE:Class", help="run this node on the log")
     p.add_argument("--map", action="append", metavar="INPUT=TOPIC", help="with --into: feed INPUT from TOPIC")

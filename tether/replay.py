@@ -9,13 +9,14 @@
 """
 from __future__ import annotations
 
+import fnmatch
 import logging
 import threading
 import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import msgspec
 import zmq
@@ -46,6 +47,21 @@ class Window:
             raise ConfigError(f"--end ({self.end_s}) must be after --start ({self.start_s})")
 
 
+def select_topics(topics: Iterable[str], patterns: Sequence[str] | None, *, what: str = "--topics") -> list[str]:
+    """The topics named by ``patterns`` (exact names or globs like ``sonar/*``); all when none.
+
+    One filter for the ``replay`` verb, ``replay --into`` and the Player node alike; a
+    filter that selects nothing is an error listing what the log has.
+    """
+    names = sorted(topics)
+    if not patterns:
+        return names
+    chosen = [t for t in names if any(fnmatch.fnmatchcase(t, p) for p in patterns)]
+    if not chosen:
+        raise ConfigError(f"{what} {' '.join(patterns)} selects none of the log's topics: {', '.join(names) or 'none'}")
+    return chosen
+
+
 def records(reader: LogReader, window: Window) -> Iterator[LogRecord]:
     """The records of one pass through the window."""
     info = reader.info()
@@ -53,7 +69,8 @@ def records(reader: LogReader, window: Window) -> Iterator[LogRecord]:
         return
     start = info.start_ns + int(window.start_s * 1e9)
     end = None if window.end_s is None else info.start_ns + int(window.end_s * 1e9)
-    yield from reader.messages(window.topics, start_ns=start, end_ns=end)
+    topics = select_topics(info.topics, window.topics) if window.topics else None
+    yield from reader.messages(topics, start_ns=start, end_ns=end)
 
 
 def paced(reader: LogReader, window: Window, stop: threading.Event) -> Iterator[LogRecord]:
@@ -122,7 +139,7 @@ class Player(Node):
             info = LogReader(config.log).info()
         except FileNotFoundError as exc:
             raise ConfigError(str(exc)) from None
-        topics = {t: tp for t, tp in info.topics.items() if not config.topics or t in config.topics}
+        topics = {t: info.topics[t] for t in select_topics(info.topics, config.topics, what="topics")}
         try:
             return {}, {name: message_type(topics[t]) for t, name in output_names(topics).items()}, {}
         except KeyError as exc:
@@ -132,7 +149,8 @@ class Player(Node):
         reader = LogReader(self.config.log)
         window = Window(self.config.start_s, self.config.end_s, self.config.topics or None,
                         self.config.rate, self.config.loop)
-        names = output_names(reader.info().topics)
+        info = reader.info()
+        names = output_names({t: info.topics[t] for t in select_topics(info.topics, self.config.topics, what="topics")})
         for rec in paced(reader, window, self.stopping):
             name = names.get(rec.topic)
             if name is None or name not in self.ports.outputs:
@@ -167,9 +185,14 @@ def replay_into(log_path: str | Path, node_cls: type[Node], mapping: Mapping[str
         if info.topics[topic] != want:
             raise ConfigError(f"--map {name}={topic}: input takes {want}, the log has {info.topics[topic]}")
     node_id = node_id or node_cls.__name__.lower()
+    allowed = set(select_topics(info.topics, window.topics)) if window.topics else set(info.topics)
     by_topic: dict[str, list[str]] = {}
     for name, topic in mapping.items():
-        by_topic.setdefault(topic, []).append(name)
+        if topic in allowed:
+            by_topic.setdefault(topic, []).append(name)
+    if not by_topic:
+        raise ConfigError(f"--topics {' '.join(window.topics or [])} leaves none of the --map topics "
+                          f"({', '.join(sorted(set(mapping.values())))})")
     window = Window(window.start_s, window.end_s, sorted(by_topic), window.rate, window.loop)
     total = sum(info.counts.get(t, 0) for t in by_topic)
     if lockstep:

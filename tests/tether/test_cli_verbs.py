@@ -61,3 +61,36 @@ def test_check_a_directory_and_version(tmp_path: Path, runtime_env: dict) -> Non
     assert res.returncode == 2 and "no .yaml launch file" in res.stderr
     res = tether("--version", env=runtime_env)
     assert res.returncode == 0 and res.stdout.startswith("tether ")
+
+
+def _two_scans(path: Path) -> Path:
+    with LogWriter(path) as w:
+        for i in range(4):
+            for topic in ("a/scan", "b/scan", "c/other"):
+                w.write(topic, Float64(data=float(i), seq=i + 1, stamp_ns=1_000_000_000 + i * 10_000_000),
+                        log_time_ns=1_000_000_000 + i * 10_000_000)
+    return path
+
+
+def test_one_topic_filter_for_player_verb_and_into(tmp_path: Path, runtime_env: dict) -> None:
+    import pytest
+
+    from tether.errors import ConfigError
+    from tether.replay import Player, select_topics
+    from tether.testing import Harness
+
+    log = _two_scans(tmp_path / "scans.mcap")
+    assert select_topics(["a/scan", "b/scan", "c/other"], ["*/scan"]) == ["a/scan", "b/scan"]
+    with pytest.raises(ConfigError, match="selects none of the log's topics: a/scan, b/scan, c/other"):
+        select_topics(["a/scan", "b/scan", "c/other"], ["x/*"])
+    # Two topics sharing their last part: outputs named from the selected topics, and they publish.
+    h = Harness(Player, params={"log": str(log), "topics": ["a/scan", "b/scan"], "rate": 0.0})
+    assert set(h.node.ports.outputs) == {"a.scan", "b.scan"}
+    h.node.run()
+    assert len(h.of("a.scan")) == 4 and len(h.of("b.scan")) == 4
+    h.close()
+    res = tether("replay", str(log), "--rate", "0", "--delay", "0", "--topics", "*/scan", env=runtime_env)
+    assert res.returncode == 0 and "replayed 8 messages" in res.stdout
+    res = tether("replay", str(log), "--into", "nodes.std.demo:Scale", "--map", "value=a/scan", "--topics", "c/*",
+                 "--record", str(tmp_path / "o.mcap"), "--lockstep", env=runtime_env)
+    assert res.returncode == 2 and "leaves none of the --map topics" in res.stderr
