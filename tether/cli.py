@@ -466,6 +466,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--raw", action="store_true", help="echo: plain msgpack")
     p.add_argument("--all", action="store_true", help="list: include _stats topics")
     p.add_argument("--window", type=float, default=5.0, help="hz/bw: seconds averaged")
+    p.add_argument("-w", "--window-msgs", type=int, default=0, metavar="N",
+                   help="hz/bw: average over the last N messages instead (like ros2 topic hz -w)")
     p.add_argument("--duration", type=float, help="hz/bw: stop after S seconds")
     p.set_defaults(func=cmd_topic)
 

@@ -107,23 +107,35 @@ def _rate(args: argparse.Namespace) -> int:
         now = time.monotonic()
         if now >= next_report:
             next_report = now + 1.0
-            samples = [s for s in samples if now - s[0] <= args.window]
-            print(_rate_line(args.action, samples), flush=True)
+            samples = [s for s in samples if now - s[0] <= args.window][-args.window_msgs:] if args.window_msgs \
+                else [s for s in samples if now - s[0] <= args.window]
+            print(rate_line(args.action, samples), flush=True)
     return 0
 
 
-def _rate_line(action: str, samples: list[tuple[float, int, int, int]]) -> str:
+def rate_line(action: str, samples: list[tuple[float, int, int, int]]) -> str:
+    """One report line from (arrival s, stamp ns, seq, bytes) samples.
+
+    ``hz`` gives both rates, labelled: arrival (what ``ros2 topic hz`` shows: when messages
+    reached this terminal, with the period's min / max / std) and stamps (what the publisher
+    produced, from its stamps and seq, so a slow terminal never under-reports it).
+    """
     if len(samples) < 2:
         return "no messages yet"
-    (_, s0, q0, _), (_, s1, q1, _) = samples[0], samples[-1]
+    (a0, s0, q0, _), (a1, s1, q1, _) = samples[0], samples[-1]
     published = q1 - q0
     span_s = (s1 - s0) / 1e9
     rate = published / span_s if span_s > 0 and published > 0 else float("nan")
     seen = len(samples) - 1
     size = sum(s[3] for s in samples) / len(samples)
-    lost = f", {published - seen} not seen here" if published > seen else ""
     if action == "hz":
-        return f"rate {rate:9.2f} Hz  (from stamps and seq over {len(samples)} msgs{lost})"
+        periods = [b[0] - a[0] for a, b in zip(samples, samples[1:])]
+        arrival = seen / (a1 - a0) if a1 > a0 else float("nan")
+        mean = sum(periods) / len(periods)
+        std = (sum((p - mean) ** 2 for p in periods) / len(periods)) ** 0.5
+        lost = f"; {published - seen} published but not seen here" if published > seen else ""
+        return (f"rate (arrival) {arrival:9.2f} Hz  min {min(periods) * 1e3:.1f} ms max {max(periods) * 1e3:.1f} ms "
+                f"std {std * 1e3:.1f} ms  |  rate (stamps) {rate:9.2f} Hz  window {len(samples)} msgs{lost}")
     return f"bw {rate * size / 1e6:9.2f} MB/s  mean {size / 1e3:.1f} kB x {rate:.2f} Hz"
 
 

@@ -94,3 +94,15 @@ def test_one_topic_filter_for_player_verb_and_into(tmp_path: Path, runtime_env: 
     res = tether("replay", str(log), "--into", "nodes.std.demo:Scale", "--map", "value=a/scan", "--topics", "c/*",
                  "--record", str(tmp_path / "o.mcap"), "--lockstep", env=runtime_env)
     assert res.returncode == 2 and "leaves none of the --map topics" in res.stderr
+
+
+def test_topic_hz_reports_arrival_and_stamp_rates_labelled() -> None:
+    from tether.introspect import rate_line
+
+    # Published at 10 Hz by stamps, arriving in bursts of two every 0.2 s, one message lost.
+    samples = [(0.0, 0, 1, 100), (0.001, 100_000_000, 2, 100), (0.2, 200_000_000, 3, 100),
+               (0.201, 300_000_000, 4, 100), (0.4, 500_000_000, 6, 100)]
+    line = rate_line("hz", samples)
+    assert "rate (arrival)     10.00 Hz" in line and "min 1.0 ms max 199.0 ms" in line
+    assert "rate (stamps)     10.00 Hz" in line and "1 published but not seen here" in line
+    assert rate_line("hz", samples[:1]) == "no messages yet"

@@ -170,8 +170,10 @@ def test_cli_attaches_echo_hz_and_node_info_to_a_running_graph(runtime_env: dict
         echo = tether("topic", "echo", "scale/value", "-n", "2", env=runtime_env)
         assert echo.returncode == 0 and echo.stdout.count("Float64") == 2
         hz = tether("topic", "hz", "counter/value", "--duration", "3", env=runtime_env)
-        rates = [float(line.split()[1]) for line in hz.stdout.splitlines() if line.startswith("rate")]
-        assert rates and abs(rates[-1] - 40.0) < 4.0
+        rates = [float(line.split("rate (stamps)")[1].split()[0]) for line in hz.stdout.splitlines()
+                 if "rate (stamps)" in line]
+        arrivals = [float(line.split()[2]) for line in hz.stdout.splitlines() if line.startswith("rate (arrival)")]
+        assert rates and abs(rates[-1] - 40.0) < 4.0 and arrivals and abs(arrivals[-1] - 40.0) < 8.0
         info = tether("node", "info", "scale", env=runtime_env)
         assert info.returncode == 0 and "<- value" in info.stdout and "-> value" in info.stdout
         nodes = tether("node", "list", env=runtime_env).stdout
@@ -185,13 +187,13 @@ def test_cli_attaches_echo_hz_and_node_info_to_a_running_graph(runtime_env: dict
 
 
 def test_hz_is_computed_from_publisher_seq_and_stamps_not_from_what_arrived() -> None:
-    from tether.introspect import _rate_line
+    from tether.introspect import rate_line
 
     # 1000 Hz publisher, but the slow terminal only saw every 10th message.
     samples = [(i * 0.01, i * 10 * 1_000_000, 1 + i * 10, 1 << 20) for i in range(100)]
-    line = _rate_line("hz", samples)
-    assert "1000.00 Hz" in line and "not seen here" in line
-    bw = _rate_line("bw", samples)
+    line = rate_line("hz", samples)
+    assert "rate (stamps)   1000.00 Hz" in line and "rate (arrival)    100.00 Hz" in line and "not seen here" in line
+    bw = rate_line("bw", samples)
     assert f"{1000 * (1 << 20) / 1e6:9.2f} MB/s" in bw
 
 
