@@ -231,6 +231,7 @@ def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: An
     finally:
         registry.unregister(entry)
         sock.close(linger=1000)
+        Path(endpoint[len("ipc://"):]).unlink(missing_ok=True)      # ZeroMQ leaves the file behind
     progress.done()
     print(f"replayed {n} messages from {args.file}")
     return _nothing_done(n, args, f"nothing replayed from {args.file}: its topics are {sorted(info.topics)}, "
@@ -355,6 +356,44 @@ def cmd_slam_optimize(args: argparse.Namespace) -> int:
         write_graph(args.output, graph, result.poses)
         print(f"wrote {args.output}")
     return 0 if result.converged else 1
+
+
+def cmd_doctor(args: argparse.Namespace) -> int:
+    """Check the runtime directory and keystores; clean what crashed runs left (stale registry
+    entries, ipc sockets nobody listens on, seq-state files of graphs no longer running)."""
+    from tether import keystore, registry
+    from tether.transport import check_private_dir, runtime_dir, sweep_stale_sockets
+
+    problems = 0
+    folder = runtime_dir()
+    try:
+        check_private_dir(folder)
+        print(f"runtime directory {folder}: private (0700, yours)")
+    except TetherError as exc:
+        problems += 1
+        print(f"runtime directory: PROBLEM: {exc}")
+    entries = sorted((folder / "graphs").glob("*.json")) if (folder / "graphs").is_dir() else []
+    live = registry.running()
+    print(f"graphs running: {len(live)} ({', '.join(sorted(g['name'] for g in live)) or 'none'}); "
+          f"stale registry entries removed: {len(entries) - len(live)}")
+    print(f"stale ipc sockets removed: {sweep_stale_sockets()}")
+    names = {g["name"] for g in live}
+    stale_state = [f for f in (folder / "state").glob("*.seq") if f.name.split(".", 1)[0] not in names] \
+        if (folder / "state").is_dir() else []
+    for f in stale_state:
+        f.unlink(missing_ok=True)
+    print(f"seq-state files of stopped graphs removed: {len(stale_state)}")
+    root = keystore.keys_root()
+    stores = sorted(p for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+    for store in stores:
+        for key in sorted(store.glob("*.key")):
+            try:
+                keystore.check_private(key)
+            except TetherError as exc:
+                problems += 1
+                print(f"keystore {store.name}: UNSAFE: {exc}")
+    print(f"keystores under {root}: {len(stores)}" + ("" if problems else "; every key file private"))
+    return 1 if problems else 0
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
@@ -498,6 +537,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("doctor", help="check the runtime directory and keystores; clean what crashed runs left")
+    p.set_defaults(func=cmd_doctor)
 
     p = sub.add_parser("slam", help="pose-graph tools")
     slam = p.add_subparsers(dest="slam_cmd", required=True)

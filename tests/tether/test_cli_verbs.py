@@ -106,3 +106,39 @@ def test_topic_hz_reports_arrival_and_stamp_rates_labelled() -> None:
     assert "rate (arrival)     10.00 Hz" in line and "min 1.0 ms max 199.0 ms" in line
     assert "rate (stamps)     10.00 Hz" in line and "1 published but not seen here" in line
     assert rate_line("hz", samples[:1]) == "no messages yet"
+
+
+def test_doctor_cleans_what_a_crash_left_and_flags_unsafe_keys(tmp_path: Path, runtime_env: dict) -> None:
+    import json
+    import os
+    import socket
+
+    rt = Path(runtime_env["TETHER_RUNTIME_DIR"])
+    (rt / "s").mkdir(parents=True, mode=0o700, exist_ok=True)
+    os.chmod(rt, 0o700)
+    (rt / "graphs").mkdir(mode=0o700, exist_ok=True)
+    (rt / "graphs" / "dead.json").write_text(json.dumps({"name": "gone", "pid": 2 ** 22 + 12345, "topics": {}}))
+    stale = rt / "s" / "gone.x.sock"
+    with socket.socket(socket.AF_UNIX) as s:
+        s.bind(str(stale))                                        # bound, never listened: refuses
+    (rt / "state").mkdir(mode=0o700, exist_ok=True)
+    (rt / "state" / "gone.node.abc.seq").write_bytes(b"\0" * 16)
+    res = tether("doctor", env=runtime_env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "stale registry entries removed: 1" in res.stdout and "stale ipc sockets removed: 1" in res.stdout
+    assert "seq-state files of stopped graphs removed: 1" in res.stdout
+    assert not stale.exists() and not (rt / "graphs" / "dead.json").exists()
+    store = Path(runtime_env["TETHER_KEYS_DIR"]) / "g"
+    store.mkdir(parents=True)
+    (store / "m.key").write_text("{}")
+    os.chmod(store / "m.key", 0o644)
+    res = tether("doctor", env=runtime_env)
+    assert res.returncode == 1 and "UNSAFE" in res.stdout
+
+
+def test_a_normal_replay_leaves_no_socket_behind(tmp_path: Path, runtime_env: dict) -> None:
+    log = _log(tmp_path / "a.mcap")
+    res = tether("replay", str(log), "--rate", "0", "--delay", "0", env=runtime_env)
+    assert res.returncode == 0
+    sockets = Path(runtime_env["TETHER_RUNTIME_DIR"]) / "s"
+    assert not list(sockets.glob("*")) if sockets.exists() else True
