@@ -46,6 +46,8 @@ def _params(items: Sequence[str] | None) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise ConfigError(f"--param {item!r}: expected KEY=VALUE")
+        if key in out:
+            raise ConfigError(f"--param {key} is given twice")
         out[key] = parse_value(value)
     return out
 
@@ -56,6 +58,8 @@ def _pairs(items: Sequence[str] | None, flag: str) -> dict[str, str]:
         key, sep, value = item.partition("=")
         if not sep or not key or not value:
             raise ConfigError(f"{flag} {item!r}: expected NAME=TOPIC")
+        if key in out:
+            raise ConfigError(f"{flag} {key} is given twice")
         out[key] = value
     return out
 
@@ -437,7 +441,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("launch", help="run a pipeline file")
-    p.add_argument("file")
+    p.add_argument("file", help="the launch file (YAML)")
     p.add_argument("--duration", type=float, help="stop after S seconds")
     p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE", help="override a node parameter")
     p.add_argument("--record", metavar="FILE", help="record the graph's topics to an MCAP log")
@@ -451,20 +455,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_launch)
 
     p = sub.add_parser("keys", help="create or list a graph's CurveZMQ keystore (one key pair per machine)")
-    p.add_argument("action", choices=("init", "list"))
+    p.add_argument("action", choices=("init", "list"), help="init: create missing key pairs; list: show them")
     p.add_argument("graph", help="the graph's name (its launch file's 'name')")
     p.add_argument("--machines", help="with init: comma-separated machine names, e.g. boat,shore")
     p.add_argument("--keys", help="keystore folder (default ~/.config/tether/keys/GRAPH/)")
     p.set_defaults(func=cmd_keys)
 
     p = sub.add_parser("check", help="validate pipeline files without starting anything")
-    p.add_argument("files", nargs="+")
-    p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE")
+    p.add_argument("files", nargs="+", help="launch files, or directories of them")
+    p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE", help="check with this override")
     p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("graph", help="print a pipeline's graph (text or Graphviz dot)")
-    p.add_argument("file")
-    p.add_argument("--format", choices=("text", "dot"), default="text")
+    p.add_argument("file", help="the launch file (YAML)")
+    p.add_argument("--format", choices=("text", "dot"), default="text", help="text listing or Graphviz dot")
     p.set_defaults(func=cmd_graph)
 
     p = sub.add_parser("run", help="run one node alone")
@@ -499,8 +503,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("topic", help="list / echo / hz / bw")
-    p.add_argument("action", choices=("list", "echo", "hz", "bw"))
-    p.add_argument("topic", nargs="?")
+    p.add_argument("action", choices=("list", "echo", "hz", "bw"), help="list topics, print messages, rate, bandwidth")
+    p.add_argument("topic", nargs="?", help="the topic (not for list)")
     p.add_argument("-n", "--count", type=int, help="echo: stop after N messages")
     p.add_argument("--raw", action="store_true", help="echo: plain msgpack")
     p.add_argument("--all", action="store_true", help="list: include _stats topics")
@@ -511,12 +515,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_topic)
 
     p = sub.add_parser("node", help="list running nodes / show one node's counters")
-    p.add_argument("action", choices=("list", "info"))
-    p.add_argument("id", nargs="?")
+    p.add_argument("action", choices=("list", "info"), help="list running nodes, or one node's statistics")
+    p.add_argument("id", nargs="?", help="with info: the node id")
     p.set_defaults(func=cmd_node)
 
     p = sub.add_parser("log", help="what a log holds, and whether every chunk is intact")
-    p.add_argument("file")
+    p.add_argument("file", help="the MCAP log")
     p.add_argument("--check", action="store_true", help="verify every chunk's CRC (the default; exit 1 on damage)")
     p.add_argument("--no-check", action="store_true", help="list only, do not read every chunk")
     p.add_argument("--recover", action="store_true", help="copy every readable message into -o OUT")
@@ -524,18 +528,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_log)
 
     p = sub.add_parser("import", help="convert a foreign log (oculus, candump) to a tether log")
-    p.add_argument("kind", choices=("oculus", "candump"))
-    p.add_argument("file")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("kind", choices=("oculus", "candump"), help="the foreign format")
+    p.add_argument("file", help="the foreign log")
+    p.add_argument("-o", "--output", required=True, help="the tether MCAP log to write")
     p.add_argument("--topic", help="topic to write (default sonar/ping or can/frame)")
     p.add_argument("--max-bytes", type=_size, default=None,
                    help="the most one record may take once decompressed (e.g. 64M; default 64 MiB)")
     p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("export", help="export a log for other tools")
-    p.add_argument("format", choices=("foxglove",))
-    p.add_argument("file")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("format", choices=("foxglove",), help="the target tool")
+    p.add_argument("file", help="the tether MCAP log")
+    p.add_argument("-o", "--output", required=True, help="the MCAP file to write")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("doctor", help="check the runtime directory and keystores; clean what crashed runs left")
@@ -549,11 +553,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--initial", choices=("given", "odometry", "chordal"),
                    help="start from the file's vertices, the odometry chain, or a chordal relaxation "
                         "(default: given when every vertex has a pose, else odometry)")
-    q.add_argument("--method", choices=("lm", "gn"), default="lm")
+    q.add_argument("--method", choices=("lm", "gn"), default="lm", help="Levenberg-Marquardt or Gauss-Newton")
     q.add_argument("--robust", choices=("huber", "cauchy", "gnc"), help="robust kernel, or gnc to reject false loop closures")
     q.add_argument("--kernel-width", type=float, help="kernel width (Mahalanobis units; for gnc the chi2 gate)")
     q.add_argument("--anchor", type=int, help="vertex id held fixed (default: FIX lines, else the first vertex)")
-    q.add_argument("--max-iterations", type=int, default=100)
+    q.add_argument("--max-iterations", type=int, default=100, help="stop after N iterations")
     q.add_argument("--rel-tol", type=float, default=1e-10, help="stop when a step lowers chi2 by less than this fraction")
     q.set_defaults(func=cmd_slam_optimize)
     return ap

@@ -108,6 +108,8 @@ def parse_overrides(items: list[str] | None) -> dict[str, dict[str, Any]]:
         node_id, dot, param = key.partition(".")
         if not sep or not dot or not node_id or not param:
             raise ConfigError(f"--param {item!r}: expected NODE.KEY=VALUE")
+        if param in out.get(node_id, {}):
+            raise ConfigError(f"--param {node_id}.{param} is given twice")
         out.setdefault(node_id, {})[param] = parse_value(value)
     return out
 

@@ -142,3 +142,30 @@ def test_a_normal_replay_leaves_no_socket_behind(tmp_path: Path, runtime_env: di
     assert res.returncode == 0
     sockets = Path(runtime_env["TETHER_RUNTIME_DIR"]) / "s"
     assert not list(sockets.glob("*")) if sockets.exists() else True
+
+
+def test_every_option_has_help_and_a_parameter_given_twice_is_an_error() -> None:
+    import argparse
+
+    import pytest
+
+    from tether.cli import _params, build_parser
+    from tether.errors import ConfigError
+    from tether.launch import parse_overrides
+
+    missing = []
+
+    def walk(parser: argparse.ArgumentParser, path: list[str]) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, path + [name])
+            elif not action.help:
+                missing.append(" ".join(path + [action.dest]))
+
+    walk(build_parser(), [])
+    assert missing == []
+    with pytest.raises(ConfigError, match="--param scale.gain is given twice"):
+        parse_overrides(["scale.gain=2", "scale.gain=3"])
+    with pytest.raises(ConfigError, match="--param gain is given twice"):
+        _params(["gain=2", "gain=3"])
