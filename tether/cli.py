@@ -434,6 +434,24 @@ def _version() -> str:
         return "(not installed)"
 
 
+EXAMPLES = {
+    "launch": "tether launch launch/counter.yaml --duration 10 --param counter.rate_hz=20 --record run.mcap",
+    "keys": "tether keys init sonar-localize --machines boat,shore",
+    "check": "tether check launch/",
+    "graph": "tether graph launch/sonar_localize.yaml --format dot | dot -Tpng -o graph.png",
+    "run": "tether run nodes.std.demo:Scale --input value=counter/value --param gain=3",
+    "record": "tether record counter/value scale/value -o run.mcap --duration 10",
+    "replay": "tether replay run.mcap --rate 2 --topics 'sonar/*'",
+    "topic": "tether topic hz sonar/ping -w 50",
+    "node": "tether node info imager",
+    "log": "tether log run.mcap --recover -o fixed.mcap",
+    "import": "tether import oculus capture.oculus -o pings.mcap --max-bytes 32M",
+    "export": "tether export foxglove run.mcap -o run-foxglove.mcap",
+    "doctor": "tether doctor",
+    "slam": "tether slam optimize graph.g2o --initial chordal --robust gnc -o optimised.g2o",
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="tether", description="ROS-free robotics middleware")
     ap.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
@@ -560,6 +578,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--max-iterations", type=int, default=100, help="stop after N iterations")
     q.add_argument("--rel-tol", type=float, default=1e-10, help="stop when a step lowers chi2 by less than this fraction")
     q.set_defaults(func=cmd_slam_optimize)
+    for action in ap._actions:                       # an example at the end of every verb's --help
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub_parser in action.choices.items():
+                if name in EXAMPLES:
+                    sub_parser.epilog = f"example: {EXAMPLES[name]}"
     return ap
 
 

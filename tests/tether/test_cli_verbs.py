@@ -163,8 +163,11 @@ def test_every_option_has_help_and_a_parameter_given_twice_is_an_error() -> None
             elif not action.help:
                 missing.append(" ".join(path + [action.dest]))
 
-    walk(build_parser(), [])
+    parser = build_parser()
+    walk(parser, [])
     assert missing == []
+    verbs = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    assert all((sub.epilog or "").startswith("example: tether ") for sub in verbs.values())
     with pytest.raises(ConfigError, match="--param scale.gain is given twice"):
         parse_overrides(["scale.gain=2", "scale.gain=3"])
     with pytest.raises(ConfigError, match="--param gain is given twice"):
