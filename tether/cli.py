@@ -267,13 +267,29 @@ def cmd_log(args: argparse.Namespace) -> int:
         print(f"recovered {written} messages from {args.file} into {args.output}; {len(damaged)} damaged chunk(s)"
               + (f", {lost} messages lost" if lost >= 0 else " (the source had no statistics: losses unknown)"))
         return 0 if written else 1
-    info = LogReader(args.file).info()
-    print(f"{info.path}: {sum(info.counts.values())} messages, {info.duration_s:.2f} s"
-          + ("  (recovered: the file was not closed cleanly)" if info.recovered else ""))
-    for topic in sorted(info.topics):
-        print(f"  {topic:40s} {info.topics[topic]:28s} {info.counts.get(topic, 0):8d}")
+    reader = LogReader(args.file)
+    info = reader.info()
+    size = Path(args.file).stat().st_size
+    compression = ", ".join(sorted({c.compression or "none" for c in reader._summary.chunk_indexes})) \
+        if reader._summary is not None and reader._summary.chunk_indexes else "unknown (no summary)"
+    print(f"{info.path}: {sum(info.counts.values())} messages, {info.duration_s:.2f} s, {size / 1e6:.2f} MB, "
+          f"compression {compression}" + ("  (recovered: the file was not closed cleanly)" if info.recovered else ""))
     if args.no_check:
+        for topic in sorted(info.topics):
+            print(f"  {topic:40s} {info.topics[topic]:28s} {info.counts.get(topic, 0):8d}")
         return 0
+    stats: dict[str, list[int]] = {}               # topic -> [count, bytes, first log ns, last log ns]
+    for rec in reader.messages():
+        row = stats.setdefault(rec.topic, [0, 0, rec.log_time_ns, rec.log_time_ns])
+        row[0] += 1
+        row[1] += len(rec.data)
+        row[3] = rec.log_time_ns
+    print(f"  {'topic':36s} {'type':24s} {'count':>8s} {'rate Hz':>9s} {'MB':>9s} {'first s':>9s} {'last s':>9s}")
+    for topic in sorted(info.topics):
+        count, nbytes, first, last = stats.get(topic, [0, 0, info.start_ns, info.start_ns])
+        rate = (count - 1) / ((last - first) / 1e9) if count > 1 and last > first else 0.0
+        print(f"  {topic:36s} {info.topics[topic]:24s} {count:8d} {rate:9.2f} {nbytes / 1e6:9.3f} "
+              f"{(first - info.start_ns) / 1e9:9.2f} {(last - info.start_ns) / 1e9:9.2f}")
     check = check_log(args.file)
     for bad in check.damaged:
         print(f"  DAMAGED {bad.describe()}")

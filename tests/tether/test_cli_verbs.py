@@ -172,3 +172,18 @@ def test_every_option_has_help_and_a_parameter_given_twice_is_an_error() -> None
         parse_overrides(["scale.gain=2", "scale.gain=3"])
     with pytest.raises(ConfigError, match="--param gain is given twice"):
         _params(["gain=2", "gain=3"])
+
+
+def test_tether_log_shows_per_topic_rate_size_and_the_file(tmp_path: Path, runtime_env: dict) -> None:
+    log = tmp_path / "two.mcap"
+    with LogWriter(log) as w:
+        for i in range(50):
+            w.write("a/value", Float64(data=float(i), seq=i + 1), log_time_ns=1_000_000_000 + i * 100_000_000)
+            if i % 2:
+                w.write("b/other", Float64(data=float(i), seq=i + 1), log_time_ns=1_000_000_000 + i * 100_000_000)
+    res = tether("log", str(log), env=runtime_env)
+    assert res.returncode == 0 and "75 messages, 4.90 s" in res.stdout and "compression zstd" in res.stdout
+    rows = {line.split()[0]: line.split() for line in res.stdout.splitlines() if line.startswith("  a/") or
+            line.startswith("  b/")}
+    assert rows["a/value"][2:4] == ["50", "10.00"] and rows["b/other"][2:4] == ["25", "5.00"]
+    assert rows["b/other"][5] == "0.10" and "1 chunks, CRCs ok" in res.stdout
