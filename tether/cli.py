@@ -260,6 +260,10 @@ def cmd_log(args: argparse.Namespace) -> int:
     from tether.log import LogReader, recover_log
     from tether.logcheck import check_log
 
+    if args.file in ("cut", "merge"):
+        return _log_cut_merge(args)
+    if args.more:
+        raise ConfigError(f"tether log takes one log (or 'cut IN' / 'merge IN ...'), got {args.more}")
     if args.recover:
         if not args.output:
             raise ConfigError("tether log --recover IN needs -o OUT")
@@ -301,6 +305,40 @@ def cmd_log(args: argparse.Namespace) -> int:
         return 1
     print(f"  {check.chunks} chunks, CRCs ok")
     return 0
+
+
+def _log_cut_merge(args: argparse.Namespace) -> int:
+    """``tether log cut IN -o OUT [--start S] [--end S] [--topics ...]`` and ``tether log merge IN ... -o OUT``."""
+    import heapq
+
+    from tether.log import LogReader, LogWriter
+    from tether.replay import Window, records, select_topics
+
+    if not args.output or not args.more:
+        raise ConfigError(f"tether log {args.file} needs the input log(s) and -o OUT")
+    if args.file == "cut" and len(args.more) != 1:
+        raise ConfigError("tether log cut takes one input log")
+    readers = [LogReader(path) for path in args.more]
+    types: dict[str, str] = {}
+    for reader in readers:
+        for topic, type_name in reader.info().topics.items():
+            if types.setdefault(topic, type_name) != type_name:
+                raise ConfigError(f"topic {topic} is {types[topic]} in one log and {type_name} in another: "
+                                  "they cannot share a channel")
+    if args.file == "cut":
+        info = readers[0].info()
+        window = Window(args.start, args.end, select_topics(info.topics, args.topics) if args.topics else None)
+        streams = [records(readers[0], window)]
+    else:
+        streams = [reader.messages() for reader in readers]
+    written = 0
+    with LogWriter(args.output, metadata={f"{args.file}_of": " ".join(args.more)}) as writer:
+        for rec in heapq.merge(*streams, key=lambda r: r.log_time_ns):
+            writer.write_encoded(rec.topic, rec.type_name, rec.data, log_time_ns=rec.log_time_ns,
+                                 publish_time_ns=rec.publish_time_ns, sequence=rec.sequence)
+            written += 1
+    print(f"wrote {written} messages to {args.output}")
+    return _nothing_done(written, args, f"the {args.file} selected no message")
 
 
 def _patterns(text: str) -> list[str]:
@@ -460,7 +498,7 @@ EXAMPLES = {
     "replay": "tether replay run.mcap --rate 2 --topics 'sonar/*'",
     "topic": "tether topic hz sonar/ping -w 50",
     "node": "tether node info imager",
-    "log": "tether log run.mcap --recover -o fixed.mcap",
+    "log": "tether log cut run.mcap -o slice.mcap --start 10 --end 20 --topics 'sonar/*'",
     "import": "tether import oculus capture.oculus -o pings.mcap --max-bytes 32M",
     "export": "tether export foxglove run.mcap -o run-foxglove.mcap",
     "doctor": "tether doctor",
@@ -553,12 +591,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("id", nargs="?", help="with info: the node id")
     p.set_defaults(func=cmd_node)
 
-    p = sub.add_parser("log", help="what a log holds, and whether every chunk is intact")
-    p.add_argument("file", help="the MCAP log")
+    p = sub.add_parser("log", help="what a log holds, whether every chunk is intact; cut and merge logs")
+    p.add_argument("file", help="the MCAP log; or 'cut' (then IN) or 'merge' (then IN ...)")
+    p.add_argument("more", nargs="*", help="with cut: the log to cut; with merge: the logs to merge")
+    p.add_argument("--start", type=float, default=0.0, help="with cut: seconds from the log's start")
+    p.add_argument("--end", type=float, help="with cut: seconds from the log's start")
+    p.add_argument("--topics", nargs="+", help="with cut: only these topics (names or globs)")
     p.add_argument("--check", action="store_true", help="verify every chunk's CRC (the default; exit 1 on damage)")
     p.add_argument("--no-check", action="store_true", help="list only, do not read every chunk")
     p.add_argument("--recover", action="store_true", help="copy every readable message into -o OUT")
-    p.add_argument("-o", "--output", help="with --recover: the new log")
+    p.add_argument("-o", "--output", help="with --recover, cut or merge: the new log")
     p.set_defaults(func=cmd_log)
 
     p = sub.add_parser("import", help="convert a foreign log (oculus, candump) to a tether log")

@@ -187,3 +187,25 @@ def test_tether_log_shows_per_topic_rate_size_and_the_file(tmp_path: Path, runti
             line.startswith("  b/")}
     assert rows["a/value"][2:4] == ["50", "10.00"] and rows["b/other"][2:4] == ["25", "5.00"]
     assert rows["b/other"][5] == "0.10" and "1 chunks, CRCs ok" in res.stdout
+
+
+def test_log_cut_and_merge(tmp_path: Path, runtime_env: dict) -> None:
+    from tether.log import LogReader
+
+    a = _log(tmp_path / "a.mcap", n=10)                       # a/value at 1.00, 1.01, ... 1.09 s
+    b = tmp_path / "b.mcap"
+    with LogWriter(b) as w:
+        for i in range(4):
+            w.write("b/value", Float64(data=-float(i), seq=i + 1), log_time_ns=1_005_000_000 + i * 10_000_000)
+    res = tether("log", "cut", str(a), "-o", str(tmp_path / "cut.mcap"), "--start", "0.03", "--end", "0.07",
+                 env=runtime_env)
+    assert res.returncode == 0 and "wrote 4 messages" in res.stdout
+    values = [LogReader(tmp_path / "cut.mcap").decode(r).data for r in LogReader(tmp_path / "cut.mcap").messages()]
+    assert values == [3.0, 4.0, 5.0, 6.0]
+    res = tether("log", "merge", str(a), str(b), "-o", str(tmp_path / "m.mcap"), env=runtime_env)
+    assert res.returncode == 0 and "wrote 14 messages" in res.stdout
+    merged = LogReader(tmp_path / "m.mcap")
+    times = [r.log_time_ns for r in merged.messages()]
+    assert times == sorted(times) and merged.info().counts == {"a/value": 10, "b/value": 4}
+    res = tether("log", "cut", str(a), "-o", str(tmp_path / "none.mcap"), "--topics", "zzz/*", env=runtime_env)
+    assert res.returncode == 2 and "selects none of the log's topics" in res.stderr
