@@ -146,11 +146,18 @@ def cmd_record(args: argparse.Namespace) -> int:
     from tether import registry
     from tether.record import Recorder
 
+    import fnmatch
+
     available = registry.topics()
     wanted = args.topics or [t for t in available if not t.endswith("/_stats")]
     missing = [t for t in wanted if t not in available]
     if missing or not wanted:
         raise TetherError(f"not published by any running graph: {', '.join(missing) or '(no topics at all)'}")
+    include, exclude = _flat(args.include), _flat(args.exclude)
+    wanted = [t for t in wanted if (not include or any(fnmatch.fnmatchcase(t, p) for p in include))
+              and not any(fnmatch.fnmatchcase(t, p) for p in exclude or [])]
+    if not wanted:
+        raise ConfigError(f"--include/--exclude leave no topic of: {', '.join(sorted(available))}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -160,14 +167,16 @@ def cmd_record(args: argparse.Namespace) -> int:
         raise TetherError("the topics belong to graphs with different CurveZMQ keystores: record them separately")
     curve = next(iter(keys.values()))[0] if keys else None
     rec = Recorder(args.output, {t: available[t].endpoint for t in wanted}, curve=curve,
-                   secure={t: server_key for t, (_, server_key) in keys.items()}).start()
+                   secure={t: server_key for t, (_, server_key) in keys.items()},
+                   max_bytes=args.max_size or 0, max_duration_s=args.max_duration or 0.0).start()
     progress = _Progress()
     rec.run_until(stop, args.duration, lambda text: progress(text, force=True))
     progress.done()
     if rec.failed:
         raise TetherError(f"recording stopped: {rec.failed}; {rec.count} messages written to {args.output} "
                           f"stay readable")
-    print(f"recorded {rec.count} messages ({rec.bytes / 1e6:.1f} MB) on {len(wanted)} topics to {args.output}"
+    files = ", ".join(str(p) for p in rec.segments) if len(rec.segments) > 1 else str(args.output)
+    print(f"recorded {rec.count} messages ({rec.bytes / 1e6:.1f} MB) on {len(wanted)} topics to {files}"
           + (f"; {rec.errors} malformed dropped" if rec.errors else ""))
     return _nothing_done(rec.count, args, f"nothing was received on {', '.join(wanted)}")
 
@@ -556,6 +565,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="the MCAP file to write")
     p.add_argument("--duration", type=float, help="stop after S seconds")
     p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was received")
+    p.add_argument("--include", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
+                   help="only topics matching these globs (repeatable)")
+    p.add_argument("--exclude", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
+                   help="not topics matching these globs (repeatable)")
+    p.add_argument("--max-size", type=_size, metavar="SIZE", help="start a new file (OUT_1.mcap, ...) past SIZE, e.g. 500M")
+    p.add_argument("--max-duration", type=float, metavar="S", help="start a new file every S seconds")
     p.set_defaults(func=cmd_record)
 
     p = sub.add_parser("replay", help="publish a log, or run a node on it (--into)")

@@ -6,6 +6,7 @@ Messages are not decoded to their types: array buffers are folded back into the 
 from __future__ import annotations
 
 import logging
+import shutil
 import threading
 import time
 from pathlib import Path
@@ -28,8 +29,13 @@ class Recorder:
 
     def __init__(self, path: str | Path, topics: Mapping[str, str], *, curve: CurveKeys | None = None,
                  secure: Mapping[str, str | bytes] | None = None,
-                 ctx: zmq.Context | None = None, metadata: dict[str, str] | None = None) -> None:
+                 ctx: zmq.Context | None = None, metadata: dict[str, str] | None = None,
+                 max_bytes: int = 0, max_duration_s: float = 0.0) -> None:
         self.path = Path(path)
+        self.max_bytes = max_bytes                  # > 0: start a new file past this many bytes (received)
+        self.max_duration_s = max_duration_s        # > 0: ... or past this many seconds
+        self.segments: list[Path] = []              # the files written: run.mcap, run_1.mcap, ...
+        self._warned_disk = 0.0
         self.topics = dict(topics)
         self.curve = curve
         self.secure = dict(secure or {})    # topic -> server key, for topics whose publisher is a Curve server
@@ -63,16 +69,22 @@ class Recorder:
             s.setsockopt(zmq.RCVHWM, 100_000)
             poller.register(s, zmq.POLLIN)
         wanted = {t.encode() for t in self.topics}
+        writer: LogWriter | None = None
         try:
-            with LogWriter(self.path, metadata=self.metadata) as writer:
-                self._ready.set()
-                while not self._stop.is_set():
-                    for sock, _ in poller.poll(100):
-                        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-                            frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
-                            if frames[0].bytes in wanted:
-                                self._write(writer, frames)
-                    writer.maybe_flush()
+            writer, seg_bytes, seg_start = self._open_segment(), self.bytes, time.monotonic()
+            self._ready.set()
+            while not self._stop.is_set():
+                for sock, _ in poller.poll(100):
+                    while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+                        frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                        if frames[0].bytes in wanted:
+                            self._write(writer, frames)
+                writer.maybe_flush()
+                if (self.max_bytes and self.bytes - seg_bytes >= self.max_bytes) or \
+                        (self.max_duration_s and time.monotonic() - seg_start >= self.max_duration_s):
+                    writer.close()                   # a complete file; the next one starts now
+                    writer, seg_bytes, seg_start = self._open_segment(), self.bytes, time.monotonic()
+            writer.close()
         except OSError as exc:     # the file, not a message: disk full, file too large, I/O error
             self.failed = f"{type(exc).__name__}: {exc}"
             log.error("recording to %s stopped: %s; the %d messages written before stay readable "
@@ -81,6 +93,26 @@ class Recorder:
             self._ready.set()
             for s in socks:
                 s.close(linger=0)
+
+    def _open_segment(self) -> LogWriter:
+        k = len(self.segments)
+        path = self.path if k == 0 else self.path.with_name(f"{self.path.stem}_{k}{self.path.suffix}")
+        self.segments.append(path)
+        if k:
+            log.info("recording on into %s", path)
+        return LogWriter(path, metadata={**self.metadata, "segment": str(k)})
+
+    def check_disk(self, rate_bps: float) -> str:
+        """A warning when at ``rate_bps`` the disk under the log fills within 10 minutes ('' otherwise)."""
+        if rate_bps <= 0:
+            return ""
+        free = shutil.disk_usage(self.path.parent if self.path.parent.exists() else Path(".")).free
+        left_s = free / rate_bps
+        if left_s > 600 or (self._warned_disk and left_s > self._warned_disk / 4):
+            return ""
+        self._warned_disk = left_s
+        return (f"at {rate_bps / 1e6:.1f} MB/s the disk under {self.path} ({free / 1e9:.2f} GB free) is full in "
+                f"{left_s / 60:.1f} min; split with --max-size / --max-duration, or record fewer topics")
 
     def _write(self, writer: LogWriter, frames: list) -> None:
         """Write one message; content that cannot be written is counted and logged (rate-limited), never fatal."""
@@ -115,14 +147,17 @@ class Recorder:
                   progress: Callable[[str], None] | None = None) -> None:
         """Block until ``stop`` is set or ``duration_s`` passes, reporting progress each second."""
         t0 = time.monotonic()
-        last_count, last_t = 0, t0
+        last_count, last_bytes, last_t = 0, 0, t0
         while not stop.wait(1.0):
             now = time.monotonic()
             if progress is not None:
                 rate = (self.count - last_count) / max(now - last_t, 1e-9)
-                progress(f"recording {self.path.name}: {self.count} msgs, {self.bytes / 1e6:.1f} MB, "
-                         f"{rate:.0f} msg/s, {now - t0:.0f} s")
-            last_count, last_t = self.count, now
+                progress(f"recording {self.segments[-1].name if self.segments else self.path.name}: {self.count} "
+                         f"msgs, {self.bytes / 1e6:.1f} MB, {rate:.0f} msg/s, {now - t0:.0f} s")
+            warning = self.check_disk((self.bytes - last_bytes) / max(now - last_t, 1e-9))
+            if warning:
+                log.warning(warning)
+            last_count, last_bytes, last_t = self.count, self.bytes, now
             if (duration_s is not None and now - t0 >= duration_s) or self.failed:
                 break
         self.stop()

@@ -209,3 +209,31 @@ def test_log_cut_and_merge(tmp_path: Path, runtime_env: dict) -> None:
     assert times == sorted(times) and merged.info().counts == {"a/value": 10, "b/value": 4}
     res = tether("log", "cut", str(a), "-o", str(tmp_path / "none.mcap"), "--topics", "zzz/*", env=runtime_env)
     assert res.returncode == 2 and "selects none of the log's topics" in res.stderr
+
+
+def test_record_include_exclude_and_split_by_duration(tmp_path: Path, runtime_env: dict) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    from conftest import wait_for_topic
+    from tether.log import LogReader
+
+    graph = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", "launch/counter.yaml", "--param",
+                              "counter.rate_hz=50"], cwd=REPO, env=runtime_env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    try:
+        wait_for_topic("scale/value", runtime_env, alive=graph)
+        out = tmp_path / "rec.mcap"
+        res = tether("record", "-o", str(out), "--exclude", "scale/*", "--max-duration", "1", "--duration", "3.5",
+                     env=runtime_env)
+        assert res.returncode == 0, res.stderr
+        parts = sorted(tmp_path.glob("rec*.mcap"))
+        assert len(parts) >= 3 and (tmp_path / "rec_1.mcap") in parts
+        assert all(set(LogReader(p).info().topics) <= {"counter/value"} for p in parts)
+        res = tether("record", "-o", str(tmp_path / "none.mcap"), "--include", "nothing/*", "--duration", "1",
+                     env=runtime_env)
+        assert res.returncode == 2 and "leave no topic" in res.stderr
+    finally:
+        graph.send_signal(signal.SIGINT)
+        graph.wait(30)

@@ -145,3 +145,25 @@ def test_bit_flips_are_found_skipped_and_recovery_keeps_the_rest(tmp_path: Path,
     assert cli.returncode == 0 and f"recovered {written} messages" in cli.stdout
     replay = tether("replay", str(path), "--rate", "0", "--delay", "0", env=runtime_env)
     assert replay.returncode == 0 and "skipping damaged chunk" in replay.stderr and "Traceback" not in replay.stderr
+
+
+def test_recording_splits_by_size_and_warns_before_the_disk_fills(tmp_path: Path, runtime_env: dict,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    import shutil as _shutil
+
+    ctx = zmq.Context()
+    pub, endpoint = _publisher(ctx)
+    rec = Recorder(tmp_path / "split.mcap", {"p/value": endpoint}, ctx=ctx, max_bytes=2000).start()
+    assert pub.poll(5000) and pub.recv()[0] == 1
+    for i in range(300):
+        _send(pub, Float64(data=float(i), seq=i + 1))
+        time.sleep(0.002)
+    time.sleep(0.5)
+    rec.stop()
+    ctx.destroy(linger=0)
+    assert len(rec.segments) >= 3 and rec.segments[1].name == "split_1.mcap"
+    values = [LogReader(p).decode(r).data for p in rec.segments for r in LogReader(p).messages()]
+    assert values == sorted(values) and len(values) == rec.count               # every file complete, nothing lost
+    monkeypatch.setattr(_shutil, "disk_usage", lambda p: _shutil._ntuple_diskusage(10 ** 10, 10 ** 10 - 10 ** 8, 10 ** 8))
+    assert "is full in" in rec.check_disk(1e6)                                  # 100 MB free at 1 MB/s
+    assert rec.check_disk(1e3) == ""
