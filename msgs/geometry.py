@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from tether.message import Message, const
 
@@ -32,42 +33,26 @@ class Pose3D(Message, tag="geometry.Pose3D"):
     qz: float = 0.0
 
     def matrix(self) -> np.ndarray:
-        """4x4 homogeneous transform (child -> frame_id)."""
-        w, x, y, z = self.qw, self.qx, self.qy, self.qz
-        n = w * w + x * x + y * y + z * z
-        s = 2.0 / n if n > 0 else 0.0
-        rot = np.array([[1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-                        [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
-                        [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)]])
+        """4x4 homogeneous transform (child -> frame_id); a non-unit quaternion is normalised,
+        a zero one reads as no rotation."""
         out = np.eye(4)
-        out[:3, :3] = rot
+        q = np.array([self.qx, self.qy, self.qz, self.qw], dtype=float)       # scipy: scalar last
+        if np.all(np.isfinite(q)) and float(q @ q) > 0:
+            out[:3, :3] = Rotation.from_quat(q).as_matrix()
         out[:3, 3] = (self.x_m, self.y_m, self.z_m)
         return out
 
     @classmethod
     def from_matrix(cls, transform: np.ndarray, **header: object) -> "Pose3D":
-        """From a 4x4 homogeneous transform (rotation part must be orthonormal)."""
-        r = np.asarray(transform, dtype=float)[:3, :3]
-        t = np.asarray(transform, dtype=float)[:3, 3]
-        # Shepperd's method: pick the largest diagonal term so the division is well conditioned.
-        tr = np.trace(r)
-        k = int(np.argmax([tr, r[0, 0], r[1, 1], r[2, 2]]))
-        if k == 0:
-            s = np.sqrt(1.0 + tr) * 2
-            q = (0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s)
-        elif k == 1:
-            s = np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2
-            q = ((r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s)
-        elif k == 2:
-            s = np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2
-            q = ((r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s)
-        else:
-            s = np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2
-            q = ((r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s)
-        w, x, y, z = (float(v) for v in q)
+        """From a 4x4 homogeneous transform (a rotation part that is not orthonormal is
+        replaced by the nearest rotation); the quaternion is returned with w >= 0."""
+        m = np.asarray(transform, dtype=float)
+        x, y, z, w = Rotation.from_matrix(m[:3, :3]).as_quat()
         if w < 0:
             w, x, y, z = -w, -x, -y, -z
-        return cls(x_m=float(t[0]), y_m=float(t[1]), z_m=float(t[2]), qw=w, qx=x, qy=y, qz=z, **header)  # type: ignore[arg-type]
+        t = m[:3, 3]
+        return cls(x_m=float(t[0]), y_m=float(t[1]), z_m=float(t[2]), qw=float(w), qx=float(x), qy=float(y),
+                   qz=float(z), **header)  # type: ignore[arg-type]
 
 
 class PoseWithCovariance(Message, tag="geometry.PoseWithCovariance"):
