@@ -71,7 +71,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
 
     launch = load_launch(args.file, parse_overrides(args.param))
     sup = Supervisor(launch, machine=args.machine, record=args.record,
-                     record_topics=_flat(args.record_topics), record_exclude=_flat(args.record_exclude), keys=args.keys)
+                     record_topics=_flat(args.record_topics), record_exclude=_flat(args.record_exclude), keys=args.keys,
+                     record_max_bytes=args.record_max_size or 0, record_max_duration_s=args.record_max_duration or 0.0)
     names = ", ".join(c.id for c in sup.children)
     log.info("launching %s (%s)%s", launch.name, names, f" for {args.duration:g} s" if args.duration else "")
     return sup.run(args.duration)
@@ -530,6 +531,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --record: only these (e.g. 'sim/*,nav/pose'; repeatable)")
     p.add_argument("--record-exclude", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
                    help="with --record: not these (e.g. '*/rgbd'; repeatable)")
+    p.add_argument("--record-max-size", type=_size, metavar="SIZE",
+                   help="with --record: start a new file (RUN_1.mcap, ...) past SIZE, e.g. 500M")
+    p.add_argument("--record-max-duration", type=float, metavar="S", help="with --record: a new file every S seconds")
     p.add_argument("--machine", help="start only this machine's nodes")
     p.add_argument("--keys", help="CurveZMQ keystore folder of the graph (default ~/.config/tether/keys/NAME/; "
                                "see 'tether keys')")

@@ -167,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m tether.record -``: the launcher's recorder process, spec on stdin (stops on SIGTERM/SIGINT).
 
     SPEC: {"path", "topics": {topic: endpoint}, "secure": {topic: server key}, "curve": keys or null,
-    "parent_pid": launcher pid, "metadata": {}}.
+    "parent_pid": launcher pid, "metadata": {}, "max_bytes": 0, "max_duration_s": 0}.
     """
     import signal
     import sys
@@ -180,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     watch_parent(int(spec.get("parent_pid", 0)), stop.set)
     rec = Recorder(spec["path"], spec["topics"], curve=curve, secure=spec.get("secure") or {},
-                   metadata=spec.get("metadata")).start()
+                   metadata=spec.get("metadata"), max_bytes=int(spec.get("max_bytes") or 0),
+                   max_duration_s=float(spec.get("max_duration_s") or 0.0)).start()
     rec.run_until(stop)
     log.info("recorded %d messages (%.1f MB) on %d topics to %s%s", rec.count, rec.bytes / 1e6, len(rec.topics),
              rec.path, f"; {rec.errors} malformed dropped" if rec.errors else "")

@@ -74,8 +74,10 @@ class Supervisor:
 
     def __init__(self, launch: LaunchFile, *, machine: str | None = None, record: str | None = None,
                  record_topics: list[str] | None = None, record_exclude: list[str] | None = None,
-                 keys: str | None = None, out: IO[str] | None = None) -> None:
+                 keys: str | None = None, out: IO[str] | None = None, record_max_bytes: int = 0,
+                 record_max_duration_s: float = 0.0) -> None:
         self.launch = launch
+        self.record_split = {"max_bytes": int(record_max_bytes), "max_duration_s": float(record_max_duration_s)}
         self.machine = machine or ""
         self.out = out or sys.stdout
         self.stop_event = threading.Event()
@@ -118,7 +120,7 @@ class Supervisor:
         segment = _next_segment(self.record_path, n)
         self.recorder_segments.append(segment)
         spec = {"path": segment, "topics": self.record_topics, "secure": {}, "parent_pid": os.getpid(),
-                "curve": self.curve.to_json() if self.curve else None,
+                "curve": self.curve.to_json() if self.curve else None, **self.record_split,
                 "metadata": {"launch": str(self.launch.path), "graph": self.launch.name, "segment": n}}
         # Its own process: recording a camera stream costs CPU (the mcap writer copies every byte a
         # few times), which must not slow the supervisor's log pumping or restarts.

@@ -237,3 +237,16 @@ def test_record_include_exclude_and_split_by_duration(tmp_path: Path, runtime_en
     finally:
         graph.send_signal(signal.SIGINT)
         graph.wait(30)
+
+
+def test_launch_record_splits_by_duration(tmp_path: Path, runtime_env: dict) -> None:
+    from tether.log import LogReader
+
+    log = tmp_path / "run.mcap"
+    res = tether("launch", "launch/counter.yaml", "--duration", "3.5", "--param", "counter.rate_hz=20",
+                 "--record", str(log), "--record-max-duration", "1", env=runtime_env)
+    assert res.returncode == 0, res.stderr
+    parts = sorted(tmp_path.glob("run*.mcap"))
+    assert len(parts) >= 3 and (tmp_path / "run_1.mcap") in parts
+    counts = [sum(LogReader(p).info().counts.values()) for p in parts]
+    assert all(c > 0 for c in counts[:-1])
