@@ -22,8 +22,8 @@ import os
 from pathlib import Path
 from typing import Any, Iterable
 
-from msgs.std import InputStats
 from tether.message import Message
+from tether.stats import InputStats
 
 #: Largest forward ``seq`` jump still counted as loss; beyond it the jump is a counted reset.
 #: 2^32 messages is more than a day at 40 kHz: no real outage loses that many.

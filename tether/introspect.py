@@ -153,7 +153,7 @@ def cmd_node(args: argparse.Namespace) -> int:
     if not args.id:
         raise ConfigError("tether node info needs a node ID")
     from tether.codec import Codec
-    from msgs.std import NodeStats
+    from tether.stats import NodeStats
 
     _, sock = subscribe(f"{args.id}/_stats")
     if not sock.poll(3000):

@@ -179,7 +179,7 @@ class StatsWatch:
     def _run(self) -> None:
         import zmq
 
-        from msgs.std import NodeStats
+        from tether.stats import NodeStats
         from tether.codec import Codec
         from tether.introspect import subscribe
 

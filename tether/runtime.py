@@ -20,11 +20,11 @@ from typing import Any
 import msgspec
 import zmq
 
-from msgs.std import NodeStats
 from tether.codec import Codec
 from tether.inputs import InputState, SeqStore, saturate
 from tether.message import Message
 from tether.node import Context, Node, Tick, iter_outputs
+from tether.stats import NodeStats
 from tether.transport import (PUB_QUEUE_BYTES, CurveKeys, LinkWatch, Subscriptions, hwm_for, make_pub,
                               start_authenticator)
 

@@ -250,3 +250,17 @@ def test_launch_record_splits_by_duration(tmp_path: Path, runtime_env: dict) -> 
     assert len(parts) >= 3 and (tmp_path / "run_1.mcap") in parts
     counts = [sum(LogReader(p).info().counts.values()) for p in parts]
     assert all(c > 0 for c in counts[:-1])
+
+
+def test_the_runtime_imports_nothing_above_it() -> None:
+    """tether/ is the bottom layer: no module of it imports msgs, nodes, drivers or sim (issue 23 §5),
+    except the importers, which still reach the drivers' parsers (left: entry points)."""
+    import ast
+
+    upward = []
+    for path in sorted((REPO / "tether").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            upward += [f"{path.name}: {n}" for n in names if n.split(".")[0] in ("msgs", "nodes", "drivers", "sim")]
+    assert [u for u in upward if not u.startswith("imports.py")] == []
