@@ -253,9 +253,9 @@ def test_feedback_pdos_that_stop_while_the_heartbeat_goes_on_stop_every_motor():
         up_and_running(master, bank)
         with bank.lock:
             bank.drives["rear_wheel"].faults.pdo_mute = True       # heartbeat and SDO still answer
-        t0 = time.monotonic()
         assert cycle(master, 3.0, until=lambda: bool(master.latched))
-        assert time.monotonic() - t0 < 1.0 and "feedback PDOs of rear_wheel (node 3)" in master.latched
+        # The detector's own measure, not the wall clock (the virtual-time test pins the 200 ms):
+        assert "feedback PDOs of rear_wheel (node 3)" in master.latched and "(bound 200 ms)" in master.latched
         assert master.drives["rear_wheel"].nmt_state != "LOST"     # it was not the heartbeat
         assert cycle(master, 3.0, until=lambda: all_still(bank)), speeds(bank)
 

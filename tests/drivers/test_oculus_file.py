@@ -4,7 +4,6 @@ from __future__ import annotations
 import hashlib
 import sqlite3
 import struct
-import time
 import zlib
 
 import numpy as np
@@ -106,9 +105,9 @@ def test_a_qcompress_bomb_is_refused_by_its_declared_size_and_a_liar_by_its_outp
         path.write_bytes(RMLOG_HEADER.pack(0x11223344, 48, b"Oculus", 1, 0, 0, 1.7e9)
                          + RMLOG_ITEM.pack(0xAABBCCDD, 40, 10, 0, 1.7e9, 1, 0, len(payload)) + payload)
         skipped = []
-        t0 = time.monotonic()
+        # The reasons show it: refused by the declared size, or stopped at declared + 1 bytes -- never inflated.
         assert list(iter_oculus_file(path, max_bytes=max_bytes, on_skip=lambda o, w: skipped.append(w))) == []
-        assert time.monotonic() - t0 < 5.0 and len(skipped) == 1 and why in skipped[0], skipped
+        assert len(skipped) == 1 and why in skipped[0], skipped
 
 
 def test_a_file_shorter_than_its_header_is_one_clear_error(tmp_path):

