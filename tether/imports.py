@@ -9,7 +9,7 @@ with its offset, never fatal. :class:`ImportResult` says what came in and what d
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -23,17 +23,15 @@ MAX_SKIP_LINES = 20         # then one summary: a wholly damaged file must not f
 
 @dataclass
 class ImportResult:
-    """``imported`` messages written; ``skipped`` records refused, the first few with where and why."""
+    """``imported`` messages written; ``skipped`` records refused (the first few logged with where and why)."""
 
     imported: int = 0
     skipped: int = 0
-    examples: list[tuple[int, str]] = field(default_factory=list)
     unit: str = "byte"          # what a skip's offset counts: "byte" or "line"
 
     def skip(self, offset: int, reason: str) -> None:
         self.skipped += 1
         if self.skipped <= MAX_SKIP_LINES:
-            self.examples.append((offset, reason))
             log.warning("skipped the record at %s %d: %s", self.unit, offset, reason)
         elif self.skipped == MAX_SKIP_LINES + 1:
             log.warning("more records skipped; the count follows at the end")

@@ -9,18 +9,15 @@ does not (a recorder killed mid-write leaves no summary).
 from __future__ import annotations
 
 import io
-import logging
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO
 
 from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
-from mcap.records import Channel, Chunk, Message as McapMessage, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
-
-log = logging.getLogger("tether.log")
+from mcap.records import Chunk
+from mcap.stream_reader import breakup_chunk
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_CHUNK = 0x06
@@ -133,37 +130,3 @@ def check_log(path: str | Path) -> LogCheck:
                 result.damaged.append(DamagedChunk(ref.index, ref.offset, ref.start_ns, ref.end_ns,
                                                    f"{type(exc).__name__}: {str(exc)[:120]}"))
     return result
-
-
-def iter_records(path: str | Path, damaged: list[DamagedChunk] | None = None) -> Iterator[object]:
-    """Schema, Channel and Message records of every readable chunk (and top-level ones), in file order.
-
-    A damaged chunk is skipped with one log line and appended to ``damaged``.
-    """
-    with open(path, "rb") as fh:
-        refs, indexed, truncated_at = chunk_refs(fh)
-        if indexed:                     # schemas and channels also sit outside chunks, in the summary
-            summary = make_reader(fh).get_summary()
-            yield from summary.schemas.values()
-            yield from summary.channels.values()
-        else:
-            fh.seek(0)
-            try:
-                for record in StreamReader(fh, skip_magic=False, emit_chunks=True).records:
-                    if isinstance(record, (Schema, Channel)):
-                        yield record
-            except Exception:  # noqa: BLE001 - the walk below reports where the file breaks
-                pass
-        for ref in refs:
-            try:
-                records = read_chunk(fh, ref)
-            except Exception as exc:  # noqa: BLE001
-                bad = DamagedChunk(ref.index, ref.offset, ref.start_ns, ref.end_ns, f"{type(exc).__name__}: {exc}")
-                log.error("%s: skipping damaged %s", path, bad.describe())
-                if damaged is not None:
-                    damaged.append(bad)
-                continue
-            yield from (r for r in records if isinstance(r, (Schema, Channel, McapMessage)))
-        if truncated_at >= 0:
-            log.warning("%s: unreadable from byte %d on (the file was cut or a record length is damaged)",
-                        path, truncated_at)

@@ -135,7 +135,6 @@ class GraphCheck:
     """What :func:`check_graph` found that is legal but worth saying."""
 
     duplicates: int = 0            # edges whose (i, j) pair appears more than once (all are kept)
-    components: int = 1
 
 
 def check_graph(graph: PoseGraph2D) -> GraphCheck:
@@ -187,7 +186,7 @@ def check_graph(graph: PoseGraph2D) -> GraphCheck:
                          "or add edges between them")
     pairs = np.sort(graph.edges, axis=1)
     _, counts = np.unique(pairs, axis=0, return_counts=True)
-    return GraphCheck(duplicates=int((counts - 1).sum()), components=1)
+    return GraphCheck(duplicates=int((counts - 1).sum()))
 
 
 # -- residuals and the normal equations ---------------------------------------------------------
