@@ -268,7 +268,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 # -- logs -----------------------------------------------------------------------------------
 def cmd_log(args: argparse.Namespace) -> int:
     from tether.log import LogReader, recover_log
-    from tether.logcheck import check_log
+    from tether.logcheck import LogCheck, chunk_refs
 
     if args.file in ("cut", "merge"):
         return _log_cut_merge(args)
@@ -282,29 +282,41 @@ def cmd_log(args: argparse.Namespace) -> int:
               + (f", {lost} messages lost" if lost >= 0 else " (the source had no statistics: losses unknown)"))
         return 0 if written else 1
     reader = LogReader(args.file)
-    info = reader.info()
     size = Path(args.file).stat().st_size
     compression = ", ".join(sorted({c.compression or "none" for c in reader._summary.chunk_indexes})) \
         if reader._summary is not None and reader._summary.chunk_indexes else "unknown (no summary)"
-    print(f"{info.path}: {sum(info.counts.values())} messages, {info.duration_s:.2f} s, {size / 1e6:.2f} MB, "
-          f"compression {compression}" + ("  (recovered: the file was not closed cleanly)" if info.recovered else ""))
+    recovered = "  (recovered: the file was not closed cleanly)" if reader.recovered else ""
     if args.no_check:
+        info = reader.info()
+        print(f"{info.path}: {sum(info.counts.values())} messages, {info.duration_s:.2f} s, {size / 1e6:.2f} MB, "
+              f"compression {compression}{recovered}")
         for topic in sorted(info.topics):
             print(f"  {topic:40s} {info.topics[topic]:28s} {info.counts.get(topic, 0):8d}")
         return 0
-    stats: dict[str, list[int]] = {}               # topic -> [count, bytes, first log ns, last log ns]
+    # One pass reads (and CRC-checks) every chunk: the per-topic figures and the damage both come from it.
+    stats: dict[str, list] = {}                    # topic -> [type, count, bytes, first log ns, last log ns]
     for rec in reader.messages():
-        row = stats.setdefault(rec.topic, [0, 0, rec.log_time_ns, rec.log_time_ns])
-        row[0] += 1
-        row[1] += len(rec.data)
-        row[3] = rec.log_time_ns
+        row = stats.setdefault(rec.topic, [rec.type_name, 0, 0, rec.log_time_ns, rec.log_time_ns])
+        row[1] += 1
+        row[2] += len(rec.data)
+        row[4] = rec.log_time_ns
+    start = min((r[3] for r in stats.values()), default=0)
+    end = max((r[4] for r in stats.values()), default=0)
+    if reader._summary is not None:                 # channels without a message are listed too (cheap: the summary)
+        for topic, type_name in reader.info().topics.items():
+            stats.setdefault(topic, [type_name, 0, 0, start, start])
+    print(f"{reader.path}: {sum(r[1] for r in stats.values())} messages, {(end - start) / 1e9:.2f} s, "
+          f"{size / 1e6:.2f} MB, compression {compression}{recovered}")
     print(f"  {'topic':36s} {'type':24s} {'count':>8s} {'rate Hz':>9s} {'MB':>9s} {'first s':>9s} {'last s':>9s}")
-    for topic in sorted(info.topics):
-        count, nbytes, first, last = stats.get(topic, [0, 0, info.start_ns, info.start_ns])
+    for topic in sorted(stats):
+        type_name, count, nbytes, first, last = stats[topic]
         rate = (count - 1) / ((last - first) / 1e9) if count > 1 and last > first else 0.0
-        print(f"  {topic:36s} {info.topics[topic]:24s} {count:8d} {rate:9.2f} {nbytes / 1e6:9.3f} "
-              f"{(first - info.start_ns) / 1e9:9.2f} {(last - info.start_ns) / 1e9:9.2f}")
-    check = check_log(args.file)
+        print(f"  {topic:36s} {type_name:24s} {count:8d} {rate:9.2f} {nbytes / 1e6:9.3f} "
+              f"{(first - start) / 1e9:9.2f} {(last - start) / 1e9:9.2f}")
+    with open(args.file, "rb") as fh:               # where the chunks are (the index, or a walk): no decompression
+        refs, indexed, truncated_at = chunk_refs(fh)
+    check = LogCheck(str(args.file), chunks=len(refs), damaged=reader.damaged, indexed=indexed,
+                     truncated_at=truncated_at)
     for bad in check.damaged:
         print(f"  DAMAGED {bad.describe()}")
     if check.truncated_at >= 0:
