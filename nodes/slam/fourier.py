@@ -86,7 +86,7 @@ def _prepare(image: np.ndarray, mask: np.ndarray | None, taper_px: float, window
         if scale <= 0:
             return np.zeros_like(img)                   # a blank image: nothing to compress
         img = np.log(img + np.float32(0.05 * scale))
-    window = _plan(img.shape[0], img.shape[1], 1.0).window if window is None else window
+    window = _hann(img.shape[0], img.shape[1]) if window is None else window
     if mask is not None:
         valid = np.asarray(mask, dtype=np.float32)
         if valid.shape != img.shape:
@@ -110,6 +110,14 @@ def _frequencies(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @functools.lru_cache(maxsize=16)
+def _hann(h: int, w: int) -> np.ndarray:
+    """The 2-D Hann window of an image shape (cached; read-only)."""
+    window = np.outer(np.hanning(h), np.hanning(w)).astype(np.float32)
+    window.flags.writeable = False
+    return window
+
+
+@functools.lru_cache(maxsize=16)
 def _plan(h: int, w: int, band: float) -> "_Plan":
     return _Plan(h, w, band)
 
@@ -118,7 +126,7 @@ class _Plan:
     """What depends only on the image shape and the band: window, band taper, frequencies."""
 
     def __init__(self, h: int, w: int, band: float) -> None:
-        self.window = np.outer(np.hanning(h), np.hanning(w)).astype(np.float32)
+        self.window = _hann(h, w)
         fy, fx = _frequencies(h, w)
         rho = np.sqrt((fy / 0.5) ** 2 + (fx / 0.5) ** 2)              # 1 = Nyquist
         weight = np.where(rho < band, np.cos(0.5 * np.pi * rho / band) ** 2, 0.0)

@@ -92,7 +92,8 @@ def register_all(images: Sequence[np.ndarray], masks: Sequence[np.ndarray | None
     if candidates is None:
         candidates = [(i, j) for i in range(n) for j in range(i + 2, n)]
         if prior is not None:
-            candidates = [(i, j) for i, j in candidates if _shared(images[i].shape, prior[i], prior[j]) >= min_shared]
+            candidates = [(i, j) for i, j in candidates
+                          if shared_fraction(images[i].shape, prior[i], prior[j]) >= min_shared]
     pairs += [p for p in candidates if p not in pairs]
     out = Links()
     for done, (i, j) in enumerate(pairs):
@@ -136,7 +137,7 @@ def expected_registration(pose_i: np.ndarray, pose_j: np.ndarray) -> tuple[float
     return float(z[2]), (float(t[0]), float(t[1]))
 
 
-def _shared(shape: tuple[int, ...], pose_i: np.ndarray, pose_j: np.ndarray) -> float:
+def shared_fraction(shape: tuple[int, ...], pose_i: np.ndarray, pose_j: np.ndarray) -> float:
     """Rough fraction of an image two poses share (axis-aligned, from the centre distance)."""
     h, w = shape[:2]
     d = np.abs(rot(-pose_i[2]) @ (pose_j[:2] - pose_i[:2]))

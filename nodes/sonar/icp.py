@@ -274,17 +274,18 @@ def _score(src: np.ndarray, model: IcpModel, transform: np.ndarray, gate: float)
     return float(np.mean(np.minimum(np.nan_to_num(d, posinf=gate), gate) ** 2))
 
 
-def _yaw_of(transform: np.ndarray) -> float:
+def yaw_of(transform: np.ndarray) -> float:
+    """Heading (rad, counter-clockwise from +x) of a transform's x axis."""
     return float(np.arctan2(transform[1, 0], transform[0, 0]))
 
 
 def _off_prior(t: np.ndarray, prior: np.ndarray) -> float:
     """|yaw difference| (rad) of ``t`` from ``prior``."""
-    return abs((_yaw_of(t) - _yaw_of(prior) + np.pi) % (2 * np.pi) - np.pi)
+    return abs((yaw_of(t) - yaw_of(prior) + np.pi) % (2 * np.pi) - np.pi)
 
 
 def _distinct(a: np.ndarray, b: np.ndarray, cfg: IcpSettings, pivot: np.ndarray) -> bool:
-    dyaw = abs((_yaw_of(a) - _yaw_of(b) + np.pi) % (2 * np.pi) - np.pi)
+    dyaw = abs((yaw_of(a) - yaw_of(b) + np.pi) % (2 * np.pi) - np.pi)
     moved = np.linalg.norm((a[:3, :3] - b[:3, :3]) @ pivot + a[:3, 3] - b[:3, 3])
     return dyaw > cfg.distinct_yaw_rad or moved > cfg.distinct_m
 

@@ -32,6 +32,8 @@ from msgs.sensor import Grid, Image
 from msgs.sonar import SonarPing
 from nodes.slam import fourier, mosaic
 from nodes.slam.pose_graph import GraphError, PoseGraph2D, between, compose, optimize
+from nodes.sonar.icp import yaw_of
+from nodes.sonar.seabed import SeabedGrid, SeabedProjector
 from tether import Input, Node
 
 
@@ -59,68 +61,6 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
             raise ValueError("cell_m > 0, image_px >= 32 and keyframe_every_m > 0")
 
 
-def yaw_of(pose: np.ndarray) -> float:
-    """Heading (rad, CCW from east) of a sonar head's boresight, from its 4x4 pose."""
-    return math.atan2(pose[1, 0], pose[0, 0])
-
-
-class GroundProjector:
-    """Ping (range x beam) -> a square seabed image in the vehicle's level frame, with its mask."""
-
-    def __init__(self, cfg: Config) -> None:
-        self.cfg = cfg
-        self._key: tuple | None = None
-
-    def _maps(self, ping: SonarPing, head: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        cfg = self.cfg
-        altitude = head[2, 3] - cfg.seafloor_z_m
-        level = np.eye(3)
-        yaw = yaw_of(head)
-        level[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
-        attitude = level.T @ head[:3, :3]               # head in the level frame: pitch and roll only
-        key = (round(altitude, 2), tuple(np.round(attitude, 3).ravel()), ping.intensities.shape,
-               round(ping.range_resolution_m, 6), float(ping.bearings_rad[0]), float(ping.bearings_rad[-1]))
-        if key == self._key:
-            return self._map_x, self._map_y, self._mask
-        n, c = cfg.image_px, (cfg.image_px - 1) / 2
-        cols, rows = np.meshgrid(np.arange(n, dtype=np.float64), np.arange(n, dtype=np.float64))
-        fwd = cfg.center_ahead_m + (cols - c) * cfg.cell_m
-        left = (rows - c) * cfg.cell_m
-        d = np.stack([fwd, left, np.full_like(fwd, -altitude)], axis=-1) @ attitude     # level -> head (FRD)
-        r = np.linalg.norm(d, axis=-1)
-        theta = np.arctan2(d[..., 1], d[..., 0])
-        phi = np.arcsin(np.clip(d[..., 2] / np.maximum(r, 1e-9), -1, 1))
-        bearings = np.asarray(ping.bearings_rad, float)
-        order = np.argsort(bearings)
-        beam = np.interp(theta, bearings[order], order.astype(float))
-        rng = r / ping.range_resolution_m - 0.5
-        half = 0.5 * (ping.vertical_aperture_rad or math.radians(20.0))
-        mask = ((theta >= bearings.min()) & (theta <= bearings.max()) & (rng >= 0)
-                & (rng <= ping.intensities.shape[0] - 1) & (np.abs(phi) <= half))
-        self._key = key
-        self._map_x, self._map_y, self._mask = beam.astype(np.float32), rng.astype(np.float32), mask
-        return self._map_x, self._map_y, self._mask
-
-    def project(self, ping: SonarPing, head: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The seabed image (flat-fielded: mean 1 over its mask) and its mask.
-
-        The echo level falls with range and the beam pattern in the same way in every ping:
-        a pattern fixed to the vehicle, which would pull every registration towards zero
-        shift. Dividing by the image's own heavy blur (normalised by the mask's) removes it.
-        """
-        map_x, map_y, mask = self._maps(ping, head)
-        if self.cfg.mask_erode_m > 0:               # the fan's edges: where the beam pattern changes fastest
-            k = 2 * int(round(self.cfg.mask_erode_m / self.cfg.cell_m)) + 1
-            mask = cv2.erode(mask.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
-        image = cv2.remap(np.asarray(ping.intensities, np.float32), map_x, map_y, cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-        valid = mask.astype(np.float32)
-        sigma = self.cfg.flat_field_m / self.cfg.cell_m
-        shade = cv2.GaussianBlur(image * valid, (0, 0), sigma) / np.maximum(cv2.GaussianBlur(valid, (0, 0), sigma), 1e-3)
-        flat = np.where(mask & (shade > 1e-3), image / np.maximum(shade, 1e-3), 0.0)
-        return flat.astype(np.float32), mask
-
-
 class SonarMosaic(Node):
     """Pings + navigation -> keyframes -> pose graph -> mosaic (see the module docstring)."""
 
@@ -129,7 +69,9 @@ class SonarMosaic(Node):
     outputs = {"mosaic": Grid, "trajectory": Path2D, "keyframe": Image}
 
     def setup(self) -> None:
-        self.projector = GroundProjector(self.config)
+        cfg = self.config
+        self.projector = SeabedProjector(SeabedGrid(cfg.seafloor_z_m, cfg.cell_m, cfg.image_px, cfg.center_ahead_m,
+                                                    cfg.flat_field_m, cfg.mask_erode_m))
         self.nav: list[tuple[int, np.ndarray]] = []          # recent (stamp, 4x4) navigation poses
         self.truth: list[tuple[int, np.ndarray]] = []
         self.images: list[np.ndarray] = []
@@ -159,7 +101,8 @@ class SonarMosaic(Node):
         if self.prior and not self._moved(self.prior[-1], pose):
             return None
         t0 = time.perf_counter()
-        image, mask = self.projector.project(ping, head)
+        image, mask = self.projector.project(ping.intensities, ping.bearings_rad, ping.range_resolution_m,
+                                             ping.vertical_aperture_rad, head)
         truth = _nearest(self.truth, ping.stamp_ns)
         self._add_keyframe(image, mask, pose, None if truth is None else self._image_pose(truth))
         self.keyframe_ms.append((time.perf_counter() - t0) * 1e3)
@@ -202,7 +145,7 @@ class SonarMosaic(Node):
         estimate = np.vstack([self.estimate, guess])
         candidates = [k - 1]
         older = [(math.hypot(*(estimate[j, :2] - guess[:2])), j) for j in range(k - 1)
-                 if mosaic._shared(image.shape, estimate[j], guess) >= cfg.min_shared]
+                 if mosaic.shared_fraction(image.shape, estimate[j], guess) >= cfg.min_shared]
         candidates += [j for _, j in sorted(older)[:cfg.max_closures]]
         for j in candidates:
             angle, shift = mosaic.expected_registration(estimate[j], guess)

@@ -12,7 +12,9 @@ import pytest
 from msgs.sensor import Grid
 from msgs.sonar import SonarPing
 from nodes.slam import fourier
-from nodes.sonar.mosaic import Config, GroundProjector, SonarMosaic, yaw_of
+from nodes.sonar.icp import yaw_of
+from nodes.sonar.mosaic import Config, SonarMosaic
+from nodes.sonar.seabed import SeabedGrid, SeabedProjector
 from sim.fls_render import PingSettings, render_ping
 from sim.fls_scene import load_scene
 from sim.subimages import survey_pings
@@ -44,7 +46,8 @@ def test_the_projected_ping_is_the_seabed_texture_where_it_lies(survey):
     ping = SonarPing(intensities=r.intensities, bearings_rad=r.bearings_rad.astype(np.float32),
                      range_resolution_m=r.range_resolution_m, range_m=r.range_m,
                      vertical_aperture_rad=r.vertical_aperture_rad)
-    image, mask = GroundProjector(cfg).project(ping, pose)
+    image, mask = SeabedProjector(SeabedGrid()).project(ping.intensities, ping.bearings_rad, ping.range_resolution_m,
+                                                        ping.vertical_aperture_rad, pose)
     n, c = cfg.image_px, (cfg.image_px - 1) / 2
     cols, rows = np.meshgrid(np.arange(n), np.arange(n))
     yaw = yaw_of(pose)
