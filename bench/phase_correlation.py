@@ -230,6 +230,7 @@ def main() -> None:
 
 def _figure(points: dict[str, list], path: Path) -> None:
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -243,6 +244,7 @@ def _figure(points: dict[str, list], path: Path) -> None:
                     marker = "o" if label.startswith("ours") else ("s" if "cv2" in label else "^")
                     ax.loglog(ms, max(err, 1e-4), marker, label=label, alpha=0.8)
         ax.set_title(family)
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())     # minor labels overlapped
         ax.set_xlabel("ms per pair")
         ax.set_ylabel("median error (px)")
         ax.grid(True, which="both", alpha=0.3)
