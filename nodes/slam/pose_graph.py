@@ -557,12 +557,14 @@ def initial_poses(graph: PoseGraph2D, initial: np.ndarray | str | None = None, *
     raise ValueError("initial is an (N, 3) array, 'given', 'odometry' or 'chordal'")
 
 
-def spanning_tree_poses(graph: PoseGraph2D, *, root: int = 0) -> np.ndarray:
+def spanning_tree_poses(graph: PoseGraph2D, *, root: int = 0, known: Sequence[int] = ()) -> np.ndarray:
     """Compose measurements along a tree from ``root`` that uses as few loop closures as it can.
 
     A 0-1 breadth-first search (odometry edges cost 0, others 1): on a SLAM graph this is
     exactly the odometry chain, and vertices the chain does not reach hang off the
-    fewest loop closures.
+    fewest loop closures. ``known`` vertices keep their ``graph.poses`` and seed the search
+    too (a warm start: only the others are composed); vertices reached from nowhere keep
+    theirs.
     """
     n = graph.n
     odometry = graph.odometry_mask()
@@ -571,14 +573,16 @@ def spanning_tree_poses(graph: PoseGraph2D, *, root: int = 0) -> np.ndarray:
         neighbours[a].append((b, k, True))
         neighbours[b].append((a, k, False))
     poses = graph.poses.tolist()
-    if not graph.known[root]:
+    if not graph.known[root] and root not in known:
         poses[root] = [0.0, 0.0, 0.0]
     z = graph.z.tolist()
     inverse = between(graph.z, np.zeros_like(graph.z)).tolist()     # z^-1: the edge walked backwards
     odometry = odometry.tolist()
     cost = [math.inf] * n
-    cost[root] = 0
-    queue = collections.deque([root])
+    seeds = [root, *[int(k) for k in known if k != root]]
+    for k in seeds:
+        cost[k] = 0
+    queue = collections.deque(seeds)
     done = [False] * n
     while queue:                       # scalar math: one vertex at a time, numpy per call would dominate
         v = queue.popleft()
@@ -599,45 +603,64 @@ def spanning_tree_poses(graph: PoseGraph2D, *, root: int = 0) -> np.ndarray:
 
 def chordal_poses(graph: PoseGraph2D, *, root: int = 0) -> np.ndarray:
     """Rotations by chordal relaxation, then translations by linear least squares (both anchored at ``root``)."""
-    n, i, j, m = graph.n, graph.edges[:, 0], graph.edges[:, 1], len(graph.edges)
     theta0 = graph.poses[root, 2] if graph.known[root] else 0.0
     t_root = graph.poses[root, :2] if graph.known[root] else np.zeros(2)
+    r = chordal_rotations(graph, {root: np.array([math.cos(theta0), math.sin(theta0)])})
+    theta = np.arctan2(r[:, 1], r[:, 0])
+    theta[root] = theta0
+    t = chordal_translations(graph, theta, {root: t_root})
+    return np.column_stack([t, wrap(theta)])
+
+
+def chordal_rotations(graph: PoseGraph2D, known: dict[int, np.ndarray]) -> np.ndarray:
+    """(N, 2) rotation vectors r = (cos, sin), unnormalised, minimising sum kappa |r_j - M(z) r_i|^2.
+
+    ``known`` maps vertex indices to fixed r (an anchor, or a neighbour's estimate in a
+    distributed solve). Raises RuntimeError when some free vertex is not tied to a known one.
+    """
+    i, j, m = graph.edges[:, 0], graph.edges[:, 1], len(graph.edges)
     eq = np.arange(m)
-    # Rotations as r = (cos, sin): r_j - M(z) r_i = 0, M(z) the rotation by theta_z, weighted by Omega_thth.
     kappa = np.sqrt(np.maximum(graph.info[:, 2, 2], 1e-12))
     cz, sz = np.cos(graph.z[:, 2]), np.sin(graph.z[:, 2])
     terms = []
     for c, (m0, m1) in enumerate(((cz, -sz), (sz, cz))):
         terms += [(2 * eq + c, j, c, kappa), (2 * eq + c, i, 0, -kappa * m0), (2 * eq + c, i, 1, -kappa * m1)]
-    r = _anchored_lsq(n, root, np.array([math.cos(theta0), math.sin(theta0)]), terms, np.zeros(2 * m))
-    theta = np.arctan2(r[:, 1], r[:, 0])
-    theta[root] = theta0
-    # Translations: t_j - t_i = R_i t_z, weighted by the translation information.
+    return _anchored_lsq(graph.n, known, terms, np.zeros(2 * m))
+
+
+def chordal_translations(graph: PoseGraph2D, theta: np.ndarray, known: dict[int, np.ndarray]) -> np.ndarray:
+    """(N, 2) translations minimising sum w |t_j - t_i - R(theta_i) t_z|^2 for given headings."""
+    i, j, m = graph.edges[:, 0], graph.edges[:, 1], len(graph.edges)
+    eq = np.arange(m)
     ci, si = np.cos(theta[i]), np.sin(theta[i])
     d = np.stack([ci * graph.z[:, 0] - si * graph.z[:, 1], si * graph.z[:, 0] + ci * graph.z[:, 1]], axis=1)
     wt = np.sqrt(np.maximum(np.minimum(graph.info[:, 0, 0], graph.info[:, 1, 1]), 1e-12))
     terms = [(2 * eq + c, v, c, sign * wt) for c in range(2) for v, sign in ((j, 1.0), (i, -1.0))]
     rhs = np.empty(2 * m)
     rhs[0::2], rhs[1::2] = wt * d[:, 0], wt * d[:, 1]
-    t = _anchored_lsq(n, root, t_root, terms, rhs)
-    t[root] = t_root
-    return np.column_stack([t, wrap(theta)])
+    return _anchored_lsq(graph.n, known, terms, rhs)
 
 
-def _anchored_lsq(n: int, root: int, root_value: np.ndarray, terms: list, rhs: np.ndarray) -> np.ndarray:
+def _anchored_lsq(n: int, known: dict[int, np.ndarray], terms: list, rhs: np.ndarray) -> np.ndarray:
     """Least squares for a 2-vector per vertex; ``terms`` are (equation, vertex, component, coefficient)
-    arrays; the root's value is known and moved to the right-hand side. Returns (n, 2)."""
+    arrays; the ``known`` vertices' values are moved to the right-hand side. Returns (n, 2)."""
     eq, vert, comp, coef = (np.concatenate([np.broadcast_to(np.asarray(t[k]), np.shape(t[0])) for t in terms])
                             for k in range(4))
     vert, comp = vert.astype(np.int64), comp.astype(np.int64)
-    known = vert == root
-    rhs = rhs - np.bincount(eq[known], weights=coef[known] * root_value[comp[known]], minlength=len(rhs))
-    col = np.arange(n) - (np.arange(n) > root)                        # free vertices, root removed
-    a = sp.csr_matrix((coef[~known], (eq[~known], 2 * col[vert[~known]] + comp[~known])), shape=(len(rhs), 2 * (n - 1)))
-    out = np.zeros((n, 2))
-    out[np.arange(n) != root] = _least_squares(a, rhs).reshape(-1, 2)
-    out[root] = root_value
-    return out
+    value = np.zeros((n, 2))
+    is_known = np.zeros(n, bool)
+    for k, v in known.items():
+        value[k], is_known[k] = v, True
+    fixed = is_known[vert]
+    rhs = rhs - np.bincount(eq[fixed], weights=coef[fixed] * value[vert[fixed], comp[fixed]], minlength=len(rhs))
+    free = ~is_known
+    if not free.any():
+        return value
+    col = np.cumsum(free) - 1                                         # free vertices, known ones removed
+    a = sp.csr_matrix((coef[~fixed], (eq[~fixed], 2 * col[vert[~fixed]] + comp[~fixed])),
+                      shape=(len(rhs), 2 * int(free.sum())))
+    value[free] = _least_squares(a, rhs).reshape(-1, 2)
+    return value
 
 
 def _least_squares(a: sp.csr_matrix, rhs: np.ndarray) -> np.ndarray:
@@ -647,6 +670,26 @@ def _least_squares(a: sp.csr_matrix, rhs: np.ndarray) -> np.ndarray:
 
 
 # -- covariances ----------------------------------------------------------------------------------
+def joint_covariance(graph: PoseGraph2D, poses: np.ndarray, index: Sequence[int], *, fixed: set[int]) -> np.ndarray:
+    """(3K, 3K) joint covariance of the vertices at ``index`` (indices, not ids) at ``poses``,
+    the ``fixed`` vertices held (their rows are zero): blocks of H^-1, one factorisation,
+    one solve per free row."""
+    system = _System(graph, fixed)
+    e, ji, jj = _jacobians(graph, poses)
+    data, _ = system.assemble(e, ji, jj, graph.info)
+    lu = system.factor(data)
+    index = np.asarray(index, np.int64)
+    cols = system.col_of[index]
+    out = np.zeros((3 * len(index), 3 * len(index)))
+    rows = (3 * cols[:, None] + np.arange(3)).reshape(-1)
+    free = np.repeat(cols >= 0, 3)
+    for a in np.flatnonzero(free):
+        unit = np.zeros(system.size)
+        unit[rows[a]] = 1.0
+        out[free, a] = lu.solve(unit)[rows[free]]
+    return 0.5 * (out + out.T)
+
+
 def marginal_covariances(graph: PoseGraph2D, poses: np.ndarray, vertex_ids: Iterable[int], *,
                          anchor: int | None = None) -> np.ndarray:
     """(K, 3, 3) marginal covariances of the given vertices at ``poses`` (the anchor's is zero).

@@ -1,0 +1,711 @@
+"""Decentralised multi-robot pose-graph SLAM: one :class:`Agent` per robot, exchanging packets.
+
+An agent holds its own odometry chain and intra-robot loop closures, candidate
+inter-robot closures (from the scenario's sensor or from place recognition,
+:mod:`nodes.slam.place`) and what its peers told it. Each :meth:`Agent.step` is one
+round: read what arrived, decide which inter-robot closures to trust, take one step of
+the back end, and say what to send to whom. Nothing here knows about sockets; the node
+(:mod:`nodes.slam.dslam_agent`) and the benchmark move the packets.
+
+Back ends (``method``), all built on :mod:`nodes.slam.pose_graph` (no second solver):
+
+``ddf``
+    DDF-SAM-style condensed graphs (Cunningham et al., IROS 2010 / ICRA 2013). Each robot
+    optimises its own graph, condenses it onto its separators (the ends of its
+    inter-robot closures, and its first pose) and sends that condensed graph to its peers;
+    each robot then optimises its *neighbourhood graph* -- its own full graph, the peers'
+    condensed graphs and the inter-robot closures. ``condense``:
+
+    * ``exact`` (default): keyframes that only sit on the odometry chain are eliminated
+      exactly (runs of odometry become one edge); separators and the ends of intra-robot
+      closures stay, so the condensed graph is exact *and* sparse. Marginalising onto the
+      separators alone would be exact too, but dense: 9S^2/2 numbers, far more than the
+      graph itself on these datasets (hundreds of separators per robot).
+    * ``chain``: separators only, chained in trajectory order, each link with the exact
+      marginal information of its pair (one factorisation, 3S solves); correlations between
+      non-adjacent pairs are dropped. Fewer bytes, and exact only when the robot closed
+      no loop of its own (measured in ``bench/dslam.py``).
+``dgs``
+    Distributed two-stage Gauss-Seidel (Choudhary et al., IJRR 2017): chordal rotations
+    first, then translations, each a linear least-squares problem solved block by block
+    (one block per robot, its neighbours' separator estimates as fixed values, optional
+    over-relaxation ``sor``), then nonlinear block refinement with the local LM solver.
+    Only separator estimates travel.
+``block_gs``
+    The naive baseline: nonlinear block Gauss-Seidel from each robot's own odometry frame.
+
+Inter-robot closures are vetted by PCM (:mod:`nodes.slam.pcm`) on the lower-numbered
+robot of each pair, which sends its decision to the other, so both ends agree. The global
+frame is that of the lowest-numbered robot a robot is connected to (learnt from the
+peers' ``gauge_root``); a robot that has met nobody keeps its own frame and says so.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nodes.slam.pcm import Side, relative, select_consistent
+from nodes.slam.place import (PlaceFrontEnd, PlaceMatchItem, PlaceQueryItem, Registration, RelPoseReply,
+                              RelPoseRequestItem)
+from nodes.slam.pose_graph import (CHI2_3DOF_99, GraphError, PoseGraph2D, between, chordal_rotations,
+                                   chordal_translations, compose, joint_covariance, optimize, spanning_tree_poses,
+                                   wrap)
+
+log = logging.getLogger("nodes.slam.dslam")
+
+METHODS = ("ddf", "dgs", "block_gs")
+CONDENSE = ("exact", "chain")
+_IU = np.triu_indices(3)
+
+
+def info_to6(info: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) symmetric information -> (..., 6) upper triangle, row by row (g2o's order)."""
+    return np.asarray(info)[..., _IU[0], _IU[1]]
+
+
+def info_from6(v: np.ndarray) -> np.ndarray:
+    """(..., 6) upper triangle -> (..., 3, 3) symmetric."""
+    v = np.asarray(v, float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., _IU[0], _IU[1]] = v
+    out[..., _IU[1], _IU[0]] = v
+    return out
+
+
+# -- what travels (the node maps these one to one onto msgs.slam) ----------------------------------
+@dataclass
+class Closures:
+    """Inter-robot closures: ``ids`` (C, 2) vertex ids (from, to), ``z`` (C, 3), ``info`` (C, 6).
+    ``accepted`` (C,) is the PCM decision of the pair's lower-numbered robot (all True when
+    the closures are only reported)."""
+
+    ids: np.ndarray
+    z: np.ndarray
+    info: np.ndarray
+    accepted: np.ndarray
+    decision: bool = False
+
+
+@dataclass
+class Condensed:
+    """A robot's condensed graph: vertex ``ids`` (K,) -- its first pose first, then in trajectory
+    order -- with ``edges`` (E, 2) as rows of ``ids``, measurements ``z`` (E, 3) and ``info``
+    (E, 6). ``poses`` (K, 3), a starting point in the robot's frame, stays home: the receiver
+    composes its own from the edges (:func:`condensed_poses`)."""
+
+    robot: int
+    version: int
+    ids: np.ndarray
+    poses: np.ndarray
+    edges: np.ndarray
+    z: np.ndarray
+    info: np.ndarray
+
+
+@dataclass
+class Separators:
+    """Current estimates of the sender's separators the receiver needs: ``values`` (K, 2)
+    rotation vectors in phase 1, translations in phase 2, poses (K, 3) in phase 3."""
+
+    phase: int
+    ids: np.ndarray
+    values: np.ndarray
+    converged: bool
+
+
+@dataclass
+class Packet:
+    """One round's items from ``sender`` to ``receiver``."""
+
+    sender: int
+    receiver: int
+    gauge_root: int
+    items: list = field(default_factory=list)
+    epoch: int = 0
+
+
+# -- the agent --------------------------------------------------------------------------------------
+@dataclass
+class _Candidate:
+    """An edge as measured (pose of ``b`` in ``a``'s frame); for an inter-robot closure, which end is ours.
+
+    Both robots keep a closure in its measured direction, so both minimise the same cost
+    (reversing it would change its information to first order only, and two robots
+    optimising slightly different costs drift)."""
+
+    a: int
+    b: int
+    z: np.ndarray
+    info: np.ndarray  # (3, 3)
+    own: int = -1
+    peer_id: int = -1
+
+    def from_own(self) -> tuple[np.ndarray, np.ndarray]:
+        """(z, info) read from our end to the peer's."""
+        if self.own == self.a:
+            return self.z, self.info
+        return between(self.z, np.zeros(3)), _inverse_info(self.z, self.info)
+
+
+class Agent:
+    """One robot of a decentralised pose-graph SLAM team (see the module docstring)."""
+
+    def __init__(self, robot: int, robots: int, *, method: str = "ddf", condense: str = "exact", sor: float = 1.0,
+                 pcm_gate: float = CHI2_3DOF_99, tol: float = 1e-4, stage_tol: float = 1e-2,
+                 lm_iterations: int = 10, max_run: int = 0, front_end: PlaceFrontEnd | None = None,
+                 epoch: int = 0, send_tol: float = 1e-4) -> None:
+        if method not in METHODS:
+            raise ValueError(f"method {method!r}: choose one of {METHODS}")
+        if not 0 <= robot < robots:
+            raise ValueError(f"robot {robot} is not in 0..{robots - 1}")
+        if condense not in CONDENSE:
+            raise ValueError(f"condense {condense!r}: choose one of {CONDENSE}")
+        if not 0.0 < sor < 2.0:
+            raise ValueError("sor (over-relaxation) is in (0, 2)")
+        self.robot, self.robots, self.method, self.condense = robot, robots, method, condense
+        self.sor, self.pcm_gate, self.tol, self.lm_iterations = sor, pcm_gate, tol, lm_iterations
+        self.stage_tol, self.max_run, self.send_tol = stage_tol, max_run, send_tol
+ 
+        self.epoch = epoch                                # how many times this robot restarted
+        self.front_end = front_end                        # place recognition (None: closures come from add_closure)                        # dgs: change that ends the two linear stages (Choudhary: 1e-1..1e-2)
+        self.ids: list[int] = []
+        self._index: dict[int, int] = {}
+        self._odometry: list[np.ndarray] = []            # z from the previous keyframe (first: identity)
+        self._odometry_info: list[np.ndarray] = []
+        self._intra: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        self.local = np.zeros((0, 3))                      # own graph's optimum, own frame
+        self.estimate = np.zeros((0, 3))                   # in the team's frame
+        self._candidates: dict[int, dict[tuple[int, int], _Candidate]] = {}   # peer -> key -> closure
+        self._accepted: dict[int, set[tuple[int, int]]] = {}                 # peer -> accepted keys
+        self._decided_for: dict[int, int] = {}             # peer -> candidate count PCM last decided on
+        self._rejected: dict[int, int] = {}                # peer -> closures PCM turned down (our decisions)
+        self._last_sent: dict[int, tuple] = {}
+        self._third_party: dict[tuple[int, int], _Candidate] = {}   # ddf: accepted closures between two peers
+        self._team: dict[int, np.ndarray] = {}            # ddf: last neighbourhood estimate by vertex id
+        self._peer_owner: dict[int, int] = {}             # peer vertex id -> robot
+        self._chains: dict[int, Condensed] = {}            # latest condensed graph of each peer
+        self._ghost: dict[int, dict[int, np.ndarray]] = {1: {}, 2: {}, 3: {}}
+        self._peer_phase: dict[int, tuple[int, bool]] = {}
+        self.gauge_root = robot
+        self._peer_root: dict[int, int] = {}
+        self.phase = 1 if method == "dgs" else 3
+        self._solved_phase = 0 if method == "dgs" else 3   # block_gs starts from its odometry, a real estimate
+        self.converged = False
+        self._version = 0                                  # bumps when the own graph changes
+        self._local_version = -1
+        self._sent_version: dict[int, int] = {}           # peer -> version of the condensed graph it has
+        self._peer_epoch: dict[int, int] = {}
+        self._neighbourhood_key: tuple = ()
+        self._r = np.zeros((0, 2))
+        self._chain_cache: tuple[int, Condensed] | None = None
+        self.rounds = 0
+
+    # -- what the robot's own sensors give --------------------------------------------------------
+    def add_keyframe(self, vertex: int, odometry: np.ndarray | None = None, info: np.ndarray | None = None, *,
+                     descriptor: np.ndarray | None = None, registrations: list[Registration] = ()) -> None:
+        """A new keyframe; ``odometry`` (3,) is its pose in the previous keyframe's frame. With a
+        front end, ``descriptor`` is its place descriptor and ``registrations`` what registering it
+        against other robots' keyframes would measure (the simulated sensor)."""
+        if vertex in self._index:
+            return
+        if self.front_end is not None and descriptor is not None:
+            self.front_end.add(vertex, descriptor, list(registrations))
+        if self.ids and odometry is None:
+            raise ValueError("every keyframe after the first needs its odometry from the previous one")
+        self._index[vertex] = len(self.ids)
+        self.ids.append(vertex)
+        z = np.zeros(3) if odometry is None else np.asarray(odometry, float)
+        self._odometry.append(z)
+        self._odometry_info.append(np.eye(3) if info is None else np.asarray(info, float))
+        prev = self.local[-1] if len(self.local) else np.zeros(3)
+        pose = compose(prev, z) if len(self.local) else np.zeros(3)
+        self.local = np.vstack([self.local, pose])
+        prev_e = self.estimate[-1] if len(self.estimate) else np.zeros(3)
+        self.estimate = np.vstack([self.estimate, compose(prev_e, z) if len(self.estimate) else np.zeros(3)])
+        self._r = np.vstack([self._r, [math.cos(self.estimate[-1, 2]), math.sin(self.estimate[-1, 2])]])
+        self._version += 1
+
+    def add_closure(self, a: int, b: int, z: np.ndarray, info: np.ndarray, *, peer: int | None = None) -> None:
+        """A loop closure: pose of vertex ``b`` in the frame of vertex ``a``. Intra-robot when both
+        are own keyframes; otherwise one end is own and the other belongs to robot ``peer``."""
+        z, info = np.asarray(z, float), np.asarray(info, float)
+        if a in self._index and b in self._index:
+            self._intra.append((a, b, z, info))
+            self._version += 1
+            return
+        if peer is None or peer == self.robot or not 0 <= peer < self.robots:
+            raise ValueError(f"closure {a} -> {b}: name the peer robot that owns the other end")
+        own, other = (b, a) if b in self._index else (a, b)
+        if own not in self._index:
+            raise ValueError(f"closure {a} -> {b}: neither end is a keyframe of robot {self.robot}")
+        key = (own, other)
+        found = self._candidates.setdefault(peer, {})
+        if key not in found:
+            found[key] = _Candidate(a, b, z, info, own, other)
+            self._peer_owner[other] = peer
+            self._version += 1
+
+    # -- one round ----------------------------------------------------------------------------------
+    def receive(self, packet: Packet) -> None:
+        """Take in what a peer sent (any order; stale items are ignored)."""
+        peer = packet.sender
+        if peer == self.robot or not 0 <= peer < self.robots:
+            raise ValueError(f"packet from robot {peer}: not a peer of robot {self.robot}")
+        self._peer_root[peer] = packet.gauge_root
+        if self._peer_epoch.setdefault(peer, packet.epoch) != packet.epoch:
+            self._peer_epoch[peer] = packet.epoch       # it restarted: what we told it is gone, say it again
+            self._sent_version.pop(peer, None)
+            self._last_sent.pop(peer, None)
+            self._decided_for.pop(peer, None)
+            log.info("robot %d: robot %d restarted (epoch %d); resending", self.robot, peer, packet.epoch)
+        for item in packet.items:
+            if isinstance(item, Condensed):
+                old = self._chains.get(item.robot)
+                if old is None or item.version > old.version:
+                    self._chains[item.robot] = item
+            elif isinstance(item, Closures):
+                self._take_closures(peer, item)
+            elif isinstance(item, (PlaceQueryItem, PlaceMatchItem, RelPoseRequestItem, RelPoseReply)):
+                if self.front_end is not None:
+                    for a, b, z, w, owner in self.front_end.receive(peer, item):
+                        self.add_closure(a, b, z, w, peer=owner)
+            elif isinstance(item, Separators):
+                self._peer_phase[peer] = (item.phase, item.converged)
+                store = self._ghost[item.phase]
+                for vid, value in zip(item.ids.tolist(), np.asarray(item.values, float)):
+                    store[vid] = value
+                    self._peer_owner.setdefault(vid, peer)
+
+    def _take_closures(self, peer: int, item: Closures) -> None:
+        decided = False
+        for (a, b), z, v, ok in zip(item.ids.tolist(), item.z, item.info, item.accepted.tolist()):
+            if a not in self._index and b not in self._index:
+                if item.decision and ok:                 # decided between two other robots: for the neighbourhood
+                    self._third_party[(a, b)] = _Candidate(a, b, np.asarray(z, float), info_from6(v))
+                    self._neighbourhood_key = ()
+                continue
+            self.add_closure(a, b, z, info_from6(v), peer=peer)
+            if item.decision:
+                decided = True
+                key = (b, a) if b in self._index else (a, b)
+                acc = self._accepted.setdefault(peer, set())
+                (acc.add if ok else acc.discard)(key)
+        if decided:
+            self._decided_for[peer] = len(self._candidates.get(peer, {}))
+            self._neighbourhood_key = ()
+
+    def step(self) -> list[Packet]:
+        """One round of the back end; returns the packets to send."""
+        self.rounds += 1
+        out: dict[int, list] = {}
+        if self.front_end is not None:
+            for p, items in self.front_end.tick().items():
+                out.setdefault(p, []).extend(items)
+        if not self.ids:
+            return [Packet(self.robot, p, self.gauge_root, items, self.epoch) for p, items in sorted(out.items())]
+        self._update_local()
+        condensed = self._condensed()
+        peers = sorted(set(self._candidates) | set(self._chains))
+        if self.method == "ddf":
+            send_to = [p for p in range(self.robots) if p != self.robot]     # the whole neighbourhood
+        else:
+            send_to = [p for p in peers if p < self.robot]                  # only PCM's deciders need it
+        for p in send_to:
+            if self._sent_version.get(p) != self._version:
+                out.setdefault(p, []).append(condensed)
+                self._sent_version[p] = self._version
+        for p, items in self._decide().items():
+            out.setdefault(p, []).extend(items)
+        self.gauge_root = min([self.robot] + [self._peer_root[p] for p in self.neighbours() if p in self._peer_root])
+        if self.method == "ddf":
+            self._neighbourhood()
+        else:
+            for p, item in self._block_step().items():
+                out.setdefault(p, []).append(item)
+        return [Packet(self.robot, p, self.gauge_root, items, self.epoch) for p, items in sorted(out.items())]
+
+    @property
+    def rejected(self) -> int:
+        """Inter-robot closures PCM turned down, over the pairs this robot decides."""
+        return sum(self._rejected.values())
+
+    def neighbours(self) -> list[int]:
+        """Peers with at least one accepted inter-robot closure."""
+        return sorted(p for p, keys in self._accepted.items() if keys)
+
+    @property
+    def own_frame(self) -> bool:
+        """True while this robot is tied to no lower-numbered robot (its estimate is in its own frame)."""
+        return self.gauge_root == self.robot
+
+    # -- own graph ------------------------------------------------------------------------------
+    def _own_graph(self, extra: dict[int, np.ndarray] | None = None,
+                   inter: list[_Candidate] = ()) -> tuple[PoseGraph2D, dict[int, int]]:
+        """Own keyframes (+ ``extra`` vertices by id with poses), odometry, intra closures and ``inter``."""
+        extra = extra or {}
+        ids = self.ids + [v for v in extra if v not in self._index]
+        index = {v: k for k, v in enumerate(ids)}
+        n_own = len(self.ids)
+        rows_i = list(range(n_own - 1)) + [index[a] for a, _, _, _ in self._intra] + [index[c.a] for c in inter]
+        rows_j = list(range(1, n_own)) + [index[b] for _, b, _, _ in self._intra] + [index[c.b] for c in inter]
+        z = self._odometry[1:] + [z for _, _, z, _ in self._intra] + [c.z for c in inter]
+        info = self._odometry_info[1:] + [w for _, _, _, w in self._intra] + [c.info for c in inter]
+        poses = np.zeros((len(ids), 3))
+        poses[:n_own] = self.estimate
+        for v, p in extra.items():
+            if v in index and v not in self._index:
+                poses[index[v]] = p[:3] if len(p) >= 3 else 0.0
+        graph = PoseGraph2D(ids=np.array(ids, np.int64), poses=poses,
+                            edges=np.column_stack([rows_i, rows_j]).astype(np.int64).reshape(-1, 2),
+                            z=np.array(z, float).reshape(-1, 3), info=np.array(info, float).reshape(-1, 3, 3),
+                            known=np.ones(len(ids), bool))
+        return graph, index
+
+    def _update_local(self) -> None:
+        if self._local_version == self._version:
+            return
+        graph, _ = self._own_graph()
+        if len(graph.edges):
+            self.local = optimize(graph, initial=_extend(self.local, self._odometry), anchor=self.ids[0],
+                                  max_iterations=50).poses
+        self._local_version = self._version
+
+    def _separator_ids(self) -> list[int]:
+        ends = {c.own for found in self._candidates.values() for c in found.values()}
+        return [v for v in self.ids if v in ends or v == self.ids[0]]
+
+    def _condensed(self) -> Condensed:
+        """This robot's condensed graph (cached per version); see ``condense`` in the module docstring."""
+        if self._chain_cache is not None and self._chain_cache[0] == self._version:
+            return self._chain_cache[1]
+        sep = self._separator_ids()
+        if self.condense == "exact":
+            ids, edges, z, info = condense_exact(self.ids, self._odometry, self._odometry_info, self._intra, sep,
+                                                 max_run=self.max_run)
+        else:
+            ids, edges, z, info = self._condense_chain(sep)
+        rows = np.array([self._index[v] for v in ids], np.int64)
+        out = Condensed(robot=self.robot, version=self._version, ids=np.array(ids, np.int64),
+                        poses=self.local[rows].copy(), edges=edges, z=z, info=info_to6(info))
+        self._chain_cache = (self._version, out)
+        return out
+
+    def _condense_chain(self, sep: list[int]) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray]:
+        """Separators chained in trajectory order, each link with the exact marginal information of its pair."""
+        graph, index = self._own_graph()
+        rows = np.array([index[v] for v in sep])
+        s = len(sep)
+        if not len(graph.edges) or s < 2:
+            return sep, np.zeros((0, 2), np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3))
+        cov = joint_covariance(graph, self.local, rows, fixed={0})
+        rel, sigma = relative(Side(self.local[rows], cov, np.arange(s)), np.arange(s - 1), np.arange(1, s))
+        info = np.linalg.inv(sigma + 1e-12 * np.eye(3))
+        return sep, np.column_stack([np.arange(s - 1), np.arange(1, s)]), rel, info
+
+    # -- PCM ------------------------------------------------------------------------------------
+    def _decide(self) -> dict[int, list[Closures]]:
+        """PCM on each higher-numbered peer whose candidates changed and whose condensed graph we hold.
+        Returns the items to send: each decision to its peer; with ddf, the accepted ones to everyone."""
+        out: dict[int, Closures] = {}
+        extra: dict[int, list[Closures]] = {}
+        for peer, found in self._candidates.items():
+            if peer < self.robot or self._decided_for.get(peer) == len(found) or peer not in self._chains:
+                continue
+            chain = self._chains[peer]
+            keys = [k for k, c in found.items() if c.peer_id in set(chain.ids.tolist())]
+            if len(keys) < len(found):
+                continue                                   # the peer's summary predates some closures: wait
+            cands = [found[k] for k in keys]
+            own_sep = self._condensed()
+            own_pos = {v: k for k, v in enumerate(own_sep.ids.tolist())}
+            own = _side(own_sep, [own_pos[c.own] for c in cands])
+            peer_pos = {v: k for k, v in enumerate(chain.ids.tolist())}
+            other = _side(chain, [peer_pos[c.peer_id] for c in cands])
+            measured = [c.from_own() for c in cands]
+            keep = select_consistent(np.array([m[0] for m in measured]), np.array([m[1] for m in measured]), own, other,
+                                     gate=self.pcm_gate)
+            self._accepted[peer] = {k for k, ok in zip(keys, keep) if ok}
+            self._rejected[peer] = int((~keep).sum())
+            self._decided_for[peer] = len(found)
+            self._neighbourhood_key = ()
+            out[peer] = Closures(ids=np.array([(c.a, c.b) for c in cands], np.int64).reshape(-1, 2),
+                                 z=np.array([c.z for c in cands]),
+                                 info=info_to6(np.array([c.info for c in cands])), accepted=keep, decision=True)
+            accepted = [c for c, ok in zip(cands, keep) if ok]
+            if self.method == "ddf" and accepted:           # third parties need the decision for their neighbourhood
+                item = Closures(ids=np.array([(c.a, c.b) for c in accepted], np.int64),
+                                z=np.array([c.z for c in accepted]), info=info_to6(np.array([c.info for c in accepted])),
+                                accepted=np.ones(len(accepted), bool), decision=True)
+                for p in range(self.robots):
+                    if p not in (self.robot, peer):
+                        extra.setdefault(p, []).append(item)
+        for p, item in out.items():
+            extra.setdefault(p, []).insert(0, item)
+        return extra
+
+    def accepted_closures(self) -> list[_Candidate]:
+        return [self._candidates[p][k] for p, keys in self._accepted.items() for k in keys]
+
+    # -- method (a): neighbourhood optimisation over condensed graphs --------------------------------
+    def _neighbourhood(self) -> None:
+        key = (self._version, tuple((r, c.version) for r, c in sorted(self._chains.items())))
+        if key == self._neighbourhood_key:
+            return
+        self._neighbourhood_key = key
+        extra: dict[int, np.ndarray] = {}
+        owner: dict[int, int] = {}
+        edges: list[_Candidate] = []
+        for r, chain in self._chains.items():
+            for v, p in zip(chain.ids.tolist(), chain.poses):
+                extra[v], owner[v] = p, r
+            ids = chain.ids.tolist()
+            for (a, b), z, v in zip(np.asarray(chain.edges).tolist(), chain.z, chain.info):
+                edges.append(_Candidate(ids[a], ids[b], np.asarray(z, float), info_from6(v)))
+        closures = self.accepted_closures()
+        closures += list(self._third_party.values())
+        graph, index = self._own_graph(extra, edges + closures)
+        keep = _component(graph, 0)
+        roots = {r: chain.ids[0] for r, chain in self._chains.items() if chain.ids[0] in index and keep[index[chain.ids[0]]]}
+        roots[self.robot] = self.ids[0]
+        self.gauge_root = min(roots)
+        graph = _subgraph(graph, keep)
+        index = {v: k for k, v in enumerate(graph.ids.tolist())}
+        anchor = index[roots[self.gauge_root]]
+        start = self._seed(graph, index, anchor)
+        graph.fixed = {anchor}
+        result = optimize(graph, initial=start, max_iterations=50)
+        self.estimate = result.poses[:len(self.ids)]
+
+    def _seed(self, graph: PoseGraph2D, index: dict[int, int], anchor: int) -> np.ndarray:
+        """Warm start: the previous estimate where it is in the right frame, the rest composed along edges."""
+        graph.poses = graph.poses.copy()
+        known: list[int] = []
+        if self.gauge_root == self.robot:
+            graph.poses[:len(self.ids)] = self.estimate
+            known = list(range(len(self.ids)))
+        else:
+            graph.poses[anchor] = 0.0                        # the gauge robot's first pose is the team's origin
+            previous = self._team
+            known = [anchor] + [index[v] for v in previous if v in index and index[v] != anchor]
+            for v, p in previous.items():
+                if v in index:
+                    graph.poses[index[v]] = p
+        start = spanning_tree_poses(graph, root=anchor, known=known)
+        self._team = {v: start[k] for v, k in index.items()}
+        return start
+
+    # -- method (b) and the baseline: block Gauss-Seidel on separator estimates ------------------------
+    def _block_step(self) -> dict[int, Separators]:
+        closures = [c for c in self.accepted_closures()]
+        anchor = self.gauge_root == self.robot
+        if self.phase == 1:
+            change = self._rotation_step(closures, anchor)
+        elif self.phase == 2:
+            change = self._translation_step(closures, anchor)
+        else:
+            change = self._refine_step(closures, anchor)
+        if math.isfinite(change):
+            self._solved_phase = self.phase
+        elif self._solved_phase < self.phase:
+            return {}                        # nothing computed in this stage yet: our values would mislead
+        self.converged = change < (self.tol if self.phase == 3 else self.stage_tol)
+        messages = self._separator_messages(closures)       # what this stage computed, before moving on
+        if self.converged and self.phase < 3 and all(
+                self._peer_phase.get(p, (0, False))[0] > self.phase
+                or self._peer_phase.get(p, (0, False)) == (self.phase, True) for p in self.neighbours()):
+            self.phase += 1
+            self.converged = False
+        return messages
+
+    def _ghosts(self, closures: list[_Candidate], phase: int) -> dict[int, np.ndarray]:
+        store = self._ghost[phase]
+        return {c.peer_id: store[c.peer_id] for c in closures if c.peer_id in store}
+
+    def _rotation_step(self, closures: list[_Candidate], anchor: bool) -> float:
+        ghosts = self._ghosts(closures, 1)
+        graph, index = self._own_graph(ghosts, [c for c in closures if c.peer_id in ghosts])
+        known = {index[v]: g for v, g in ghosts.items()}
+        if anchor:
+            known[0] = np.array([1.0, 0.0])
+        if not known:
+            return math.inf
+        try:
+            r = chordal_rotations(graph, known)[:len(self.ids)]
+        except RuntimeError:
+            return math.inf
+        new = self._r + self.sor * (r - self._r)
+        change = float(np.abs(new - self._r).max())
+        self._r = new
+        self.estimate[:, 2] = np.arctan2(new[:, 1], new[:, 0])
+        return change
+
+    def _translation_step(self, closures: list[_Candidate], anchor: bool) -> float:
+        ghosts_t = self._ghosts(closures, 2)
+        ghosts_r = self._ghosts(closures, 1)
+        usable = {v: t for v, t in ghosts_t.items() if v in ghosts_r}
+        graph, index = self._own_graph(usable, [c for c in closures if c.peer_id in usable])
+        theta = np.zeros(graph.n)
+        theta[:len(self.ids)] = self.estimate[:, 2]
+        for v in usable:
+            theta[index[v]] = math.atan2(ghosts_r[v][1], ghosts_r[v][0])
+        known = {index[v]: t for v, t in usable.items()}
+        if anchor:
+            known[0] = np.zeros(2)
+        if not known:
+            return math.inf
+        try:
+            t = chordal_translations(graph, theta, known)[:len(self.ids)]
+        except RuntimeError:
+            return math.inf
+        new = self.estimate[:, :2] + self.sor * (t - self.estimate[:, :2])
+        change = float(np.abs(new - self.estimate[:, :2]).max())
+        self.estimate[:, :2] = new
+        return change
+
+    def _refine_step(self, closures: list[_Candidate], anchor: bool) -> float:
+        ghosts = self._ghosts(closures, 3)
+        rot, trans = self._ghosts(closures, 1), self._ghosts(closures, 2)
+        for v, t in trans.items():          # a neighbour still finishing phase 2: its stage-two estimate
+            if v not in ghosts and v in rot:
+                ghosts[v] = np.array([t[0], t[1], math.atan2(rot[v][1], rot[v][0])])
+        use = [c for c in closures if c.peer_id in ghosts]
+        graph, index = self._own_graph(ghosts, use)
+        graph.fixed = {index[v] for v in ghosts} | ({0} if anchor or not ghosts else set())
+        try:
+            result = optimize(graph, initial=graph.poses, max_iterations=self.lm_iterations)
+        except GraphError as exc:
+            log.debug("robot %d: local refinement skipped: %s", self.robot, exc)
+            return math.inf
+        new = result.poses[:len(self.ids)]
+        d = self.estimate - new
+        d[:, 2] = wrap(d[:, 2])
+        self.estimate = new
+        return float(np.abs(d).max())
+
+    def _separator_messages(self, closures: list[_Candidate]) -> dict[int, Separators]:
+        """Each neighbour gets the separators it shares closures with -- only those that moved more
+        than ``send_tol`` since it last heard of them (event-triggered: the tail of the iteration
+        costs little), and the stage's flag whenever it changes."""
+        out: dict[int, Separators] = {}
+        by_peer: dict[int, list[int]] = {}
+        for c in closures:
+            by_peer.setdefault(self._peer_owner[c.peer_id], []).append(self._index[c.own])
+        for p, rows in by_peer.items():
+            rows = np.array(sorted(set(rows)), np.int64)
+            ids = np.array(self.ids, np.int64)[rows]
+            values = (self._r if self.phase == 1 else self.estimate[:, :2] if self.phase == 2 else self.estimate)[rows]
+            state, known = self._last_sent.setdefault(p, ((0, False), {}))
+            told = np.array([known.get((self.phase, int(v)), np.full(values.shape[1], np.inf)) for v in ids])
+            diff = np.abs(told - values)
+            if self.phase == 3:
+                diff[:, 2] = np.abs(wrap(told[:, 2] - values[:, 2])) if np.isfinite(told).all() else diff[:, 2]
+            moved = ~(diff.max(axis=1, initial=0.0) <= self.send_tol)
+            if not moved.any() and state == (self.phase, self.converged):
+                continue                     # nothing new for this peer: stay quiet
+            for v, value in zip(ids[moved].tolist(), values[moved]):
+                known[(self.phase, v)] = value.copy()
+            self._last_sent[p] = ((self.phase, self.converged), known)
+            out[p] = Separators(phase=self.phase, ids=ids[moved], values=values[moved].copy(), converged=self.converged)
+        return out
+
+
+# -- helpers ---------------------------------------------------------------------------------------
+def _inverse_info(z: np.ndarray, info: np.ndarray) -> np.ndarray:
+    """Information of the same closure read backwards (measurement z^-1).
+
+    The residual of the reversed edge is e' = -Ad(z) e to first order (Ad(z) = [[R, (y, -x)^T], [0, 1]],
+    SE(2)'s adjoint), so its information is Ad^-T info Ad^-1."""
+    c, s = math.cos(z[2]), math.sin(z[2])
+    adjoint = np.array([[c, -s, z[1]], [s, c, -z[0]], [0.0, 0.0, 1.0]])
+    inv = np.linalg.inv(adjoint)
+    return inv.T @ info @ inv
+
+
+def _extend(poses: np.ndarray, odometry: list[np.ndarray]) -> np.ndarray:
+    """``poses`` lengthened by composing odometry up to ``len(odometry)`` keyframes."""
+    out = list(poses)
+    while len(out) < len(odometry):
+        out.append(compose(out[-1], odometry[len(out)]) if out else np.zeros(3))
+    return np.array(out).reshape(-1, 3)
+
+
+def condense_exact(ids: list[int], odometry: list[np.ndarray], odometry_info: list[np.ndarray],
+                   intra: list[tuple[int, int, np.ndarray, np.ndarray]], separators: list[int], *,
+                   max_run: int = 0) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray]:
+    """Eliminate every keyframe that only sits on the odometry chain: each run of odometry
+    edges between kept keyframes becomes one edge (measurements composed, covariance
+    propagated, Sigma <- Ad(z_k^-1) Sigma Ad(z_k^-1)^T + Sigma_k -- exact for the linearised
+    problem). Kept: the first pose, the separators and the ends of intra-robot closures
+    (eliminating those too would fill the graph in densely). Returns (ids, edges (E, 2) rows
+    of ids, z (E, 3), info (E, 3, 3)); a chain that runs past the last kept keyframe adds nothing."""
+    keep = set(separators) | {a for a, _, _, _ in intra} | {b for _, b, _, _ in intra} | {ids[0]}
+    if max_run > 0:                    # also keep every max_run-th keyframe: shorter runs, smaller linearisation error
+        keep |= set(ids[::max_run])
+    kept = [v for v in ids if v in keep]
+    row = {v: k for k, v in enumerate(kept)}
+    edges, zs, infos = [], [], []
+    z_acc, cov_acc, start = np.zeros(3), np.zeros((3, 3)), 0
+    for k in range(1, len(ids)):
+        zk = odometry[k]
+        inv_t = between(zk, np.zeros(3))                       # z_k^-1
+        adj = np.array([[math.cos(inv_t[2]), -math.sin(inv_t[2]), inv_t[1]],
+                        [math.sin(inv_t[2]), math.cos(inv_t[2]), -inv_t[0]], [0.0, 0.0, 1.0]])
+        cov_acc = adj @ cov_acc @ adj.T + np.linalg.inv(odometry_info[k])
+        z_acc = compose(z_acc, zk)
+        if ids[k] in row:
+            edges.append((row[ids[start]], row[ids[k]]))
+            zs.append(z_acc)
+            infos.append(np.linalg.inv(cov_acc))
+            z_acc, cov_acc, start = np.zeros(3), np.zeros((3, 3)), k
+    for a, b, z, w in intra:
+        edges.append((row[a], row[b]))
+        zs.append(z)
+        infos.append(w)
+    return (kept, np.array(edges, np.int64).reshape(-1, 2), np.array(zs, float).reshape(-1, 3),
+            np.array(infos, float).reshape(-1, 3, 3))
+
+
+def condensed_poses(ids: np.ndarray, edges: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(K, 3) poses composed along a condensed graph's edges from its first vertex (its odometry)."""
+    g = PoseGraph2D(ids=np.asarray(ids, np.int64), poses=np.zeros((len(ids), 3)), edges=np.asarray(edges, np.int64).reshape(-1, 2),
+                    z=np.asarray(z, float).reshape(-1, 3), info=np.tile(np.eye(3), (len(edges), 1, 1)),
+                    known=np.zeros(len(ids), bool))
+    return spanning_tree_poses(g, root=0) if len(ids) else np.zeros((0, 3))
+
+
+def condensed_graph(item: Condensed) -> PoseGraph2D:
+    """The condensed graph as a pose graph (its own frame)."""
+    return PoseGraph2D(ids=np.asarray(item.ids, np.int64), poses=np.asarray(item.poses, float),
+                       edges=np.asarray(item.edges, np.int64).reshape(-1, 2), z=np.asarray(item.z, float).reshape(-1, 3),
+                       info=info_from6(np.asarray(item.info).reshape(-1, 6)), known=np.ones(len(item.ids), bool))
+
+
+def _side(item: Condensed, rows: list[int]) -> Side:
+    """PCM's view of a robot from its condensed graph: joint covariance of the closure ends, first pose held."""
+    rows = np.asarray(rows, np.int64)
+    used = np.unique(rows)
+    if len(item.ids) > 1 and len(item.edges):
+        cov = joint_covariance(condensed_graph(item), np.asarray(item.poses, float), used, fixed={0})
+    else:
+        cov = np.zeros((3 * len(used), 3 * len(used)))
+    return Side(np.asarray(item.poses, float)[used], cov, np.searchsorted(used, rows))
+
+
+def _component(graph: PoseGraph2D, root: int) -> np.ndarray:
+    """(N,) bool: vertices connected to ``root``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    n = graph.n
+    adj = coo_matrix((np.ones(len(graph.edges)), (graph.edges[:, 0], graph.edges[:, 1])), shape=(n, n))
+    _, labels = connected_components(adj, directed=False)
+    return labels == labels[root]
+
+
+def _subgraph(graph: PoseGraph2D, keep: np.ndarray) -> PoseGraph2D:
+    new = np.cumsum(keep) - 1
+    ok = keep[graph.edges[:, 0]] & keep[graph.edges[:, 1]]
+    return PoseGraph2D(ids=graph.ids[keep], poses=graph.poses[keep], edges=new[graph.edges[ok]], z=graph.z[ok],
+                       info=graph.info[ok], known=graph.known[keep])
