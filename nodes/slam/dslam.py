@@ -156,7 +156,7 @@ class Agent:
     def __init__(self, robot: int, robots: int, *, method: str = "ddf", condense: str = "exact", sor: float = 1.0,
                  pcm_gate: float = CHI2_3DOF_99, tol: float = 1e-4, stage_tol: float = 1e-2,
                  lm_iterations: int = 10, max_run: int = 0, front_end: PlaceFrontEnd | None = None,
-                 epoch: int = 0, send_tol: float = 1e-4) -> None:
+                 epoch: int = 0, send_tol: float = 1e-4, pcm_min_clique: int = 2, strong_pair: int = 3) -> None:
         if method not in METHODS:
             raise ValueError(f"method {method!r}: choose one of {METHODS}")
         if not 0 <= robot < robots:
@@ -168,6 +168,7 @@ class Agent:
         self.robot, self.robots, self.method, self.condense = robot, robots, method, condense
         self.sor, self.pcm_gate, self.tol, self.lm_iterations = sor, pcm_gate, tol, lm_iterations
         self.stage_tol, self.max_run, self.send_tol = stage_tol, max_run, send_tol
+        self.pcm_min_clique, self.strong_pair = pcm_min_clique, strong_pair
  
         self.epoch = epoch                                # how many times this robot restarted
         self.front_end = front_end                        # place recognition (None: closures come from add_closure)                        # dgs: change that ends the two linear stages (Choudhary: 1e-1..1e-2)
@@ -183,6 +184,7 @@ class Agent:
         self._decided_for: dict[int, int] = {}             # peer -> candidate count PCM last decided on
         self._rejected: dict[int, int] = {}                # peer -> closures PCM turned down (our decisions)
         self._last_sent: dict[int, tuple] = {}
+        self.gnc_rejected = 0                              # ddf: inter-robot closures GNC turned down last time
         self._third_party: dict[tuple[int, int], _Candidate] = {}   # ddf: accepted closures between two peers
         self._team: dict[int, np.ndarray] = {}            # ddf: last neighbourhood estimate by vertex id
         self._peer_owner: dict[int, int] = {}             # peer vertex id -> robot
@@ -426,7 +428,7 @@ class Agent:
             other = _side(chain, [peer_pos[c.peer_id] for c in cands])
             measured = [c.from_own() for c in cands]
             keep = select_consistent(np.array([m[0] for m in measured]), np.array([m[1] for m in measured]), own, other,
-                                     gate=self.pcm_gate)
+                                     gate=self.pcm_gate, min_clique=self.pcm_min_clique)
             self._accepted[peer] = {k for k, ok in zip(keys, keep) if ok}
             self._rejected[peer] = int((~keep).sum())
             self._decided_for[peer] = len(found)
@@ -451,12 +453,22 @@ class Agent:
 
     # -- method (a): neighbourhood optimisation over condensed graphs --------------------------------
     def _neighbourhood(self) -> None:
+        """Optimise own graph + peers' condensed graphs + inter-robot closures, in two passes.
+
+        PCM compares the closures of one pair only, so false closures can survive it: a pair of
+        robots that never met can hold two that agree by chance, and a false closure far from
+        the robots' first poses fits within their loose relative covariance. So the first pass
+        uses the closures of pairs with at least ``strong_pair`` accepted closures, under a
+        Cauchy kernel (a false one among them pulls little); the second starts there with every
+        closure under GNC (only inter-robot closures can be rejected): each must agree with
+        what the whole team's closures say.
+        """
         key = (self._version, tuple((r, c.version) for r, c in sorted(self._chains.items())))
         if key == self._neighbourhood_key:
             return
         self._neighbourhood_key = key
         extra: dict[int, np.ndarray] = {}
-        owner: dict[int, int] = {}
+        owner: dict[int, int] = {v: self.robot for v in self.ids}
         edges: list[_Candidate] = []
         for r, chain in self._chains.items():
             for v, p in zip(chain.ids.tolist(), chain.poses):
@@ -464,38 +476,42 @@ class Agent:
             ids = chain.ids.tolist()
             for (a, b), z, v in zip(np.asarray(chain.edges).tolist(), chain.z, chain.info):
                 edges.append(_Candidate(ids[a], ids[b], np.asarray(z, float), info_from6(v)))
-        closures = self.accepted_closures()
-        closures += list(self._third_party.values())
-        graph, index = self._own_graph(extra, edges + closures)
+        closures = [c for c in self.accepted_closures() + list(self._third_party.values())
+                    if c.a in owner and c.b in owner]
+        pairs = [tuple(sorted((owner[c.a], owner[c.b]))) for c in closures]
+        size = {p: pairs.count(p) for p in set(pairs)}
+        strong = [c for c, p in zip(closures, pairs) if size[p] >= self.strong_pair]
+        weak = [c for c, p in zip(closures, pairs) if size[p] < self.strong_pair]
+        self._solve_neighbourhood(extra, edges, strong, [], robust="cauchy")
+        self.gnc_rejected = self._solve_neighbourhood(extra, edges, [], strong + weak, robust="gnc") if closures else 0
+
+    def _solve_neighbourhood(self, extra: dict[int, np.ndarray], edges: list[_Candidate], closures: list[_Candidate],
+                             doubtful: list[_Candidate], *, robust: str | None) -> int:
+        """One neighbourhood solve (GNC on the inter-robot closures when some are ``doubtful``);
+        returns how many closures GNC rejected."""
+        graph, index = self._own_graph(extra, edges + closures + doubtful)
+        first_inter = len(graph.edges) - len(closures) - len(doubtful)
         keep = _component(graph, 0)
-        roots = {r: chain.ids[0] for r, chain in self._chains.items() if chain.ids[0] in index and keep[index[chain.ids[0]]]}
+        roots = {r: chain.ids[0] for r, chain in self._chains.items()
+                 if chain.ids[0] in index and keep[index[chain.ids[0]]]}
         roots[self.robot] = self.ids[0]
         self.gauge_root = min(roots)
+        inter = (np.arange(len(graph.edges)) >= first_inter)[keep[graph.edges[:, 0]] & keep[graph.edges[:, 1]]]
         graph = _subgraph(graph, keep)
         index = {v: k for k, v in enumerate(graph.ids.tolist())}
         anchor = index[roots[self.gauge_root]]
-        start = self._seed(graph, index, anchor)
-        graph.fixed = {anchor}
-        result = optimize(graph, initial=start, max_iterations=50)
-        self.estimate = result.poses[:len(self.ids)]
-
-    def _seed(self, graph: PoseGraph2D, index: dict[int, int], anchor: int) -> np.ndarray:
-        """Warm start: the previous estimate where it is in the right frame, the rest composed along edges."""
         graph.poses = graph.poses.copy()
-        known: list[int] = []
-        if self.gauge_root == self.robot:
-            graph.poses[:len(self.ids)] = self.estimate
-            known = list(range(len(self.ids)))
-        else:
-            graph.poses[anchor] = 0.0                        # the gauge robot's first pose is the team's origin
-            previous = self._team
-            known = [anchor] + [index[v] for v in previous if v in index and index[v] != anchor]
-            for v, p in previous.items():
-                if v in index:
-                    graph.poses[index[v]] = p
+        for v, pose in self._team.items():                # warm start where we already have an estimate
+            if v in index:
+                graph.poses[index[v]] = pose
+        graph.poses[anchor] = 0.0                          # the gauge robot's first pose is the team's origin
+        known = [anchor] + [index[v] for v in self._team if v in index and index[v] != anchor]
         start = spanning_tree_poses(graph, root=anchor, known=known)
-        self._team = {v: start[k] for v, k in index.items()}
-        return start
+        graph.fixed = {anchor}
+        result = optimize(graph, initial=start, max_iterations=50, robust=robust, trusted=~inter)
+        self._team = {v: result.poses[k] for v, k in index.items()}
+        self.estimate = result.poses[:len(self.ids)]
+        return len(result.outliers)
 
     # -- method (b) and the baseline: block Gauss-Seidel on separator estimates ------------------------
     def _block_step(self) -> dict[int, Separators]:

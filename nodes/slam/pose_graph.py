@@ -386,8 +386,8 @@ class OptimizeResult:
 def optimize(graph: PoseGraph2D, *, initial: np.ndarray | str | None = None, method: str = "lm",
              robust: str | None = None, kernel_width: float | None = None, anchor: int | None = None,
              max_iterations: int = 100, rel_tol: float = 1e-10, lambda_init: float = 1e-5,
-             linear_solver: str = "ldl", progress: Callable[[int, float, float], None] | None = None
-             ) -> OptimizeResult:
+             linear_solver: str = "ldl", progress: Callable[[int, float, float], None] | None = None,
+             trusted: np.ndarray | None = None) -> OptimizeResult:
     """Minimise chi2 over the poses of ``graph``.
 
     Parameters
@@ -403,6 +403,7 @@ def optimize(graph: PoseGraph2D, *, initial: np.ndarray | str | None = None, met
     rel_tol : stop when an accepted step lowers the cost by less than this fraction.
     linear_solver : 'ldl' (sparse LDL^T, qdldl, AMD ordering reused) or 'lu' (SuperLU).
     progress : called as ``progress(iteration, cost, lambda)`` after each accepted step.
+    trusted : (M,) bool, the edges 'gnc' never rejects (default: odometry, between consecutive ids).
     """
     t0 = time.process_time()
     check_graph(graph)
@@ -416,7 +417,7 @@ def optimize(graph: PoseGraph2D, *, initial: np.ndarray | str | None = None, met
     chi2_initial = chi2(graph, poses)
     if robust == "gnc":
         poses, weights, iterations, converged, message = _gnc(graph, system, poses, method, kernel_width,
-                                                              max_iterations, rel_tol, lambda_init, progress)
+                                                              max_iterations, rel_tol, lambda_init, progress, trusted)
         outliers = np.flatnonzero(weights == 0.0)
         cost = float((edge_chi2(graph, poses) * weights).sum())
     else:
@@ -494,7 +495,7 @@ def _solve(graph: PoseGraph2D, system: _System, poses: np.ndarray, method: str, 
 
 
 def _gnc(graph: PoseGraph2D, system: _System, poses: np.ndarray, method: str, gate: float | None,
-         max_iterations: int, rel_tol: float, lambda_init: float, progress
+         max_iterations: int, rel_tol: float, lambda_init: float, progress, trusted: np.ndarray | None = None
          ) -> tuple[np.ndarray, np.ndarray, int, bool, str]:
     """Graduated non-convexity with the truncated-least-squares surrogate (GNC-TLS, Yang et al.,
     RA-L 2020) on loop closures; odometry edges are trusted.
@@ -506,7 +507,7 @@ def _gnc(graph: PoseGraph2D, system: _System, poses: np.ndarray, method: str, ga
     180-degree closure it drifted two good closures out with it.)
     """
     c2 = gate if gate is not None else CHI2_3DOF_99
-    trusted = graph.odometry_mask()
+    trusted = graph.odometry_mask() if trusted is None else np.asarray(trusted, bool)
     s = edge_chi2(graph, poses)
     s_max = float(s[~trusted].max(initial=0.0))
     mu = c2 / max(2.0 * s_max - c2, 1e-12) if 2.0 * s_max > c2 else math.inf
