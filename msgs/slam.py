@@ -86,6 +86,8 @@ class PeerPacket(Message, tag="slam.PeerPacket"):
     receiver: int = 0
     gauge_root: int = 0
     epoch: int = 0                # the sender's start count: a new epoch means it restarted and lost what it was told
+    ack: list[int] = []           # what the sender holds from the receiver: [its decided closures with us,
+    #                               its condensed graph's version, the closures of other pairs it told us of]
     items: list[PeerItem] = []
 
 
@@ -100,3 +102,5 @@ class RobotTrajectory(Message, tag="slam.RobotTrajectory"):
     closures_rejected: int = 0
     bytes_sent: int = 0
     rounds: int = 0
+    accepted: np.ndarray = const(np.zeros((0, 2), np.int64))   # (C, 2) inter-robot closures in use (vertex ids)
+    rejected: np.ndarray = const(np.zeros((0, 2), np.int64))   # (C, 2) candidates turned down (PCM or GNC)

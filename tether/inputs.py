@@ -32,7 +32,7 @@ I64_MAX = (1 << 63) - 1
 U64_MAX = (1 << 64) - 1
 
 COUNTERS = ("received", "handled", "dropped_seq_gap", "dropped_queue", "decode_errors", "handler_errors",
-            "seq_resets", "dropped_restart", "link_resets")
+            "seq_resets", "dropped_restart", "link_resets", "received_bytes", "dropped_link")
 
 
 def saturate(value: int) -> int:
@@ -45,7 +45,7 @@ class InputState:
 
     __slots__ = ("name", "topic", "type", "queue", "maxlen", "max_bytes", "queued_bytes", "last_seq",
                  "restart_seq", "stats", "handler_ns", "handler_max_ns", "last_error_log_ns", "suppressed",
-                 "handler", "slot")
+                 "handler", "slot", "link")
 
     def __init__(self, name: str, topic: str, tp: type[Message], maxlen: int, max_bytes: int = 1 << 62,
                  slot: int = -1) -> None:
@@ -61,6 +61,7 @@ class InputState:
         self.suppressed = 0
         self.handler: Any = None
         self.slot = slot              # index in the node's SeqStore, -1 when not persisted
+        self.link: Any = None         # a tether.link.LinkModel the messages cross (launch file ``links:``)
 
     def track_seq(self, seq: int) -> None:
         """Count what the jump from the last ``seq`` to this one says was lost (or a reset)."""

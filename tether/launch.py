@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from tether.errors import ConfigError
+from tether.link import LinkModel, parse_link
 from tether.node import MAX_TIMER_HZ, Node, Ports, Tick
 from tether.runner import load_node_class
 from tether.runtime import RunSpec, Source
@@ -40,7 +41,7 @@ ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 TIMER_RE = re.compile(r"^timer/(hz|ms)/([0-9]*\.?[0-9]+)$")
 RESTART_POLICIES = ("never", "on-failure")
 NODE_KEYS = {"id", "node", "params", "inputs", "restart", "max_restarts", "machine", "env"}
-TOP_KEYS = {"name", "nodes", "machines", "description"}
+TOP_KEYS = {"name", "nodes", "machines", "description", "links"}
 ENV_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MAX_RESTARTS = 1000
 
@@ -76,6 +77,17 @@ class LaunchFile:
     name: str
     nodes: list[NodeEntry]
     machines: dict[str, Machine]
+    links: list[tuple[frozenset[str], LinkModel]] = field(default_factory=list)
+
+    def link_between(self, a: NodeEntry, b: NodeEntry) -> LinkModel | None:
+        """The link model a message from node ``a`` to node ``b`` crosses (by node id or machine), if any."""
+        for ends, model in self.links:
+            if ({a.id, a.machine} & ends) and ({b.id, b.machine} & ends) and a.id != b.id:
+                left, right = sorted(ends)
+                if (left in (a.id, a.machine) and right in (b.id, b.machine)) or \
+                        (right in (a.id, a.machine) and left in (b.id, b.machine)):
+                    return model
+        return None
 
     def node(self, node_id: str) -> NodeEntry:
         for entry in self.nodes:
@@ -168,7 +180,12 @@ def load_launch(path: str | Path, overrides: Mapping[str, Mapping[str, Any]] | N
     for node_id in overrides:
         if node_id not in seen:
             raise ConfigError(f"{where}: --param for unknown node {node_id!r} (nodes: {sorted(seen)})")
-    launch = LaunchFile(path=path, name=name, nodes=nodes, machines=machines)
+    raw_links = doc.get("links") or []
+    if not isinstance(raw_links, list):
+        raise ConfigError(f"{_at(where, doc, 'links')}: 'links' must be a list")
+    names = set(seen) | set(machines)
+    links = [parse_link(f"{_at(where, raw_links, k)}: links[{k}]", raw, names) for k, raw in enumerate(raw_links)]
+    launch = LaunchFile(path=path, name=name, nodes=nodes, machines=machines, links=links)
     _check_wiring(where, launch, dict(zip((n.id for n in nodes), raw_nodes)))
     return launch
 
@@ -298,8 +315,10 @@ def timer_period_ns(src: str) -> int:
     return int(round(1e9 / hz)) if kind == "hz" else int(round(float(value) * 1e6))
 
 
-def plan(launch: LaunchFile, *, token: str, curve: dict[str, Any] | None = None) -> dict[str, RunSpec]:
-    """A RunSpec per node: where it binds, where each input connects, who will subscribe."""
+def plan(launch: LaunchFile, *, token: str, curve: dict[str, Any] | None = None,
+         epoch_ns: int = 0) -> dict[str, RunSpec]:
+    """A RunSpec per node: where it binds, where each input connects, who will subscribe.
+    ``epoch_ns``: when the launch started (the clock of the links' outage schedules)."""
     local_ep = {n.id: ipc_endpoint(launch.name, n.id, token) for n in launch.nodes}
     tcp_ep: dict[str, str] = {}
     port_next = {m: launch.machines[m].port_base for m in launch.machines}
@@ -329,9 +348,14 @@ def plan(launch: LaunchFile, *, token: str, curve: dict[str, Any] | None = None)
             src_node = launch.node(_source_node(src))
             same = not launch.machines or src_node.machine == n.machine
             secure = src_node.id in tcp_ep
+            model = launch.link_between(src_node, n)
+            link = None
+            if model is not None:
+                link = model.to_json() | {"epoch_ns": epoch_ns,
+                                          "seed": model.seed * 1_000_003 + sum(map(ord, f"{src}>{n.id}/{name}"))}
             inputs[name] = Source(topic=src, endpoint=local_ep[src_node.id] if same else tcp_ep[src_node.id],
                                   secure=secure, server_key=curve["peers"].get(src_node.machine, "")
-                                  if secure and curve else "")
+                                  if secure and curve else "", link=link)
         expect = {f"{n.id}/{out}": subscribers.get(f"{n.id}/{out}", 0) for out in n.ports.outputs}
         uses_tcp = n.id in tcp_ep or any(s.secure for s in inputs.values())
         specs[n.id] = RunSpec(graph=launch.name, node_id=n.id, node=n.node, params=n.params, binds=binds,

@@ -22,6 +22,7 @@ import zmq
 
 from tether.codec import Codec
 from tether.inputs import InputState, SeqStore, saturate
+from tether.link import LinkModel
 from tether.message import Message
 from tether.node import Context, Node, Tick, iter_outputs
 from tether.stats import NodeStats
@@ -48,6 +49,7 @@ class Source:
     timer_ns: int = 0
     secure: bool = False      # the publisher is a CurveZMQ server (it has a tcp endpoint)
     server_key: str = ""      # its machine's public key (z85), when secure
+    link: dict[str, Any] | None = None   # a LinkModel (to_json) the messages cross, from the launch file
 
 
 @dataclass
@@ -83,6 +85,7 @@ class NodeRuntime(Context):
         self._pub_lock = threading.Lock()
         self._seq: dict[str, int] = {}
         self._published: dict[str, int] = collections.Counter()
+        self._published_bytes: dict[str, int] = collections.Counter()
         self._subscribers: dict[str, int] = collections.Counter()
         self._started_ns = time.monotonic_ns()
         self._stats_errors = 0
@@ -113,6 +116,8 @@ class NodeRuntime(Context):
             if src is None or not src.topic:
                 continue  # unconnected input: it simply never fires
             state = InputState(name, src.topic, port.type, port.maxlen, port.max_queue_bytes)
+            if src.link:
+                state.link = LinkModel.from_json(src.link)
             self.inputs[name] = state
             self.routes.setdefault(src.topic.encode(), []).append(state)
             self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
@@ -164,6 +169,7 @@ class NodeRuntime(Context):
                     self._largest_sent = nbytes
                     self.pub.setsockopt(zmq.SNDHWM, hwm_for(PUB_QUEUE_BYTES, nbytes))
                 _send(self.pub, self._topics[output], frames)
+                self._published_bytes[output] += nbytes + len(self._topics[output])
             self._published[output] += 1
             if self._seq_store is not None:
                 self._seq_store.set(self._out_slots[output], seq)
@@ -196,6 +202,11 @@ class NodeRuntime(Context):
         if not states:
             return  # a longer topic sharing our prefix: not ours
         for state in states:
+            if state.link is not None:
+                lost = state.link.admit(nbytes, time.time_ns())
+                if lost:
+                    state.stats["dropped_link"] += 1       # the scenario's network, not a fault: not logged
+                    continue
             self._accept(state, frames, next(order), nbytes)
 
     def _drain(self, sock: zmq.Socket, order: itertools.count) -> None:
@@ -231,6 +242,7 @@ class NodeRuntime(Context):
         state.stats["received"] += 1
         if nbytes < 0:
             nbytes = sum(map(len, frames))
+        state.stats["received_bytes"] += nbytes
         try:
             msg = self._codec.decode(state.type, frames)
         except Exception as exc:  # noqa: BLE001 - whatever a crafted frame makes the decoder raise
@@ -325,7 +337,9 @@ class NodeRuntime(Context):
                          published={k: saturate(v) for k, v in self._published.items()},
                          subscribers={k: saturate(v) for k, v in self._subscribers.items()},
                          errors=saturate(errors), restarts=saturate(self.spec.incarnation),
-                         stats_errors=saturate(self._stats_errors), stamp_ns=time.time_ns())
+                         stats_errors=saturate(self._stats_errors),
+                         published_bytes={k: saturate(v) for k, v in self._published_bytes.items()},
+                         stamp_ns=time.time_ns())
 
     def _publish_stats(self) -> None:
         """Publish :meth:`stats`; a failure here is counted and logged (rate-limited), never fatal."""

@@ -26,6 +26,8 @@ class InputStats(Message, tag="std.InputStats"):
     dropped_restart: int = 0       # published while this node was down (seq gap across its own restart)
     link_resets: int = 0           # connection dropped by ZeroMQ (e.g. a frame over the receive limit), redialled
     queued_bytes: int = 0          # bytes waiting in this input's queue now
+    received_bytes: int = 0        # bytes received (frames, before decoding), cumulative
+    dropped_link: int = 0          # lost on the launch file's link model (loss, bandwidth cap, outage)
 
 
 class NodeStats(Message, tag="std.NodeStats"):
@@ -41,3 +43,4 @@ class NodeStats(Message, tag="std.NodeStats"):
     errors: int = 0
     restarts: int = 0              # how many times the launcher restarted this node before this run
     stats_errors: int = 0          # failures while publishing these statistics (counted, never fatal)
+    published_bytes: dict[str, int] = {}   # per output: bytes sent (frames and topic), cumulative

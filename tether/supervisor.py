@@ -87,7 +87,8 @@ class Supervisor:
         self.keystore = keystore.keystore_dir(launch.name, keys)
         curve = keystore.ensure(self.keystore, list(launch.machines), self.machine) if launch.machines else None
         self.curve = curve
-        specs = plan(launch, token=uuid.uuid4().hex[:8], curve=curve.to_json() if curve else None)
+        specs = plan(launch, token=uuid.uuid4().hex[:8], curve=curve.to_json() if curve else None,
+                     epoch_ns=time.time_ns())
         for spec in specs.values():
             spec.parent_pid = os.getpid()
         self.children = [Child(n.id, specs[n.id], n.restart, n.max_restarts, n.env)

@@ -50,13 +50,17 @@ import numpy as np
 from nodes.slam.pcm import Side, relative, select_consistent
 from nodes.slam.place import (PlaceFrontEnd, PlaceMatchItem, PlaceQueryItem, Registration, RelPoseReply,
                               RelPoseRequestItem)
-from nodes.slam.pose_graph import (CHI2_3DOF_99, GraphError, PoseGraph2D, between, chordal_rotations,
+from nodes.slam.pose_graph import (GraphError, PoseGraph2D, between, chordal_rotations,
                                    chordal_translations, compose, joint_covariance, optimize, spanning_tree_poses,
                                    wrap)
 
 log = logging.getLogger("nodes.slam.dslam")
 
 METHODS = ("ddf", "dgs", "block_gs")
+# PCM's gate on a pair's cycle error: the 99.9 % quantile of chi2(3). At 99 % the largest clique
+# left out 11 true closures of one M3500 pair (1 % of true pairs fail by chance, and a clique
+# must agree pairwise); random false closures are far beyond either gate.
+CHI2_3DOF_999 = 16.266
 CONDENSE = ("exact", "chain")
 _IU = np.triu_indices(3)
 
@@ -125,6 +129,8 @@ class Packet:
     gauge_root: int
     items: list = field(default_factory=list)
     epoch: int = 0
+    ack: tuple[int, int, int] = (0, 0, 0)   # what the sender holds from the receiver: decided closures,
+    #                                         its condensed graph's version, closures it decided with others
 
 
 # -- the agent --------------------------------------------------------------------------------------
@@ -154,9 +160,10 @@ class Agent:
     """One robot of a decentralised pose-graph SLAM team (see the module docstring)."""
 
     def __init__(self, robot: int, robots: int, *, method: str = "ddf", condense: str = "exact", sor: float = 1.0,
-                 pcm_gate: float = CHI2_3DOF_99, tol: float = 1e-4, stage_tol: float = 1e-2,
+                 pcm_gate: float = CHI2_3DOF_999, tol: float = 1e-4, stage_tol: float = 1e-2,
                  lm_iterations: int = 10, max_run: int = 0, front_end: PlaceFrontEnd | None = None,
-                 epoch: int = 0, send_tol: float = 1e-4, pcm_min_clique: int = 2, strong_pair: int = 3) -> None:
+                 epoch: int = 0, send_tol: float = 1e-4, pcm_min_clique: int = 2, trust_lone: bool = True, strong_pair: int = 3,
+                 resend_rounds: int = 1, heartbeat_rounds: int = 5) -> None:
         if method not in METHODS:
             raise ValueError(f"method {method!r}: choose one of {METHODS}")
         if not 0 <= robot < robots:
@@ -168,7 +175,11 @@ class Agent:
         self.robot, self.robots, self.method, self.condense = robot, robots, method, condense
         self.sor, self.pcm_gate, self.tol, self.lm_iterations = sor, pcm_gate, tol, lm_iterations
         self.stage_tol, self.max_run, self.send_tol = stage_tol, max_run, send_tol
-        self.pcm_min_clique, self.strong_pair = pcm_min_clique, strong_pair
+        self.pcm_min_clique, self.trust_lone, self.strong_pair = pcm_min_clique, trust_lone, strong_pair
+        self.heartbeat_rounds = heartbeat_rounds          # an empty packet (acks only) after this many quiet rounds
+        self._last_packet: dict[int, int] = {}
+        self.resend_rounds = resend_rounds                # a grown condensed graph goes out at most this often,
+        # unless it has new separators (a live robot's graph grows every keyframe)
  
         self.epoch = epoch                                # how many times this robot restarted
         self.front_end = front_end                        # place recognition (None: closures come from add_closure)                        # dgs: change that ends the two linear stages (Choudhary: 1e-1..1e-2)
@@ -185,6 +196,8 @@ class Agent:
         self._rejected: dict[int, int] = {}                # peer -> closures PCM turned down (our decisions)
         self._last_sent: dict[int, tuple] = {}
         self.gnc_rejected = 0                              # ddf: inter-robot closures GNC turned down last time
+        self.gnc_rejected_pairs: list[tuple[int, int]] = []
+        self._early: list[tuple] = []
         self._third_party: dict[tuple[int, int], _Candidate] = {}   # ddf: accepted closures between two peers
         self._team: dict[int, np.ndarray] = {}            # ddf: last neighbourhood estimate by vertex id
         self._peer_owner: dict[int, int] = {}             # peer vertex id -> robot
@@ -195,11 +208,18 @@ class Agent:
         self._peer_root: dict[int, int] = {}
         self.phase = 1 if method == "dgs" else 3
         self._solved_phase = 0 if method == "dgs" else 3   # block_gs starts from its odometry, a real estimate
+        self._phase_team: tuple[int, ...] = ()
         self.converged = False
         self._version = 0                                  # bumps when the own graph changes
         self._local_version = -1
         self._sent_version: dict[int, int] = {}           # peer -> version of the condensed graph it has
         self._peer_epoch: dict[int, int] = {}
+        self._sent_round: dict[int, int] = {}
+        self._decided_size: dict[int, int] = {}           # peer -> closures in our last decision for it
+        self._heard_decided: dict[int, int] = {}          # peer -> closures in its last decision for us
+        self._third_sent: dict[int, int] = {}             # ddf: peer -> closures of other pairs we told it of
+        self._third_heard: dict[int, int] = {}            # ddf: peer -> closures of other pairs it told us of
+        self._sent_separators: dict[int, int] = {}
         self._neighbourhood_key: tuple = ()
         self._r = np.zeros((0, 2))
         self._chain_cache: tuple[int, Condensed] | None = None
@@ -219,6 +239,8 @@ class Agent:
             raise ValueError("every keyframe after the first needs its odometry from the previous one")
         self._index[vertex] = len(self.ids)
         self.ids.append(vertex)
+        if self._early:
+            self._take_early(vertex)
         z = np.zeros(3) if odometry is None else np.asarray(odometry, float)
         self._odometry.append(z)
         self._odometry_info.append(np.eye(3) if info is None else np.asarray(info, float))
@@ -257,6 +279,13 @@ class Agent:
         if peer == self.robot or not 0 <= peer < self.robots:
             raise ValueError(f"packet from robot {peer}: not a peer of robot {self.robot}")
         self._peer_root[peer] = packet.gauge_root
+        decided, version, third = packet.ack
+        if self._third_sent.get(peer, 0) != third:
+            self._third_sent.pop(peer, None)              # our news of other pairs was lost: send it again
+        if peer > self.robot and peer in self._decided_for and decided != self._decided_size.get(peer, 0):
+            self._decided_for.pop(peer)                   # our decision was lost on the way: decide and send again
+        if self._sent_version.get(peer) is not None and version != self._sent_version[peer] and version >= 0:
+            self._sent_version.pop(peer)                  # so was our condensed graph
         if self._peer_epoch.setdefault(peer, packet.epoch) != packet.epoch:
             self._peer_epoch[peer] = packet.epoch       # it restarted: what we told it is gone, say it again
             self._sent_version.pop(peer, None)
@@ -272,8 +301,8 @@ class Agent:
                 self._take_closures(peer, item)
             elif isinstance(item, (PlaceQueryItem, PlaceMatchItem, RelPoseRequestItem, RelPoseReply)):
                 if self.front_end is not None:
-                    for a, b, z, w, owner in self.front_end.receive(peer, item):
-                        self.add_closure(a, b, z, w, peer=owner)
+                    self._early.extend(self.front_end.receive(peer, item))
+                    self._take_early()
             elif isinstance(item, Separators):
                 self._peer_phase[peer] = (item.phase, item.converged)
                 store = self._ghost[item.phase]
@@ -281,8 +310,21 @@ class Agent:
                     store[vid] = value
                     self._peer_owner.setdefault(vid, peer)
 
+    def _take_early(self, added: int | None = None) -> None:
+        """Closures the exchange gave before our end's keyframe existed wait here for it."""
+        waiting, self._early = self._early, []
+        for a, b, z, w, owner in waiting:
+            if a in self._index or b in self._index:
+                self.add_closure(a, b, z, w, peer=owner)
+            else:
+                self._early.append((a, b, z, w, owner))
+        del self._early[:-4096]                          # bounded: a peer cannot make us hoard
+
     def _take_closures(self, peer: int, item: Closures) -> None:
         decided = False
+        others = sum(a not in self._index and b not in self._index for a, b in item.ids.tolist())
+        if others:
+            self._third_heard[peer] = others
         for (a, b), z, v, ok in zip(item.ids.tolist(), item.z, item.info, item.accepted.tolist()):
             if a not in self._index and b not in self._index:
                 if item.decision and ok:                 # decided between two other robots: for the neighbourhood
@@ -297,6 +339,7 @@ class Agent:
                 (acc.add if ok else acc.discard)(key)
         if decided:
             self._decided_for[peer] = len(self._candidates.get(peer, {}))
+            self._heard_decided[peer] = len(item.ids)
             self._neighbourhood_key = ()
 
     def step(self) -> list[Packet]:
@@ -307,7 +350,7 @@ class Agent:
             for p, items in self.front_end.tick().items():
                 out.setdefault(p, []).extend(items)
         if not self.ids:
-            return [Packet(self.robot, p, self.gauge_root, items, self.epoch) for p, items in sorted(out.items())]
+            return [Packet(self.robot, p, self.gauge_root, items, self.epoch, self._ack(p)) for p, items in sorted(out.items())]
         self._update_local()
         condensed = self._condensed()
         peers = sorted(set(self._candidates) | set(self._chains))
@@ -316,23 +359,62 @@ class Agent:
         else:
             send_to = [p for p in peers if p < self.robot]                  # only PCM's deciders need it
         for p in send_to:
-            if self._sent_version.get(p) != self._version:
+            sent = self._sent_version.get(p)
+            if sent != self._version and (sent is None or self.rounds - self._sent_round.get(p, -10**9)
+                                          >= self.resend_rounds or self._structure_changed(p)):
                 out.setdefault(p, []).append(condensed)
                 self._sent_version[p] = self._version
+                self._sent_round[p] = self.rounds
+                self._sent_separators[p] = len(self._separator_ids())
         for p, items in self._decide().items():
             out.setdefault(p, []).extend(items)
+        if self.method == "ddf":
+            for p, item in self._third_party_news().items():
+                out.setdefault(p, []).append(item)
         self.gauge_root = min([self.robot] + [self._peer_root[p] for p in self.neighbours() if p in self._peer_root])
         if self.method == "ddf":
             self._neighbourhood()
         else:
             for p, item in self._block_step().items():
                 out.setdefault(p, []).append(item)
-        return [Packet(self.robot, p, self.gauge_root, items, self.epoch) for p, items in sorted(out.items())]
+        for p in range(self.robots):                      # heartbeat: the acks travel even when all is said
+            if p != self.robot and p not in out and self.rounds - self._last_packet.get(p, 0) >= self.heartbeat_rounds:
+                out[p] = []
+        for p in out:
+            self._last_packet[p] = self.rounds
+        return [Packet(self.robot, p, self.gauge_root, items, self.epoch, self._ack(p)) for p, items in sorted(out.items())]
 
     @property
     def rejected(self) -> int:
         """Inter-robot closures PCM turned down, over the pairs this robot decides."""
         return sum(self._rejected.values())
+
+    def _third_party_news(self) -> dict[int, Closures]:
+        """ddf: each robot needs the closures we decided between us and *other* robots for its
+        neighbourhood graph; sent whole whenever the set grew or the robot says it has another."""
+        out = {}
+        for p in range(self.robots):
+            if p == self.robot:
+                continue
+            rows = [c for q, keys in self._accepted.items() if q > self.robot and q != p
+                    for k, c in self._candidates[q].items() if k in keys]
+            if rows and self._third_sent.get(p) != len(rows):
+                out[p] = Closures(ids=np.array([(c.a, c.b) for c in rows], np.int64), z=np.array([c.z for c in rows]),
+                                  info=info_to6(np.array([c.info for c in rows])), accepted=np.ones(len(rows), bool),
+                                  decision=True)
+                self._third_sent[p] = len(rows)
+        return out
+
+    def _ack(self, peer: int) -> tuple[int, int, int]:
+        """What we hold from ``peer``: the size of its last decision and its condensed graph's version
+        (-1: nothing asked of it), so it can resend what the link lost."""
+        chain = self._chains.get(peer)
+        version = chain.version if chain is not None else (-1 if peer > self.robot and self.method != "ddf" else 0)
+        return self._heard_decided.get(peer, 0), version, self._third_heard.get(peer, 0)
+
+    def _structure_changed(self, peer: int) -> bool:
+        """New separators since ``peer`` last had our condensed graph (it needs them for new closures)."""
+        return len(self._separator_ids()) != self._sent_separators.get(peer, -1)
 
     def neighbours(self) -> list[int]:
         """Peers with at least one accepted inter-robot closure."""
@@ -370,7 +452,7 @@ class Agent:
         if self._local_version == self._version:
             return
         graph, _ = self._own_graph()
-        if len(graph.edges):
+        if len(graph.edges) and graph.n > 1:
             self.local = optimize(graph, initial=_extend(self.local, self._odometry), anchor=self.ids[0],
                                   max_iterations=50).poses
         self._local_version = self._version
@@ -428,25 +510,32 @@ class Agent:
             other = _side(chain, [peer_pos[c.peer_id] for c in cands])
             measured = [c.from_own() for c in cands]
             keep = select_consistent(np.array([m[0] for m in measured]), np.array([m[1] for m in measured]), own, other,
-                                     gate=self.pcm_gate, min_clique=self.pcm_min_clique)
+                                     gate=self.pcm_gate, min_clique=self.pcm_min_clique, trust_lone=self.trust_lone)
             self._accepted[peer] = {k for k, ok in zip(keys, keep) if ok}
             self._rejected[peer] = int((~keep).sum())
             self._decided_for[peer] = len(found)
+            self._decided_size[peer] = len(keys)
             self._neighbourhood_key = ()
             out[peer] = Closures(ids=np.array([(c.a, c.b) for c in cands], np.int64).reshape(-1, 2),
                                  z=np.array([c.z for c in cands]),
                                  info=info_to6(np.array([c.info for c in cands])), accepted=keep, decision=True)
-            accepted = [c for c, ok in zip(cands, keep) if ok]
-            if self.method == "ddf" and accepted:           # third parties need the decision for their neighbourhood
-                item = Closures(ids=np.array([(c.a, c.b) for c in accepted], np.int64),
-                                z=np.array([c.z for c in accepted]), info=info_to6(np.array([c.info for c in accepted])),
-                                accepted=np.ones(len(accepted), bool), decision=True)
-                for p in range(self.robots):
-                    if p not in (self.robot, peer):
-                        extra.setdefault(p, []).append(item)
         for p, item in out.items():
             extra.setdefault(p, []).insert(0, item)
         return extra
+
+    def closure_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """(accepted, rejected) inter-robot closures touching this robot, (C, 2) vertex ids as measured.
+        Rejected: turned down by PCM (pairs already decided) or by the neighbourhood's GNC."""
+        gnc = set(self.gnc_rejected_pairs)
+        acc, rej = [], []
+        for p, found in self._candidates.items():
+            if p not in self._decided_for and p not in self._accepted:
+                continue
+            keys = self._accepted.get(p, set())
+            for k, c in found.items():
+                (acc if k in keys and (c.a, c.b) not in gnc else rej).append((c.a, c.b))
+        as_array = lambda rows: np.array(rows, np.int64).reshape(-1, 2)   # noqa: E731
+        return as_array(acc), as_array(rej)
 
     def accepted_closures(self) -> list[_Candidate]:
         return [self._candidates[p][k] for p, keys in self._accepted.items() for k in keys]
@@ -482,7 +571,7 @@ class Agent:
         size = {p: pairs.count(p) for p in set(pairs)}
         strong = [c for c, p in zip(closures, pairs) if size[p] >= self.strong_pair]
         weak = [c for c, p in zip(closures, pairs) if size[p] < self.strong_pair]
-        self._solve_neighbourhood(extra, edges, strong, [], robust="cauchy")
+        self._solve_neighbourhood(extra, edges, strong, [], robust="cauchy" if closures else None)
         self.gnc_rejected = self._solve_neighbourhood(extra, edges, [], strong + weak, robust="gnc") if closures else 0
 
     def _solve_neighbourhood(self, extra: dict[int, np.ndarray], edges: list[_Candidate], closures: list[_Candidate],
@@ -511,12 +600,19 @@ class Agent:
         result = optimize(graph, initial=start, max_iterations=50, robust=robust, trusted=~inter)
         self._team = {v: result.poses[k] for v, k in index.items()}
         self.estimate = result.poses[:len(self.ids)]
+        out = graph.edges[result.outliers]
+        self.gnc_rejected_pairs = [(int(graph.ids[a]), int(graph.ids[b])) for a, b in out]
         return len(result.outliers)
 
     # -- method (b) and the baseline: block Gauss-Seidel on separator estimates ------------------------
     def _block_step(self) -> dict[int, Separators]:
         closures = [c for c in self.accepted_closures()]
         anchor = self.gauge_root == self.robot
+        team = tuple(self.neighbours())
+        if self.method == "dgs" and team != self._phase_team:
+            self._phase_team = team                        # new neighbours: the two linear stages again (warm)
+            self.phase, self._solved_phase = 1, 0
+        undecided = any(p not in self._decided_for for p in self._candidates)
         if self.phase == 1:
             change = self._rotation_step(closures, anchor)
         elif self.phase == 2:
@@ -529,7 +625,7 @@ class Agent:
             return {}                        # nothing computed in this stage yet: our values would mislead
         self.converged = change < (self.tol if self.phase == 3 else self.stage_tol)
         messages = self._separator_messages(closures)       # what this stage computed, before moving on
-        if self.converged and self.phase < 3 and all(
+        if self.converged and self.phase < 3 and not undecided and all(
                 self._peer_phase.get(p, (0, False))[0] > self.phase
                 or self._peer_phase.get(p, (0, False)) == (self.phase, True) for p in self.neighbours()):
             self.phase += 1

@@ -45,6 +45,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     max_run: int = 0                    # ddf exact: keep every max_run-th keyframe too (0: only what must stay)
     keyframe_hz: float = 10.0
     round_hz: float = 5.0
+    resend_s: float = 5.0               # ddf: a grown condensed graph is resent at most this often (new separators: at once)
     place_threshold: float = 0.5
     state_dir: str = ""                 # where the team's start time is kept across restarts ('' = none)
 
@@ -79,6 +80,7 @@ class DslamAgent(Node):
         front = place.PlaceFrontEnd(cfg.robot, describer.train_centres(cfg.robots), threshold=cfg.place_threshold)
         self.agent = Agent(cfg.robot, cfg.robots, method=cfg.method, condense=cfg.condense, max_run=cfg.max_run,
                            epoch=time.time_ns() // 1_000_000,   # any change tells the peers we restarted
+                           resend_rounds=max(1, round(cfg.resend_s * cfg.round_hz)),
                            front_end=front)
         self.stream = robot_stream(scenario, cfg.robot, truth=truth, describer=describer, seed=cfg.seed)
         self.fed = 0
@@ -128,17 +130,19 @@ class DslamAgent(Node):
             self.bytes_sent += wire_bytes(msg, self.codec)
             out.append((f"to_{packet.receiver}", msg))
         a = self.agent
+        accepted, rejected = a.closure_pairs()
         out.append(("trajectory", RobotTrajectory(
             robot=a.robot, gauge_root=a.gauge_root, ids=np.array(a.ids, np.int64), poses=a.estimate.copy(),
-            closures_accepted=sum(len(k) for k in a._accepted.values()), closures_rejected=a.rejected,
-            bytes_sent=self.bytes_sent, rounds=a.rounds)))
+            closures_accepted=len(accepted), closures_rejected=len(rejected), bytes_sent=self.bytes_sent,
+            rounds=a.rounds, accepted=accepted, rejected=rejected)))
         return out
 
     def teardown(self) -> None:
         a = self.agent
-        self.log.info("robot %d: %d keyframes, %d rounds, %d B sent, %d closures accepted, %d rejected%s",
-                      a.robot, len(a.ids), a.rounds, self.bytes_sent, sum(len(k) for k in a._accepted.values()),
-                      a.rejected, " -- met nobody: own frame" if a.own_frame and a.robot else "")
+        accepted, rejected = a.closure_pairs()
+        self.log.info("robot %d: %d keyframes, %d rounds, %d B sent, %d inter-robot closures accepted, %d rejected%s",
+                      a.robot, len(a.ids), a.rounds, self.bytes_sent, len(accepted), len(rejected),
+                      " -- tied to no lower-numbered robot: its own frame" if a.own_frame and a.robot else "")
 
 
 # -- agent items <-> messages (float32 and int32 on the wire) -------------------------------------------
@@ -183,7 +187,7 @@ def to_message(packet: Packet) -> PeerPacket:
         else:
             raise TypeError(f"no message for {type(it).__name__}")
     return PeerPacket(sender=packet.sender, receiver=packet.receiver, gauge_root=packet.gauge_root,
-                      epoch=packet.epoch, items=items)
+                      epoch=packet.epoch, ack=list(packet.ack), items=items)
 
 
 def from_message(msg: PeerPacket) -> Packet:
@@ -211,7 +215,8 @@ def from_message(msg: PeerPacket) -> Packet:
             items.append(place.PlaceMatchItem(it.robot, it.vertex, it.match_robot, it.match_vertex, it.distance))
         elif isinstance(it, RelPoseRequest):
             items.append(place.RelPoseRequestItem(it.vertex, it.match_vertex))
-    return Packet(msg.sender, msg.receiver, msg.gauge_root, items, epoch=msg.epoch)
+    ack = tuple(int(v) for v in msg.ack) if len(msg.ack) == 3 else (0, 0, 0)
+    return Packet(msg.sender, msg.receiver, msg.gauge_root, items, epoch=msg.epoch, ack=ack)
 
 
 def wire_bytes(msg: PeerPacket, codec: Codec | None = None) -> int:

@@ -5,19 +5,21 @@ the robots' own trajectories returns to the start:
 
     e_kl = t2v( z_k^-1 (+) (x^a_ik^-1 x^a_il) (+) z_l (+) (x^b_jl^-1 x^b_jk) )  ~ 0,
 
-tested as e^T Sigma^-1 e < gate with Sigma = Sigma_zk + Sigma_zl + Sigma^a_(ik,il) + Sigma^b_(jl,jk)
-(each robot's relative covariance from its own joint marginals; the four are summed
-without rotating them into one frame, PCM's usual first-order shortcut). The accepted
+tested as e^T Sigma^-1 e < gate, Sigma the first-order covariance of the cycle: the two
+closures' and each robot's relative pose (from its own joint marginals), each carried into
+the cycle's frame by SE(2) adjoints (summing them unrotated, a common shortcut, rejected
+true closures on a square loop with 90-degree turns). The accepted
 set is the largest clique of the consistency graph: false closures, drawn from perceptual
 aliasing, disagree with the true ones and with each other.
 
 The clique is found by Pattabiraman's greedy heuristic (grow from each vertex by the
 candidate with most neighbours among the candidates, prune vertices whose degree cannot
-beat the best). A set is accepted only when it holds at least ``min_clique`` mutually
-consistent closures (default 2): a lone closure cannot be checked against anything, and
-perceptual aliasing makes lone false closures common (with 30 % outliers spread over the
-robot pairs, pairs that never met get exactly one, false, closure). ``min_clique=1``
-trusts lone closures.
+beat the best). Several closures are accepted only as a clique of at least ``min_clique``
+(default 2): when the largest consistent set is a single closure, they contradict each
+other and none is trusted. A lone closure cannot be checked against anything: it is
+accepted when ``trust_lone`` (the default -- two robots that met once are tied by it, and
+the team's optimiser can still reject it with GNC when it closes a cycle) and refused
+otherwise.
 """
 from __future__ import annotations
 
@@ -59,17 +61,50 @@ def relative(side: Side, k: np.ndarray, l: np.ndarray) -> tuple[np.ndarray, np.n
     return rel, sigma
 
 
+def _adjoint(x: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) SE(2) adjoints: a right perturbation of X moved to the left, Ad(X) = [[R, (y, -x)^T], [0, 1]]."""
+    c, s_ = np.cos(x[:, 2]), np.sin(x[:, 2])
+    out = np.zeros((len(x), 3, 3))
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s_, s_, c
+    out[:, 0, 2], out[:, 1, 2], out[:, 2, 2] = x[:, 1], -x[:, 0], 1.0
+    return out
+
+
+def _right(rel: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Covariance of additive (dx, dy, dtheta) errors of ``rel`` as a right perturbation (its own frame)."""
+    c, s_ = np.cos(rel[:, 2]), np.sin(rel[:, 2])
+    m = np.zeros((len(rel), 3, 3))
+    m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1], m[:, 2, 2] = c, s_, -s_, c, 1.0
+    return m @ cov @ m.transpose(0, 2, 1)
+
+
 def consistency(z: np.ndarray, info: np.ndarray, own: Side, peer: Side) -> np.ndarray:
-    """(m, m) squared Mahalanobis cycle errors of every pair of closures (z (m, 3) from own to peer)."""
+    """(m, m) squared Mahalanobis cycle errors of every pair of closures (z (m, 3) from own to peer).
+
+    The cycle T = z_k^-1 (+) rel_a (+) z_l (+) rel_b; each factor's covariance is taken as a
+    right perturbation and carried to T's frame by the adjoint of what follows it:
+    dT = Ad((BCD)^-1) dA + Ad((CD)^-1) dB + Ad(D^-1) dC + dD.
+    """
     m = len(z)
     k, l = np.triu_indices(m, 1)
     rel_a, cov_a = relative(own, k, l)
     rel_b, cov_b = relative(peer, l, k)
-    zk_inv = between(z[k], np.zeros_like(z[k]))
-    cycle = compose(compose(compose(zk_inv, rel_a), z[l]), rel_b)
+    zero = np.zeros((len(k), 3))
+    a_, b_, c_, d_ = between(z[k], zero), rel_a, z[l], rel_b
+    cycle = compose(compose(compose(a_, b_), c_), d_)
     cycle[:, 2] = wrap(cycle[:, 2])
     cov_z = np.linalg.inv(info)
-    sigma = cov_z[k] + cov_z[l] + cov_a + cov_b
+    ad_zk = _adjoint(z[k])
+    sig_a = ad_zk @ cov_z[k] @ ad_zk.transpose(0, 2, 1)            # (Z E)^-1 = Z^-1 (Z E^-1 Z^-1)
+    terms = [(compose(compose(b_, c_), d_), sig_a), (compose(c_, d_), _right(b_, cov_a)),
+             (d_, cov_z[l]), (None, _right(d_, cov_b))]
+    sigma = np.zeros((len(k), 3, 3))
+    for after, cov in terms:
+        if after is None:
+            sigma += cov
+            continue
+        ad = _adjoint(between(after, zero))
+        sigma += ad @ cov @ ad.transpose(0, 2, 1)
     d2 = np.einsum("pi,pij,pj->p", cycle, np.linalg.inv(sigma), cycle)
     out = np.zeros((m, m))
     out[k, l] = out[l, k] = d2
@@ -109,13 +144,16 @@ def max_clique(adjacency: np.ndarray) -> np.ndarray:
 
 
 def select_consistent(z: np.ndarray, info: np.ndarray, own: Side, peer: Side, *,
-                      gate: float = CHI2_3DOF_99, min_clique: int = 2) -> np.ndarray:
-    """(m,) bool: the closures PCM accepts (the largest consistent set, if it has ``min_clique``)."""
+                      gate: float = CHI2_3DOF_99, min_clique: int = 2, trust_lone: bool = True) -> np.ndarray:
+    """(m,) bool: the closures PCM accepts (the largest consistent set; see the module's rule for one)."""
     m = len(z)
     keep = np.zeros(m, bool)
+    if m == 1:
+        keep[0] = trust_lone
+        return keep
     if m == 0:
         return keep
-    clique = max_clique(consistency(z, info, own, peer) < gate) if m > 1 else np.zeros(1, np.int64)
+    clique = max_clique(consistency(z, info, own, peer) < gate)
     if len(clique) >= max(min_clique, 1):
         keep[clique] = True
     return keep

@@ -2,7 +2,7 @@
 recognition from full-image descriptors", MRS 2017): the descriptor space is cut into R
 clusters by k-means on training data and robot r keeps cluster r. A robot sends each
 keyframe's descriptor to the *one* robot whose cluster centre is nearest; that robot stores
-it and answers with the nearest stored descriptor of another robot within ``threshold``
+it and answers with the nearest stored descriptor of each other robot within ``threshold``
 (eq. 3 of seed 10). Data association then costs one descriptor per keyframe, not R - 1.
 
 In simulation the descriptor stands in for NetVLAD: random Fourier features of the
@@ -65,24 +65,28 @@ class PlaceIndex:
     threshold: float = 0.5
     _keys: list[tuple[int, int]] = field(default_factory=list)
     _rows: list[np.ndarray] = field(default_factory=list)
+    _seen: set[tuple[int, int]] = field(default_factory=set)
 
-    def query(self, robot: int, vertex: int, descriptor: np.ndarray) -> tuple[int, int, float] | None:
-        """Store the descriptor; return the nearest stored (robot, vertex, distance) of *another*
-        robot within the threshold, or None. A vertex sent twice is stored once."""
+    def query(self, robot: int, vertex: int, descriptor: np.ndarray) -> list[tuple[int, int, float]]:
+        """Store the descriptor; return, for each *other* robot, its nearest stored keyframe within the
+        threshold as (robot, vertex, distance), nearest first. (Cieslewski's keeper answers with the
+        single best match; a place a third robot also saw would then be found with one of them only.)
+        A keyframe sent twice is stored once."""
         d = np.asarray(descriptor, np.float32)
-        best = None
+        found: list[tuple[int, int, float]] = []
         if self._rows:
-            stack = np.stack(self._rows)
-            dist = np.linalg.norm(stack - d, axis=1)
-            other = np.array([k[0] != robot for k in self._keys])
-            dist = np.where(other, dist, np.inf)
-            k = int(np.argmin(dist))
-            if dist[k] < self.threshold:
-                best = (self._keys[k][0], self._keys[k][1], float(dist[k]))
-        if (robot, vertex) not in self._keys:
+            dist = np.linalg.norm(np.stack(self._rows) - d, axis=1)
+            owners = np.array([k[0] for k in self._keys])
+            for other in np.unique(owners[owners != robot]).tolist():
+                mine = np.flatnonzero(owners == other)
+                k = int(mine[np.argmin(dist[mine])])
+                if dist[k] < self.threshold:
+                    found.append((other, self._keys[k][1], float(dist[k])))
+        if (robot, vertex) not in self._seen:
+            self._seen.add((robot, vertex))
             self._keys.append((robot, vertex))
             self._rows.append(d)
-        return best
+        return sorted(found, key=lambda f: f[2])
 
     def __len__(self) -> int:
         return len(self._keys)
@@ -178,12 +182,13 @@ class PlaceFrontEnd:
 
     def _answer_query(self, item: PlaceQueryItem) -> None:
         found = self.index.query(item.robot, item.vertex, item.descriptor)
-        robot, vertex, dist = found if found is not None else (-1, -1, float("inf"))
-        answer = PlaceMatchItem(item.robot, item.vertex, robot, vertex, dist if found is not None else -1.0)
-        if item.robot == self.robot:
-            self.receive(self.robot, answer)
-        else:
-            self._send(item.robot, answer)
+        answers = [PlaceMatchItem(item.robot, item.vertex, r, v, d) for r, v, d in found] or \
+            [PlaceMatchItem(item.robot, item.vertex, -1, -1, -1.0)]          # an acknowledgement: no match
+        for answer in answers:
+            if item.robot == self.robot:
+                self.receive(self.robot, answer)
+            else:
+                self._send(item.robot, answer)
 
     def _register(self, asker: int, item: RelPoseRequestItem) -> RelPoseReply:
         lo, hi = item.vertex - self.window, item.vertex + self.window
@@ -203,12 +208,12 @@ class PlaceFrontEnd:
             if age >= self.retry_rounds:
                 keeper = keeper_of(self._descriptors[vertex], self.centres)
                 query = PlaceQueryItem(self.robot, vertex, self._descriptors[vertex])
-                self.sent_queries += 1
+                self._unanswered[vertex] = 0                 # before answering ourselves, which clears it
                 if keeper == self.robot:
                     self._answer_query(query)
                 else:
+                    self.sent_queries += 1
                     self._send(keeper, query)
-                self._unanswered[vertex] = 0
             else:
                 self._unanswered[vertex] = age + 1
         for key, age in list(self._requests.items()):

@@ -1,0 +1,101 @@
+"""dslam_monitor: watches a decentralised SLAM team and scores it at the end (seed 10).
+
+Inputs ``robot_<r>`` (RobotTrajectory of each robot). Every ``report_s`` seconds it logs
+the team's cost ratio -- chi2 of the robots' own estimates on the whole (inlier) graph
+over the centralised optimum's, the same back end on the full graph -- and the bytes the
+robots sent; at shutdown it logs the final figures and writes ``out_dir``/dslam_team.png
+(trajectories by robot, accepted and rejected inter-robot closures). The monitor is an
+observer: it sends nothing to the robots.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from msgs.slam import RobotTrajectory
+from nodes.slam.graph_io import read_graph
+from nodes.slam.multirobot import centralised, cost_ratio, split_graph
+from nodes.slam.team_plot import draw_team
+from tether import Input, Node
+
+MAX_ROBOTS = 8
+
+
+class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    robots: int = 2
+    graph: str = "../shared/data/posegraphs/FR079_P_toro.graph"
+    outlier_rate: float = 0.0
+    seed: int = 0
+    report_s: float = 5.0
+    out_dir: str = ""
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.robots <= MAX_ROBOTS:
+            raise ValueError(f"robots is 1..{MAX_ROBOTS}")
+
+
+class TeamMonitor(Node):
+    """Scores the team's trajectories against the centralised optimum (see the module docstring)."""
+
+    Config = Config
+
+    @classmethod
+    def ports_for(cls, config: Config):
+        return {f"robot_{r}": Input(RobotTrajectory, latest=True) for r in range(config.robots)}, {}, {}
+
+    def on_robot_0(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
+    def on_robot_1(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
+    def on_robot_2(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
+    def on_robot_3(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
+    def on_robot_4(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
+    def on_robot_5(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
+    def on_robot_6(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
+    def on_robot_7(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
+
+    def setup(self) -> None:
+        cfg = self.config
+        self.scenario = split_graph(read_graph(cfg.graph), cfg.robots, outlier_rate=cfg.outlier_rate, seed=cfg.seed)
+        self.reference = centralised(self.scenario)
+        self.index = {int(v): k for k, v in enumerate(self.scenario.graph.ids)}
+        self.latest: dict[int, RobotTrajectory] = {}
+        self.last_report = time.monotonic()
+
+    def _take(self, msg: RobotTrajectory) -> None:
+        if not 0 <= msg.robot < self.config.robots:
+            self.log.warning("trajectory of robot %d: not in this team", msg.robot)
+            return
+        self.latest[msg.robot] = msg
+        if time.monotonic() - self.last_report >= self.config.report_s:
+            self.last_report = time.monotonic()
+            ratio, nbytes, frames = self.score()
+            self.log.info("team: cost ratio %.4f, %d B sent, keyframes %s, frames %s", ratio, nbytes,
+                          [len(self.latest[r].ids) if r in self.latest else 0 for r in range(self.config.robots)], frames)
+
+    def score(self) -> tuple[float, int, list[int]]:
+        """(cost ratio of the complete team's estimate -- inf until every keyframe has one --, bytes, gauge roots)."""
+        poses = np.full((self.scenario.graph.n, 3), np.nan)
+        for msg in self.latest.values():
+            rows = [self.index.get(int(v), -1) for v in np.asarray(msg.ids).tolist()]
+            ok = np.array([k >= 0 for k in rows], bool)
+            if ok.any():
+                poses[np.array(rows)[ok]] = np.asarray(msg.poses, float).reshape(-1, 3)[ok]
+        return (cost_ratio(self.reference, poses), sum(m.bytes_sent for m in self.latest.values()),
+                [self.latest[r].gauge_root if r in self.latest else -1 for r in range(self.config.robots)])
+
+    def teardown(self) -> None:
+        ratio, nbytes, frames = self.score()
+        self.log.info("team final: cost ratio %.5f against the centralised optimum, %d B sent in all, frames %s",
+                      ratio, nbytes, frames)
+        if self.config.out_dir and self.latest:
+            acc = np.concatenate([np.asarray(m.accepted).reshape(-1, 2) for m in self.latest.values()])
+            rej = np.concatenate([np.asarray(m.rejected).reshape(-1, 2) for m in self.latest.values()])
+            ref = {int(v): self.reference.poses[k, :2] for v, k in self.index.items()}
+            path = draw_team(Path(self.config.out_dir) / "dslam_team.png",
+                             {r: (np.asarray(m.ids), np.asarray(m.poses, float).reshape(-1, 3)) for r, m in self.latest.items()},
+                             accepted=acc, rejected=rej, reference=ref,
+                             title=f"{Path(self.config.graph).name}, {self.config.robots} robots: cost ratio {ratio:.4f}, "
+                                   f"{nbytes} B exchanged")
+            self.log.info("wrote %s", path)
