@@ -9,6 +9,7 @@ from __future__ import annotations
 import ctypes
 import importlib
 import json
+import faulthandler
 import logging
 import os
 import signal
@@ -103,6 +104,7 @@ def run_spec(spec: RunSpec, *, install_signals: bool = True) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
+    faulthandler.enable(all_threads=True)      # a crash in native code leaves its Python stack in the log
     if not argv:
         print("usage: python -m tether.runner -   (RunSpec JSON on stdin)", file=sys.stderr)
         return 2

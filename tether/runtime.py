@@ -26,7 +26,7 @@ from tether.link import LinkModel
 from tether.message import Message
 from tether.node import Context, Node, Tick, iter_outputs
 from tether.stats import NodeStats
-from tether.transport import (PUB_QUEUE_BYTES, CurveKeys, LinkWatch, Subscriptions, hwm_for, make_pub,
+from tether.transport import (HWM_MAX, PUB_QUEUE_BYTES, CurveKeys, LinkWatch, Subscriptions, hwm_for, make_pub,
                               start_authenticator)
 
 log = logging.getLogger("tether.runtime")
@@ -91,6 +91,7 @@ class NodeRuntime(Context):
         self._stats_errors = 0
         self._stats_error_logged_ns = -ERROR_LOG_PERIOD_NS
         self._largest_sent = 0
+        self._sndhwm = HWM_MAX
         config = node_cls.make_config(spec.params)
         self.node = node_cls(config, node_id=spec.node_id, context=self)
         self._topics = {name: f"{spec.node_id}/{name}".encode() for name in self.node.ports.outputs}
@@ -123,6 +124,9 @@ class NodeRuntime(Context):
             self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
         self.subs = subs.sockets
         self._links = LinkWatch(self.subs, subs.endpoints) if self.subs else None
+        self._rcvhwm: dict[zmq.Socket, int] = {sock: HWM_MAX for sock in self.subs}
+        self._resubscribe_due = False
+        self._poller: zmq.Poller | None = None
         self._rcvtimeo = -1
         self._poll_lists: dict[zmq.Socket, list[tuple[zmq.Socket, int]]] = {}
         self._largest_in: dict[str, int] = {}
@@ -167,7 +171,12 @@ class NodeRuntime(Context):
                 nbytes = sum(map(len, frames))
                 if nbytes > self._largest_sent:
                     self._largest_sent = nbytes
-                    self.pub.setsockopt(zmq.SNDHWM, hwm_for(PUB_QUEUE_BYTES, nbytes))
+                    hwm = hwm_for(PUB_QUEUE_BYTES, nbytes)
+                    if hwm != self._sndhwm:
+                        # Changing a live socket's HWM races ZeroMQ's I/O thread (see make_sub): only when
+                        # the value changes -- messages over 64 KiB, so in practice once, at the first large one.
+                        self._sndhwm = hwm
+                        self.pub.setsockopt(zmq.SNDHWM, hwm)
                 _send(self.pub, self._topics[output], frames)
                 self._published_bytes[output] += nbytes + len(self._topics[output])
             self._published[output] += 1
@@ -256,12 +265,52 @@ class NodeRuntime(Context):
         state.push(index, msg, nbytes)
 
     def _fit_receive_queue(self, state: InputState, nbytes: int) -> None:
-        """Size ZeroMQ's receive queue from the largest message seen, so it too holds ~max_queue_bytes."""
+        """Size ZeroMQ's receive queue from the largest message seen, so it too holds ~max_queue_bytes.
+
+        A high-water mark cannot safely change on a connected socket (see ``make_sub``), so a
+        socket whose mark should fall to half or less is replaced, between handling rounds, by
+        one made with the new mark (:meth:`_resubscribe`); what its queue held is lost and
+        counted as a seq gap. The largest message only grows, so this happens a few times
+        per run at most."""
         self._largest_in[state.name] = nbytes
         sock = self._socket_of[state.name]
         hwm = min(hwm_for(st.max_bytes, self._largest_in.get(st.name, 0)) for st in self.inputs.values()
                   if self._socket_of.get(st.name) is sock)
-        sock.setsockopt(zmq.RCVHWM, hwm)
+        if hwm <= self._rcvhwm.get(sock, HWM_MAX) // 2 or (hwm == 2 and self._rcvhwm.get(sock, HWM_MAX) > 2):
+            self._resubscribe_due = True
+
+    def _wanted_rcvhwm(self) -> dict[bool, int]:
+        """The receive high-water mark each kind of socket (secure or not) should have now."""
+        out: dict[bool, int] = {}
+        for name, st in self.inputs.items():
+            src = self.spec.inputs.get(name)
+            if src is None or not src.topic or name in self.timers:
+                continue
+            kind = bool(self.curve is not None and src.secure)
+            out[kind] = min(out.get(kind, HWM_MAX), hwm_for(st.max_bytes, self._largest_in.get(name, 0)))
+        return out
+
+    def _resubscribe(self) -> None:
+        """Replace the SUB sockets by ones made with the wanted receive high-water marks."""
+        self._resubscribe_due = False
+        hwm = self._wanted_rcvhwm()
+        subs = Subscriptions(self.ctx, self.curve, rcvhwm=hwm)
+        for name in self.inputs:
+            src = self.spec.inputs.get(name)
+            if src is None or not src.topic or name in self.timers:
+                continue
+            self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
+        old = self.subs
+        if self._links is not None:
+            self._links.close()
+        self.subs = subs.sockets
+        self._links = LinkWatch(self.subs, subs.endpoints) if self.subs else None
+        self._rcvhwm = {sock: hwm.get(sock is subs._secure, HWM_MAX) for sock in self.subs}
+        self._poll_lists = {}
+        self._rcvtimeo = -1
+        self._poller = None
+        for sock in old:
+            sock.close(linger=0)
 
     def _log_error(self, state: InputState, text: str) -> None:
         now = time.monotonic_ns()
@@ -427,9 +476,6 @@ class NodeRuntime(Context):
         now = time.monotonic_ns()
         due = {name: now for name in self.timers}
         next_stats = next_link_check = now
-        poller = zmq.Poller()
-        for sock in self.subs:
-            poller.register(sock, zmq.POLLIN)
         try:
             while not self.stop_event.is_set() and not failed.is_set():
                 now = time.monotonic_ns()
@@ -442,12 +488,18 @@ class NodeRuntime(Context):
                 wake = min([next_stats, *due.values()])
                 timeout_ms = max(0, min(100, (wake - now) // 1_000_000 + (1 if wake > now else 0)))
                 if self.subs:
-                    self._wait_and_drain(timeout_ms, poller, order)
+                    if self._poller is None:
+                        self._poller = zmq.Poller()
+                        for sock in self.subs:
+                            self._poller.register(sock, zmq.POLLIN)
+                    self._wait_and_drain(timeout_ms, self._poller, order)
                 elif timeout_ms:
                     self.stop_event.wait(timeout_ms / 1000)
                 if due:
                     self._fire_timers(due, order)
                 self._handle_pending()
+                if self._resubscribe_due:
+                    self._resubscribe()
         except KeyboardInterrupt:
             pass
         finally:

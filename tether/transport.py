@@ -152,9 +152,12 @@ def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq
     return sock
 
 
-def make_sub(ctx: zmq.Context) -> zmq.Socket:
+def make_sub(ctx: zmq.Context, rcvhwm: int = HWM_MAX) -> zmq.Socket:
+    """A SUB socket; its receive high-water mark is set here, before any connect, never after:
+    changing a high-water mark on a socket with live pipes races ZeroMQ's I/O thread (libzmq
+    4.3.5: a null call in ZMQbg/IO when a pipe was being torn down, seen in multi-robot runs)."""
     sock = ctx.socket(zmq.SUB)
-    sock.setsockopt(zmq.RCVHWM, HWM_MAX)
+    sock.setsockopt(zmq.RCVHWM, rcvhwm)
     sock.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
     sock.setsockopt(zmq.LINGER, 0)
     return sock
@@ -182,8 +185,10 @@ class Subscriptions:
     Each endpoint is connected once per socket, each topic subscribed exactly.
     """
 
-    def __init__(self, ctx: zmq.Context, curve: CurveKeys | None = None) -> None:
+    def __init__(self, ctx: zmq.Context, curve: CurveKeys | None = None, *,
+                 rcvhwm: dict[bool, int] | None = None) -> None:
         self.ctx, self.curve = ctx, curve
+        self.rcvhwm = rcvhwm or {}                 # per kind (secure or not): the sockets' receive HWM
         self._plain: zmq.Socket | None = None
         self._secure: zmq.Socket | None = None
         self._connected: set[tuple[str, bool]] = set()
@@ -192,9 +197,9 @@ class Subscriptions:
     def add(self, topic: str, endpoint: str, *, secure: bool = False, server_key: bytes | str = b"") -> zmq.Socket:
         use_curve = self.curve is not None and secure
         if use_curve:
-            self._secure = sock = self._secure or make_sub(self.ctx)
+            self._secure = sock = self._secure or make_sub(self.ctx, self.rcvhwm.get(True, HWM_MAX))
         else:
-            self._plain = sock = self._plain or make_sub(self.ctx)
+            self._plain = sock = self._plain or make_sub(self.ctx, self.rcvhwm.get(False, HWM_MAX))
         if (endpoint, use_curve) not in self._connected:
             connect_sub(sock, endpoint, self.curve if use_curve else None, server_key)
             self._connected.add((endpoint, use_curve))

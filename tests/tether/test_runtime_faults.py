@@ -139,6 +139,8 @@ def test_queues_are_bounded_in_bytes_and_zeromq_queues_follow_the_message_size(r
         rt._accept(blob, one_mib, i)
     assert len(blob.queue) == 2 and blob.stats["dropped_queue"] == 8   # 3 MiB bound: two 1 MiB messages (+ header)
     assert blob.queued_bytes <= 3 << 20
+    assert rt._resubscribe_due                                         # never set on a live socket: replaced
+    rt._resubscribe()
     assert rt._socket_of["blob"].getsockopt(zmq.RCVHWM) <= 64          # 64 MiB / 1 MiB on the shared socket
     rt._handle_pending()
     assert blob.queued_bytes == 0 and blob.stats["handled"] == 2
