@@ -40,6 +40,9 @@ class CondensedGraph(_Item, tag="condensed"):
     edges: np.ndarray             # (E, 2) int32 rows of ids
     z: np.ndarray                 # (E, 3) float32
     info: np.ndarray              # (E, 6) float32
+    base: int = -1                # >= 0: a delta on version ``base``: edges added or changed, and
+    removed: np.ndarray = const(np.zeros((0, 3), np.int32))   # (R, 3) keys (id_a, id_b, n) of edges gone
+    nth: np.ndarray = const(np.zeros(0, np.int32))            # delta: the n of each edge's key (empty: all 0)
 
 
 class SeparatorValues(_Item, tag="separators"):

@@ -98,7 +98,8 @@ class Condensed:
     """A robot's condensed graph: vertex ``ids`` (K,) -- its first pose first, then in trajectory
     order -- with ``edges`` (E, 2) as rows of ``ids``, measurements ``z`` (E, 3) and ``info``
     (E, 6). ``poses`` (K, 3), a starting point in the robot's frame, stays home: the receiver
-    composes its own from the edges (:func:`condensed_poses`)."""
+    composes its own from the edges (:func:`condensed_poses`). A robot's graph grows while it
+    drives; once a peer holds a version, the next one travels as a delta (``base``)."""
 
     robot: int
     version: int
@@ -107,6 +108,9 @@ class Condensed:
     edges: np.ndarray
     z: np.ndarray
     info: np.ndarray
+    base: int = -1                    # >= 0: only what changed since version ``base`` (edges added or changed,
+    removed: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))   # and (a, b, n) keys gone)
+    nth: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))   # delta: n of each edge's key (empty: 0)
 
 
 @dataclass
@@ -212,14 +216,16 @@ class Agent:
         self.converged = False
         self._version = 0                                  # bumps when the own graph changes
         self._local_version = -1
-        self._sent_version: dict[int, int] = {}           # peer -> version of the condensed graph it has
+        self._peer_has: dict[int, int] = {}               # peer -> version of our condensed graph it acknowledged
+        self._snapshots: dict[int, dict[int, dict]] = {}  # peer -> {version: edge table} it may hold
+        self._sent_at: dict[int, tuple[int, int]] = {}    # peer -> (version, round) last sent
+        self._content_version = 0
+        self._content_table: dict | None = None           # versions start at 1 (0 and -1: nothing held)
         self._peer_epoch: dict[int, int] = {}
-        self._sent_round: dict[int, int] = {}
         self._decided_size: dict[int, int] = {}           # peer -> closures in our last decision for it
         self._heard_decided: dict[int, int] = {}          # peer -> closures in its last decision for us
         self._third_sent: dict[int, int] = {}             # ddf: peer -> closures of other pairs we told it of
         self._third_heard: dict[int, int] = {}            # ddf: peer -> closures of other pairs it told us of
-        self._sent_separators: dict[int, int] = {}
         self._neighbourhood_key: tuple = ()
         self._r = np.zeros((0, 2))
         self._chain_cache: tuple[int, Condensed] | None = None
@@ -284,19 +290,20 @@ class Agent:
             self._third_sent.pop(peer, None)              # our news of other pairs was lost: send it again
         if peer > self.robot and peer in self._decided_for and decided != self._decided_size.get(peer, 0):
             self._decided_for.pop(peer)                   # our decision was lost on the way: decide and send again
-        if self._sent_version.get(peer) is not None and version != self._sent_version[peer] and version >= 0:
-            self._sent_version.pop(peer)                  # so was our condensed graph
+        self._peer_has[peer] = version                    # the condensed graph it holds from us (-1: none)
         if self._peer_epoch.setdefault(peer, packet.epoch) != packet.epoch:
             self._peer_epoch[peer] = packet.epoch       # it restarted: what we told it is gone, say it again
-            self._sent_version.pop(peer, None)
-            self._last_sent.pop(peer, None)
+            for store in (self._peer_has, self._snapshots, self._sent_at, self._last_sent):
+                store.pop(peer, None)
             self._decided_for.pop(peer, None)
             log.info("robot %d: robot %d restarted (epoch %d); resending", self.robot, peer, packet.epoch)
         for item in packet.items:
             if isinstance(item, Condensed):
                 old = self._chains.get(item.robot)
-                if old is None or item.version > old.version:
+                if item.base < 0 and (old is None or item.version > old.version):
                     self._chains[item.robot] = item
+                elif item.base >= 0 and old is not None and old.version == item.base:
+                    self._chains[item.robot] = apply_delta(old, item)   # else: the ack tells the sender what we hold
             elif isinstance(item, Closures):
                 self._take_closures(peer, item)
             elif isinstance(item, (PlaceQueryItem, PlaceMatchItem, RelPoseRequestItem, RelPoseReply)):
@@ -359,13 +366,9 @@ class Agent:
         else:
             send_to = [p for p in peers if p < self.robot]                  # only PCM's deciders need it
         for p in send_to:
-            sent = self._sent_version.get(p)
-            if sent != self._version and (sent is None or self.rounds - self._sent_round.get(p, -10**9)
-                                          >= self.resend_rounds or self._structure_changed(p)):
-                out.setdefault(p, []).append(condensed)
-                self._sent_version[p] = self._version
-                self._sent_round[p] = self.rounds
-                self._sent_separators[p] = len(self._separator_ids())
+            item = self._condensed_for(p, condensed)
+            if item is not None:
+                out.setdefault(p, []).append(item)
         for p, items in self._decide().items():
             out.setdefault(p, []).extend(items)
         if self.method == "ddf":
@@ -409,12 +412,29 @@ class Agent:
         """What we hold from ``peer``: the size of its last decision and its condensed graph's version
         (-1: nothing asked of it), so it can resend what the link lost."""
         chain = self._chains.get(peer)
-        version = chain.version if chain is not None else (-1 if peer > self.robot and self.method != "ddf" else 0)
+        version = chain.version if chain is not None else -1
         return self._heard_decided.get(peer, 0), version, self._third_heard.get(peer, 0)
 
-    def _structure_changed(self, peer: int) -> bool:
-        """New separators since ``peer`` last had our condensed graph (it needs them for new closures)."""
-        return len(self._separator_ids()) != self._sent_separators.get(peer, -1)
+    def _condensed_for(self, peer: int, condensed: Condensed) -> Condensed | None:
+        """What ``peer`` needs of our condensed graph: nothing (it holds this version, or it is on its
+        way), a delta on the version it acknowledged, or the whole graph."""
+        version = condensed.version
+        has = self._peer_has.get(peer, -1)
+        sent = self._sent_at.get(peer)
+        if has == version:
+            return None
+        if sent is not None and ((sent[0] == version and self.rounds - sent[1] < 2 * self.heartbeat_rounds)
+                                 or self.rounds - sent[1] < self.resend_rounds):
+            return None                                   # in flight, or sent a moment ago
+        table = self._content_table
+        snapshots = self._snapshots.setdefault(peer, {})
+        base = snapshots.get(has)
+        item = condensed if base is None else delta(condensed, base, has, table)
+        snapshots[version] = table
+        for v in [v for v in snapshots if v not in (version, has)]:
+            del snapshots[v]                              # the peer acknowledges monotonically: older ones are useless
+        self._sent_at[peer] = (version, self.rounds)
+        return item
 
     def neighbours(self) -> list[int]:
         """Peers with at least one accepted inter-robot closure."""
@@ -472,8 +492,13 @@ class Agent:
         else:
             ids, edges, z, info = self._condense_chain(sep)
         rows = np.array([self._index[v] for v in ids], np.int64)
-        out = Condensed(robot=self.robot, version=self._version, ids=np.array(ids, np.int64),
+        out = Condensed(robot=self.robot, version=self._content_version, ids=np.array(ids, np.int64),
                         poses=self.local[rows].copy(), edges=edges, z=z, info=info_to6(info))
+        table = edge_table(out)
+        if self._content_table is None or not _same_table(table, self._content_table):
+            self._content_version += 1                    # peers hear of a new version only when content changed
+            self._content_table = table
+            out.version = self._content_version
         self._chain_cache = (self._version, out)
         return out
 
@@ -587,6 +612,8 @@ class Agent:
         self.gauge_root = min(roots)
         inter = (np.arange(len(graph.edges)) >= first_inter)[keep[graph.edges[:, 0]] & keep[graph.edges[:, 1]]]
         graph = _subgraph(graph, keep)
+        if graph.n < 2:
+            return 0                                      # a lone first keyframe: nothing to solve
         index = {v: k for k, v in enumerate(graph.ids.tolist())}
         anchor = index[roots[self.gauge_root]]
         graph.poses = graph.poses.copy()
@@ -778,6 +805,60 @@ def condense_exact(ids: list[int], odometry: list[np.ndarray], odometry_info: li
         infos.append(w)
     return (kept, np.array(edges, np.int64).reshape(-1, 2), np.array(zs, float).reshape(-1, 3),
             np.array(infos, float).reshape(-1, 3, 3))
+
+
+def edge_table(item: Condensed) -> dict[tuple[int, int, int], np.ndarray]:
+    """A condensed graph's edges by key (id_a, id_b, n-th of that pair) -> z (3) and info (6)."""
+    ids = np.asarray(item.ids).tolist()
+    table: dict[tuple[int, int, int], np.ndarray] = {}
+    for (a, b), z, v in zip(np.asarray(item.edges).reshape(-1, 2).tolist(), np.asarray(item.z).reshape(-1, 3),
+                            np.asarray(item.info).reshape(-1, 6)):
+        n = 0
+        while (ids[a], ids[b], n) in table:
+            n += 1
+        table[(ids[a], ids[b], n)] = np.concatenate([z, v])
+    return table
+
+
+def _same_table(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def delta(current: Condensed, base_table: dict, base: int, table: dict | None = None) -> Condensed:
+    """``current`` as changes on top of the version whose edge table is ``base_table``."""
+    table = edge_table(current) if table is None else table
+    changed = [k for k, v in table.items() if k not in base_table or not np.array_equal(base_table[k], v)]
+    removed = [k for k in base_table if k not in table]
+    ids = sorted({k[0] for k in changed} | {k[1] for k in changed})
+    row = {v: r for r, v in enumerate(ids)}
+    values = np.array([table[k] for k in changed]).reshape(-1, 9)
+    return Condensed(robot=current.robot, version=current.version, ids=np.array(ids, np.int64),
+                     poses=np.zeros((len(ids), 3)),
+                     edges=np.array([(row[k[0]], row[k[1]]) for k in changed], np.int64).reshape(-1, 2),
+                     z=values[:, :3], info=values[:, 3:], base=base,
+                     removed=np.array(removed, np.int64).reshape(-1, 3),
+                     nth=np.array([k[2] for k in changed], np.int64) if any(k[2] for k in changed) else np.zeros(0, np.int64))
+
+
+def apply_delta(old: Condensed, change: Condensed) -> Condensed:
+    """The whole condensed graph from the one held (``old``, version ``change.base``) and a delta."""
+    table = edge_table(old)
+    for key in np.asarray(change.removed).reshape(-1, 3).tolist():
+        table.pop(tuple(key), None)
+    ids_c = np.asarray(change.ids).tolist()
+    nth = np.asarray(change.nth).reshape(-1).tolist() or [0] * len(change.edges)
+    for (a, b), n, z, v in zip(np.asarray(change.edges).reshape(-1, 2).tolist(), nth, np.asarray(change.z).reshape(-1, 3),
+                               np.asarray(change.info).reshape(-1, 6)):
+        table[(ids_c[a], ids_c[b], int(n))] = np.concatenate([z, v])
+    root = int(old.ids[0])
+    ids = [root] + sorted({v for k in table for v in k[:2]} - {root})
+    row = {v: r for r, v in enumerate(ids)}
+    keys = list(table)
+    values = np.array([table[k] for k in keys]).reshape(-1, 9)
+    edges = np.array([(row[k[0]], row[k[1]]) for k in keys], np.int64).reshape(-1, 2)
+    return Condensed(robot=old.robot, version=change.version, ids=np.array(ids, np.int64),
+                     poses=condensed_poses(np.array(ids, np.int64), edges, values[:, :3]), edges=edges,
+                     z=values[:, :3], info=values[:, 3:])
 
 
 def condensed_poses(ids: np.ndarray, edges: np.ndarray, z: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ agent takes one step (:class:`~nodes.slam.dslam.Agent`) and sends what it has to
 """
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -89,19 +90,23 @@ class DslamAgent(Node):
         self.codec = Codec()
 
     def _team_start(self) -> float:
-        """When the team started: kept in ``state_dir`` so a restarted robot knows how far its sensing got."""
+        """When the team started: kept in ``state_dir`` with the launcher's pid, so a robot the
+        launcher restarts knows how far its sensing got (a new launch starts afresh)."""
         if not self.config.state_dir:
             return time.monotonic()
         path = Path(self.config.state_dir) / f"robot{self.config.robot}.start"
-        now = time.time()
+        now, launcher = time.time(), os.getppid()
         try:
-            started = float(path.read_text())
-            self.log.info("robot %d restarted: replaying its own %.1f s of sensing", self.config.robot, now - started)
-            return time.monotonic() - (now - started)
+            pid, started = path.read_text().split()
+            if int(pid) == launcher:
+                self.log.info("robot %d restarted: replaying its own %.1f s of sensing", self.config.robot,
+                              now - float(started))
+                return time.monotonic() - (now - float(started))
         except (OSError, ValueError):
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(repr(now))
-            return time.monotonic()
+            pass
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(f"{launcher} {now!r}")
+        return time.monotonic()
 
     def _on_packet(self, msg: PeerPacket) -> None:
         if msg.receiver != self.config.robot or not 0 <= msg.sender < self.config.robots:
@@ -165,7 +170,8 @@ def to_message(packet: Packet) -> PeerPacket:
     for it in packet.items:
         if isinstance(it, Condensed):
             items.append(CondensedGraph(robot=it.robot, version=it.version, ids=it.ids.astype(_I),
-                                        edges=it.edges.astype(_I), z=it.z.astype(_F), info=it.info.astype(_F)))
+                                        edges=it.edges.astype(_I), z=it.z.astype(_F), info=it.info.astype(_F),
+                                        base=it.base, removed=it.removed.astype(_I), nth=it.nth.astype(_I)))
         elif isinstance(it, Closures):
             items.append(_closures_msg(it))
         elif isinstance(it, Separators):
@@ -197,8 +203,10 @@ def from_message(msg: PeerPacket) -> Packet:
             ids, edges, z = np.asarray(it.ids, np.int64), np.asarray(it.edges, np.int64).reshape(-1, 2), \
                 np.asarray(it.z, float).reshape(-1, 3)
             items.append(Condensed(robot=it.robot, version=it.version, ids=ids, edges=edges, z=z,
-                                   poses=dslam.condensed_poses(ids, edges, z),
-                                   info=np.asarray(it.info, float).reshape(-1, 6)))
+                                   poses=dslam.condensed_poses(ids, edges, z) if it.base < 0 else np.zeros((len(ids), 3)),
+                                   info=np.asarray(it.info, float).reshape(-1, 6), base=it.base,
+                                   removed=np.asarray(it.removed, np.int64).reshape(-1, 3),
+                                   nth=np.asarray(it.nth, np.int64).reshape(-1)))
         elif isinstance(it, ClosureSet) and it.request:
             c = _closures_item(it)
             items.append(place.RelPoseReply((int(it.request[0]), int(it.request[1])),

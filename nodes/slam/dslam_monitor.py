@@ -9,6 +9,7 @@ observer: it sends nothing to the robots.
 """
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import numpy as np
 from msgs.slam import RobotTrajectory
 from nodes.slam.graph_io import read_graph
 from nodes.slam.multirobot import centralised, cost_ratio, split_graph
+from nodes.slam.pose_graph import GraphError, PoseGraph2D, chi2, optimize
 from nodes.slam.team_plot import draw_team
 from tether import Input, Node
 
@@ -85,10 +87,37 @@ class TeamMonitor(Node):
         return (cost_ratio(self.reference, poses), sum(m.bytes_sent for m in self.latest.values()),
                 [self.latest[r].gauge_root if r in self.latest else -1 for r in range(self.config.robots)])
 
+    def found_ratio(self) -> tuple[float, int]:
+        """(cost ratio against the centralised optimum *given the closures the team used*, their count):
+        the back end's own error, apart from what place recognition missed."""
+        g = self.scenario.inlier_graph()
+        used = {tuple(p) for m in self.latest.values() for p in np.asarray(m.accepted).reshape(-1, 2).tolist()}
+        ids = g.ids
+        pairs = [(int(ids[a]), int(ids[b])) for a, b in g.edges]
+        inter = self.scenario.owner[g.edges[:, 0]] != self.scenario.owner[g.edges[:, 1]]
+        keep = ~inter | np.array([p in used for p in pairs], bool)
+        sub = PoseGraph2D(ids=g.ids, poses=g.poses, edges=g.edges[keep], z=g.z[keep], info=g.info[keep], known=g.known)
+        try:
+            best = optimize(sub, initial="odometry")
+        except GraphError:
+            return math.inf, int(inter[keep].sum())       # the closures used leave the team in pieces
+        poses = np.full((g.n, 3), np.nan)
+        for msg in self.latest.values():
+            rows = [self.index.get(int(v), -1) for v in np.asarray(msg.ids).tolist()]
+            ok = np.array([k >= 0 for k in rows], bool)
+            if ok.any():
+                poses[np.array(rows)[ok]] = np.asarray(msg.poses, float).reshape(-1, 3)[ok]
+        if not np.isfinite(poses).all():
+            return math.inf, int(inter[keep].sum())
+        return chi2(sub, poses) / max(best.chi2, 1e-300), int(inter[keep].sum())
+
     def teardown(self) -> None:
         ratio, nbytes, frames = self.score()
         self.log.info("team final: cost ratio %.5f against the centralised optimum, %d B sent in all, frames %s",
                       ratio, nbytes, frames)
+        back_end, used = self.found_ratio()
+        self.log.info("team final: %d of %d inter-robot closures in use; cost ratio %.5f against the centralised "
+                      "optimum with those closures (the back end's share)", used, int(self.scenario.inter.sum()), back_end)
         if self.config.out_dir and self.latest:
             acc = np.concatenate([np.asarray(m.accepted).reshape(-1, 2) for m in self.latest.values()])
             rej = np.concatenate([np.asarray(m.rejected).reshape(-1, 2) for m in self.latest.values()])
