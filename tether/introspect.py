@@ -165,10 +165,15 @@ def cmd_node(args: argparse.Namespace) -> int:
     for i in st.inputs:
         print(f"  <- {i.name:12s} {i.topic:28s} recv {i.received:8d} handled {i.handled:8d} "
               f"gap-drops {i.dropped_seq_gap:6d} queue-drops {i.dropped_queue:6d} decode-err {i.decode_errors:4d} "
-              f"handler-err {i.handler_errors:4d} {i.handler_ms_mean:7.3f} ms mean {i.handler_ms_max:7.2f} ms max")
+              f"handler-err {i.handler_errors:4d} {i.handler_ms_mean:7.3f} ms mean {i.handler_ms_max:7.2f} ms max"
+              + (f" {i.received_bytes / 1e6:9.3f} MB in" if i.received_bytes else "")
+              + (f" link-drops {i.dropped_link}" if i.dropped_link else ""))
         if st.restarts or i.dropped_restart or i.seq_resets or i.link_resets:
             print(f"     {'':12s} lost while this node restarted {i.dropped_restart}  publisher seq resets "
                   f"{i.seq_resets}  connections redialled {i.link_resets}")
     for out, n in sorted(st.published.items()):
-        print(f"  -> {out:12s} published {n:8d}  subscribers {st.subscribers.get(f'{st.node_id}/{out}', 0)}")
+        sent = st.published_bytes.get(out, 0)
+        print(f"  -> {out:12s} published {n:8d}  subscribers {st.subscribers.get(f'{st.node_id}/{out}', 0)}"
+              + (f"  {sent / 1e6:.3f} MB sent" if sent else ""))
     return 0
+

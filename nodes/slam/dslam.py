@@ -167,7 +167,7 @@ class Agent:
                  pcm_gate: float = CHI2_3DOF_999, tol: float = 1e-4, stage_tol: float = 1e-2,
                  lm_iterations: int = 10, max_run: int = 0, front_end: PlaceFrontEnd | None = None,
                  epoch: int = 0, send_tol: float = 1e-4, pcm_min_clique: int = 2, trust_lone: bool = True, strong_pair: int = 3,
-                 resend_rounds: int = 1, heartbeat_rounds: int = 5) -> None:
+                 resend_rounds: int = 1, heartbeat_rounds: int = 5, solve_every: int = 1) -> None:
         if method not in METHODS:
             raise ValueError(f"method {method!r}: choose one of {METHODS}")
         if not 0 <= robot < robots:
@@ -180,6 +180,10 @@ class Agent:
         self.sor, self.pcm_gate, self.tol, self.lm_iterations = sor, pcm_gate, tol, lm_iterations
         self.stage_tol, self.max_run, self.send_tol = stage_tol, max_run, send_tol
         self.pcm_min_clique, self.trust_lone, self.strong_pair = pcm_min_clique, trust_lone, strong_pair
+ 
+        self.solve_every = solve_every                    # rounds between solves while only odometry grows
+        self._last_solve_round = -10**9
+        self._last_structure: tuple = ()
         self.heartbeat_rounds = heartbeat_rounds          # an empty packet (acks only) after this many quiet rounds
         self._last_packet: dict[int, int] = {}
         self.resend_rounds = resend_rounds                # a grown condensed graph goes out at most this often,
@@ -358,8 +362,13 @@ class Agent:
                 out.setdefault(p, []).extend(items)
         if not self.ids:
             return [Packet(self.robot, p, self.gauge_root, items, self.epoch, self._ack(p)) for p, items in sorted(out.items())]
-        self._update_local()
-        condensed = self._condensed()
+        structure = self._structure()
+        due = (structure != self._last_structure or self._chain_cache is None
+               or self.rounds - self._last_solve_round >= self.solve_every)
+        if due:                                   # new closures, decisions or peer graphs: at once; growth: at a pace
+            self._update_local()
+            self._last_solve_round, self._last_structure = self.rounds, structure
+        condensed = self._condensed() if due else self._chain_cache[1]
         peers = sorted(set(self._candidates) | set(self._chains))
         if self.method == "ddf":
             send_to = [p for p in range(self.robots) if p != self.robot]     # the whole neighbourhood
@@ -369,14 +378,15 @@ class Agent:
             item = self._condensed_for(p, condensed)
             if item is not None:
                 out.setdefault(p, []).append(item)
-        for p, items in self._decide().items():
+        for p, items in self._decide(condensed).items():
             out.setdefault(p, []).extend(items)
         if self.method == "ddf":
             for p, item in self._third_party_news().items():
                 out.setdefault(p, []).append(item)
         self.gauge_root = min([self.robot] + [self._peer_root[p] for p in self.neighbours() if p in self._peer_root])
         if self.method == "ddf":
-            self._neighbourhood()
+            if due:
+                self._neighbourhood()
         else:
             for p, item in self._block_step().items():
                 out.setdefault(p, []).append(item)
@@ -515,7 +525,12 @@ class Agent:
         return sep, np.column_stack([np.arange(s - 1), np.arange(1, s)]), rel, info
 
     # -- PCM ------------------------------------------------------------------------------------
-    def _decide(self) -> dict[int, list[Closures]]:
+    def _structure(self) -> tuple:
+        """What, when it changes, must be acted on at once (rather than at the ``solve_every`` pace)."""
+        return (sum(len(f) for f in self._candidates.values()), tuple(sorted((p, len(k)) for p, k in self._accepted.items())),
+                len(self._third_party), tuple(sorted((r, c.version) for r, c in self._chains.items())))
+
+    def _decide(self, own_condensed: Condensed) -> dict[int, list[Closures]]:
         """PCM on each higher-numbered peer whose candidates changed and whose condensed graph we hold.
         Returns the items to send: each decision to its peer; with ddf, the accepted ones to everyone."""
         out: dict[int, Closures] = {}
@@ -528,7 +543,7 @@ class Agent:
             if len(keys) < len(found):
                 continue                                   # the peer's summary predates some closures: wait
             cands = [found[k] for k in keys]
-            own_sep = self._condensed()
+            own_sep = own_condensed
             own_pos = {v: k for k, v in enumerate(own_sep.ids.tolist())}
             own = _side(own_sep, [own_pos[c.own] for c in cands])
             peer_pos = {v: k for k, v in enumerate(chain.ids.tolist())}
@@ -786,19 +801,30 @@ def condense_exact(ids: list[int], odometry: list[np.ndarray], odometry_info: li
     kept = [v for v in ids if v in keep]
     row = {v: k for k, v in enumerate(kept)}
     edges, zs, infos = [], [], []
-    z_acc, cov_acc, start = np.zeros(3), np.zeros((3, 3)), 0
-    for k in range(1, len(ids)):
-        zk = odometry[k]
-        inv_t = between(zk, np.zeros(3))                       # z_k^-1
-        adj = np.array([[math.cos(inv_t[2]), -math.sin(inv_t[2]), inv_t[1]],
-                        [math.sin(inv_t[2]), math.cos(inv_t[2]), -inv_t[0]], [0.0, 0.0, 1.0]])
-        cov_acc = adj @ cov_acc @ adj.T + np.linalg.inv(odometry_info[k])
-        z_acc = compose(z_acc, zk)
-        if ids[k] in row:
-            edges.append((row[ids[start]], row[ids[k]]))
-            zs.append(z_acc)
-            infos.append(np.linalg.inv(cov_acc))
-            z_acc, cov_acc, start = np.zeros(3), np.zeros((3, 3)), k
+    n = len(ids)
+    if n > 1:
+        z_all = np.asarray(odometry[1:], float).reshape(-1, 3)
+        cov_all = np.linalg.inv(np.asarray(odometry_info[1:], float).reshape(-1, 3, 3))   # batched: once per call
+        inv_z = between(z_all, np.zeros_like(z_all))                                     # z_k^-1
+        adj = np.zeros((n - 1, 3, 3))
+        c, s_ = np.cos(inv_z[:, 2]), np.sin(inv_z[:, 2])
+        adj[:, 0, 0], adj[:, 0, 1], adj[:, 1, 0], adj[:, 1, 1] = c, -s_, s_, c
+        adj[:, 0, 2], adj[:, 1, 2], adj[:, 2, 2] = inv_z[:, 1], -inv_z[:, 0], 1.0
+        x = y = t = 0.0
+        cov_acc, start = np.zeros((3, 3)), 0
+        for k in range(1, n):
+            dx, dy, dt = z_all[k - 1]
+            ct, st = math.cos(t), math.sin(t)
+            x, y, t = x + ct * dx - st * dy, y + st * dx + ct * dy, t + dt
+            a_k = adj[k - 1]
+            cov_acc = a_k @ cov_acc @ a_k.T + cov_all[k - 1]
+            if ids[k] in row:
+                edges.append((row[ids[start]], row[ids[k]]))
+                zs.append((x, y, (t + math.pi) % (2 * math.pi) - math.pi))
+                infos.append(cov_acc)
+                x = y = t = 0.0
+                cov_acc, start = np.zeros((3, 3)), k
+        infos = list(np.linalg.inv(np.array(infos).reshape(-1, 3, 3))) if infos else []
     for a, b, z, w in intra:
         edges.append((row[a], row[b]))
         zs.append(z)

@@ -40,6 +40,6 @@ def draw_team(path: Path, trajectories: dict[int, tuple[np.ndarray, np.ndarray]]
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
