@@ -47,10 +47,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nodes.slam.pcm import Side, relative, select_consistent
+from nodes.slam.pcm import Side, relative, right_perturbation, select_consistent
 from nodes.slam.place import (PlaceFrontEnd, PlaceMatchItem, PlaceQueryItem, Registration, RelPoseReply,
                               RelPoseRequestItem)
-from nodes.slam.pose_graph import (GraphError, PoseGraph2D, between, chordal_rotations,
+from nodes.slam.pose_graph import (chordal_poses, GraphError, PoseGraph2D, between, chordal_rotations,
                                    chordal_translations, compose, joint_covariance, optimize, spanning_tree_poses,
                                    wrap)
 
@@ -207,7 +207,9 @@ class Agent:
         self.gnc_rejected_pairs: list[tuple[int, int]] = []
         self._early: list[tuple] = []
         self._third_party: dict[tuple[int, int], _Candidate] = {}   # ddf: accepted closures between two peers
-        self._team: dict[int, np.ndarray] = {}            # ddf: last neighbourhood estimate by vertex id
+        self._team: dict[int, np.ndarray] = {}
+        self._fresh = True
+        self._neighbourhood_structure: tuple = ()            # ddf: last neighbourhood estimate by vertex id
         self._peer_owner: dict[int, int] = {}             # peer vertex id -> robot
         self._chains: dict[int, Condensed] = {}            # latest condensed graph of each peer
         self._ghost: dict[int, dict[int, np.ndarray]] = {1: {}, 2: {}, 3: {}}
@@ -521,6 +523,7 @@ class Agent:
             return sep, np.zeros((0, 2), np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3))
         cov = joint_covariance(graph, self.local, rows, fixed={0})
         rel, sigma = relative(Side(self.local[rows], cov, np.arange(s)), np.arange(s - 1), np.arange(1, s))
+        sigma = right_perturbation(rel, sigma)             # the solver's residual lives in the edge's own frame
         info = np.linalg.inv(sigma + 1e-12 * np.eye(3))
         return sep, np.column_stack([np.arange(s - 1), np.arange(1, s)]), rel, info
 
@@ -611,6 +614,9 @@ class Agent:
         size = {p: pairs.count(p) for p in set(pairs)}
         strong = [c for c, p in zip(closures, pairs) if size[p] >= self.strong_pair]
         weak = [c for c, p in zip(closures, pairs) if size[p] < self.strong_pair]
+        structure = self._structure()
+        self._fresh = structure != self._neighbourhood_structure     # new closures or peer graphs: start afresh
+        self._neighbourhood_structure = structure
         self._solve_neighbourhood(extra, edges, strong, [], robust="cauchy" if closures else None)
         self.gnc_rejected = self._solve_neighbourhood(extra, edges, [], strong + weak, robust="gnc") if closures else 0
 
@@ -632,12 +638,21 @@ class Agent:
         index = {v: k for k, v in enumerate(graph.ids.tolist())}
         anchor = index[roots[self.gauge_root]]
         graph.poses = graph.poses.copy()
-        for v, pose in self._team.items():                # warm start where we already have an estimate
-            if v in index:
-                graph.poses[index[v]] = pose
         graph.poses[anchor] = 0.0                          # the gauge robot's first pose is the team's origin
-        known = [anchor] + [index[v] for v in self._team if v in index and index[v] != anchor]
-        start = spanning_tree_poses(graph, root=anchor, known=known)
+        if self._fresh and not doubtful:
+            # What we knew was solved with less: a warm start from it can sit in a wrong basin (an
+            # eighth robot joined through few closures landed 17 m off on intel). Chordal
+            # initialisation of the whole neighbourhood does not depend on it.
+            graph.known = np.zeros(graph.n, bool)
+            graph.known[anchor] = True
+            start = chordal_poses(graph, root=anchor)
+        else:
+            for v, pose in self._team.items():            # warm start where we already have an estimate
+                if v in index:
+                    graph.poses[index[v]] = pose
+            graph.poses[anchor] = 0.0
+            known = [anchor] + [index[v] for v in self._team if v in index and index[v] != anchor]
+            start = spanning_tree_poses(graph, root=anchor, known=known)
         graph.fixed = {anchor}
         result = optimize(graph, initial=start, max_iterations=50, robust=robust, trusted=~inter)
         self._team = {v: result.poses[k] for v, k in index.items()}

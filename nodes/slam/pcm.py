@@ -70,7 +70,7 @@ def _adjoint(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _right(rel: np.ndarray, cov: np.ndarray) -> np.ndarray:
+def right_perturbation(rel: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Covariance of additive (dx, dy, dtheta) errors of ``rel`` as a right perturbation (its own frame)."""
     c, s_ = np.cos(rel[:, 2]), np.sin(rel[:, 2])
     m = np.zeros((len(rel), 3, 3))
@@ -96,8 +96,8 @@ def consistency(z: np.ndarray, info: np.ndarray, own: Side, peer: Side) -> np.nd
     cov_z = np.linalg.inv(info)
     ad_zk = _adjoint(z[k])
     sig_a = ad_zk @ cov_z[k] @ ad_zk.transpose(0, 2, 1)            # (Z E)^-1 = Z^-1 (Z E^-1 Z^-1)
-    terms = [(compose(compose(b_, c_), d_), sig_a), (compose(c_, d_), _right(b_, cov_a)),
-             (d_, cov_z[l]), (None, _right(d_, cov_b))]
+    terms = [(compose(compose(b_, c_), d_), sig_a), (compose(c_, d_), right_perturbation(b_, cov_a)),
+             (d_, cov_z[l]), (None, right_perturbation(d_, cov_b))]
     sigma = np.zeros((len(k), 3, 3))
     for after, cov in terms:
         if after is None:
