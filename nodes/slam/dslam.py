@@ -639,7 +639,7 @@ class Agent:
         anchor = index[roots[self.gauge_root]]
         graph.poses = graph.poses.copy()
         graph.poses[anchor] = 0.0                          # the gauge robot's first pose is the team's origin
-        if self._fresh and not doubtful:
+        if self._fresh and not doubtful and graph.n > len(self.ids):
             # What we knew was solved with less: a warm start from it can sit in a wrong basin (an
             # eighth robot joined through few closures landed 17 m off on intel). Chordal
             # initialisation of the whole neighbourhood does not depend on it.
