@@ -116,16 +116,6 @@ class DslamAgent(Node):
             return
         self.agent.receive(from_message(msg))
 
-    # one handler per possible peer input (the runtime looks handlers up on the class)
-    def on_from_0(self, msg: PeerPacket) -> None: self._on_packet(msg)   # noqa: E704
-    def on_from_1(self, msg: PeerPacket) -> None: self._on_packet(msg)   # noqa: E704
-    def on_from_2(self, msg: PeerPacket) -> None: self._on_packet(msg)   # noqa: E704
-    def on_from_3(self, msg: PeerPacket) -> None: self._on_packet(msg)   # noqa: E704
-    def on_from_4(self, msg: PeerPacket) -> None: self._on_packet(msg)   # noqa: E704
-    def on_from_5(self, msg: PeerPacket) -> None: self._on_packet(msg)   # noqa: E704
-    def on_from_6(self, msg: PeerPacket) -> None: self._on_packet(msg)   # noqa: E704
-    def on_from_7(self, msg: PeerPacket) -> None: self._on_packet(msg)   # noqa: E704
-
     def on_round(self, tick) -> list[tuple[str, object]]:
         due = min(len(self.stream), int((time.monotonic() - self.started) * self.config.keyframe_hz) + 1)
         while self.fed < due:
@@ -150,6 +140,15 @@ class DslamAgent(Node):
         self.log.info("robot %d: %d keyframes, %d rounds, %d B sent, %d inter-robot closures accepted, %d rejected%s",
                       a.robot, len(a.ids), a.rounds, self.bytes_sent, len(accepted), len(rejected),
                       " -- tied to no lower-numbered robot: its own frame" if a.own_frame and a.robot else "")
+
+
+def peer_handlers(cls: type[Node], prefix: str, handler: str, count: int) -> None:
+    """``on_<prefix><k>`` for k < count, all calling ``handler`` (the runtime looks handlers up on the class)."""
+    for k in range(count):
+        setattr(cls, f"on_{prefix}{k}", getattr(cls, handler))
+
+
+peer_handlers(DslamAgent, "from_", "_on_packet", MAX_ROBOTS)
 
 
 # -- agent items <-> messages (float32 and int32 on the wire) -------------------------------------------

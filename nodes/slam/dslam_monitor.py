@@ -17,13 +17,12 @@ import msgspec
 import numpy as np
 
 from msgs.slam import RobotTrajectory
+from nodes.slam.dslam_agent import MAX_ROBOTS, peer_handlers
 from nodes.slam.graph_io import read_graph
 from nodes.slam.multirobot import centralised, cost_ratio, split_graph
 from nodes.slam.pose_graph import GraphError, PoseGraph2D, chi2, optimize
 from nodes.slam.team_plot import draw_team
 from tether import Input, Node
-
-MAX_ROBOTS = 8
 
 
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -48,15 +47,6 @@ class TeamMonitor(Node):
     def ports_for(cls, config: Config):
         return {f"robot_{r}": Input(RobotTrajectory, latest=True) for r in range(config.robots)}, {}, {}
 
-    def on_robot_0(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
-    def on_robot_1(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
-    def on_robot_2(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
-    def on_robot_3(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
-    def on_robot_4(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
-    def on_robot_5(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
-    def on_robot_6(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
-    def on_robot_7(self, msg: RobotTrajectory) -> None: self._take(msg)   # noqa: E704
-
     def setup(self) -> None:
         cfg = self.config
         self.scenario = split_graph(read_graph(cfg.graph), cfg.robots, outlier_rate=cfg.outlier_rate, seed=cfg.seed)
@@ -76,15 +66,19 @@ class TeamMonitor(Node):
             self.log.info("team: cost ratio %.4f, %d B sent, keyframes %s, frames %s", ratio, nbytes,
                           [len(self.latest[r].ids) if r in self.latest else 0 for r in range(self.config.robots)], frames)
 
-    def score(self) -> tuple[float, int, list[int]]:
-        """(cost ratio of the complete team's estimate -- inf until every keyframe has one --, bytes, gauge roots)."""
+    def team_poses(self) -> np.ndarray:
+        """(N, 3) the robots' latest own estimates by vertex; NaN where none has spoken yet."""
         poses = np.full((self.scenario.graph.n, 3), np.nan)
         for msg in self.latest.values():
-            rows = [self.index.get(int(v), -1) for v in np.asarray(msg.ids).tolist()]
-            ok = np.array([k >= 0 for k in rows], bool)
+            rows = np.array([self.index.get(int(v), -1) for v in np.asarray(msg.ids).tolist()], np.int64)
+            ok = rows >= 0
             if ok.any():
-                poses[np.array(rows)[ok]] = np.asarray(msg.poses, float).reshape(-1, 3)[ok]
-        return (cost_ratio(self.reference, poses), sum(m.bytes_sent for m in self.latest.values()),
+                poses[rows[ok]] = np.asarray(msg.poses, float).reshape(-1, 3)[ok]
+        return poses
+
+    def score(self) -> tuple[float, int, list[int]]:
+        """(cost ratio of the complete team's estimate -- inf until every keyframe has one --, bytes, gauge roots)."""
+        return (cost_ratio(self.reference, self.team_poses()), sum(m.bytes_sent for m in self.latest.values()),
                 [self.latest[r].gauge_root if r in self.latest else -1 for r in range(self.config.robots)])
 
     def found_ratio(self) -> tuple[float, int]:
@@ -101,12 +95,7 @@ class TeamMonitor(Node):
             best = optimize(sub, initial="odometry")
         except GraphError:
             return math.inf, int(inter[keep].sum())       # the closures used leave the team in pieces
-        poses = np.full((g.n, 3), np.nan)
-        for msg in self.latest.values():
-            rows = [self.index.get(int(v), -1) for v in np.asarray(msg.ids).tolist()]
-            ok = np.array([k >= 0 for k in rows], bool)
-            if ok.any():
-                poses[np.array(rows)[ok]] = np.asarray(msg.poses, float).reshape(-1, 3)[ok]
+        poses = self.team_poses()
         if not np.isfinite(poses).all():
             return math.inf, int(inter[keep].sum())
         return chi2(sub, poses) / max(best.chi2, 1e-300), int(inter[keep].sum())
@@ -128,3 +117,6 @@ class TeamMonitor(Node):
                              title=f"{Path(self.config.graph).name}, {self.config.robots} robots: cost ratio {ratio:.4f}, "
                                    f"{nbytes} B exchanged")
             self.log.info("wrote %s", path)
+
+
+peer_handlers(TeamMonitor, "robot_", "_take", MAX_ROBOTS)
