@@ -43,16 +43,18 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from nodes.slam.block_gs import BlockGaussSeidel
+from nodes.slam.condense import (apply_delta, condense_exact, condensed_graph, condensed_poses, delta, edge_table,
+                                 same_table)
+from nodes.slam.exchange import (Candidate, Closures, Condensed, Packet, Separators, info_from6, info_to6,
+                                 inverse_info)
 from nodes.slam.pcm import Side, relative, right_perturbation, select_consistent
 from nodes.slam.place import (PlaceFrontEnd, PlaceMatchItem, PlaceQueryItem, Registration, RelPoseReply,
                               RelPoseRequestItem)
-from nodes.slam.pose_graph import (chordal_poses, GraphError, PoseGraph2D, between, chordal_rotations,
-                                   chordal_translations, compose, joint_covariance, optimize, spanning_tree_poses,
-                                   wrap)
+from nodes.slam.pose_graph import PoseGraph2D, chordal_poses, compose, joint_covariance, optimize, spanning_tree_poses
 
 log = logging.getLogger("nodes.slam.dslam")
 
@@ -62,105 +64,12 @@ METHODS = ("ddf", "dgs", "block_gs")
 # must agree pairwise); random false closures are far beyond either gate.
 CHI2_3DOF_999 = 16.266
 CONDENSE = ("exact", "chain")
-_IU = np.triu_indices(3)
-
-
-def info_to6(info: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) symmetric information -> (..., 6) upper triangle, row by row (g2o's order)."""
-    return np.asarray(info)[..., _IU[0], _IU[1]]
-
-
-def info_from6(v: np.ndarray) -> np.ndarray:
-    """(..., 6) upper triangle -> (..., 3, 3) symmetric."""
-    v = np.asarray(v, float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., _IU[0], _IU[1]] = v
-    out[..., _IU[1], _IU[0]] = v
-    return out
-
-
-# -- what travels (the node maps these one to one onto msgs.slam) ----------------------------------
-@dataclass
-class Closures:
-    """Inter-robot closures: ``ids`` (C, 2) vertex ids (from, to), ``z`` (C, 3), ``info`` (C, 6).
-    ``accepted`` (C,) is the PCM decision of the pair's lower-numbered robot (all True when
-    the closures are only reported)."""
-
-    ids: np.ndarray
-    z: np.ndarray
-    info: np.ndarray
-    accepted: np.ndarray
-    decision: bool = False
-
-
-@dataclass
-class Condensed:
-    """A robot's condensed graph: vertex ``ids`` (K,) -- its first pose first, then in trajectory
-    order -- with ``edges`` (E, 2) as rows of ``ids``, measurements ``z`` (E, 3) and ``info``
-    (E, 6). ``poses`` (K, 3), a starting point in the robot's frame, stays home: the receiver
-    composes its own from the edges (:func:`condensed_poses`). A robot's graph grows while it
-    drives; once a peer holds a version, the next one travels as a delta (``base``)."""
-
-    robot: int
-    version: int
-    ids: np.ndarray
-    poses: np.ndarray
-    edges: np.ndarray
-    z: np.ndarray
-    info: np.ndarray
-    base: int = -1                    # >= 0: only what changed since version ``base`` (edges added or changed,
-    removed: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))   # and (a, b, n) keys gone)
-    nth: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))   # delta: n of each edge's key (empty: 0)
-
-
-@dataclass
-class Separators:
-    """Current estimates of the sender's separators the receiver needs: ``values`` (K, 2)
-    rotation vectors in phase 1, translations in phase 2, poses (K, 3) in phase 3."""
-
-    phase: int
-    ids: np.ndarray
-    values: np.ndarray
-    converged: bool
-
-
-@dataclass
-class Packet:
-    """One round's items from ``sender`` to ``receiver``."""
-
-    sender: int
-    receiver: int
-    gauge_root: int
-    items: list = field(default_factory=list)
-    epoch: int = 0
-    ack: tuple[int, int, int] = (0, 0, 0)   # what the sender holds from the receiver: decided closures,
-    #                                         its condensed graph's version, closures it decided with others
+__all__ = ["Agent", "Closures", "Condensed", "Packet", "Separators", "METHODS", "CONDENSE",
+           "condense_exact", "condensed_poses", "apply_delta", "delta", "info_to6", "info_from6", "inverse_info"]
 
 
 # -- the agent --------------------------------------------------------------------------------------
-@dataclass
-class _Candidate:
-    """An edge as measured (pose of ``b`` in ``a``'s frame); for an inter-robot closure, which end is ours.
-
-    Both robots keep a closure in its measured direction, so both minimise the same cost
-    (reversing it would change its information to first order only, and two robots
-    optimising slightly different costs drift)."""
-
-    a: int
-    b: int
-    z: np.ndarray
-    info: np.ndarray  # (3, 3)
-    own: int = -1
-    peer_id: int = -1
-
-    def from_own(self) -> tuple[np.ndarray, np.ndarray]:
-        """(z, info) read from our end to the peer's."""
-        if self.own == self.a:
-            return self.z, self.info
-        return between(self.z, np.zeros(3)), _inverse_info(self.z, self.info)
-
-
-class Agent:
+class Agent(BlockGaussSeidel):
     """One robot of a decentralised pose-graph SLAM team (see the module docstring)."""
 
     def __init__(self, robot: int, robots: int, *, method: str = "ddf", condense: str = "exact", sor: float = 1.0,
@@ -198,7 +107,7 @@ class Agent:
         self._intra: list[tuple[int, int, np.ndarray, np.ndarray]] = []
         self.local = np.zeros((0, 3))                      # own graph's optimum, own frame
         self.estimate = np.zeros((0, 3))                   # in the team's frame
-        self._candidates: dict[int, dict[tuple[int, int], _Candidate]] = {}   # peer -> key -> closure
+        self._candidates: dict[int, dict[tuple[int, int], Candidate]] = {}   # peer -> key -> closure
         self._accepted: dict[int, set[tuple[int, int]]] = {}                 # peer -> accepted keys
         self._decided_for: dict[int, int] = {}             # peer -> candidate count PCM last decided on
         self._rejected: dict[int, int] = {}                # peer -> closures PCM turned down (our decisions)
@@ -206,7 +115,7 @@ class Agent:
         self.gnc_rejected = 0                              # ddf: inter-robot closures GNC turned down last time
         self.gnc_rejected_pairs: list[tuple[int, int]] = []
         self._early: list[tuple] = []
-        self._third_party: dict[tuple[int, int], _Candidate] = {}   # ddf: accepted closures between two peers
+        self._third_party: dict[tuple[int, int], Candidate] = {}   # ddf: accepted closures between two peers
         self._team: dict[int, np.ndarray] = {}
         self._fresh = True
         self._neighbourhood_structure: tuple = ()            # ddf: last neighbourhood estimate by vertex id
@@ -280,7 +189,7 @@ class Agent:
         key = (own, other)
         found = self._candidates.setdefault(peer, {})
         if key not in found:
-            found[key] = _Candidate(a, b, z, info, own, other)
+            found[key] = Candidate(a, b, z, info, own, other)
             self._peer_owner[other] = peer
             self._version += 1
 
@@ -341,7 +250,7 @@ class Agent:
         for (a, b), z, v, ok in zip(item.ids.tolist(), item.z, item.info, item.accepted.tolist()):
             if a not in self._index and b not in self._index:
                 if item.decision and ok:                 # decided between two other robots: for the neighbourhood
-                    self._third_party[(a, b)] = _Candidate(a, b, np.asarray(z, float), info_from6(v))
+                    self._third_party[(a, b)] = Candidate(a, b, np.asarray(z, float), info_from6(v))
                     self._neighbourhood_key = ()
                 continue
             self.add_closure(a, b, z, info_from6(v), peer=peer)
@@ -459,7 +368,7 @@ class Agent:
 
     # -- own graph ------------------------------------------------------------------------------
     def _own_graph(self, extra: dict[int, np.ndarray] | None = None,
-                   inter: list[_Candidate] = ()) -> tuple[PoseGraph2D, dict[int, int]]:
+                   inter: list[Candidate] = ()) -> tuple[PoseGraph2D, dict[int, int]]:
         """Own keyframes (+ ``extra`` vertices by id with poses), odometry, intra closures and ``inter``."""
         extra = extra or {}
         ids = self.ids + [v for v in extra if v not in self._index]
@@ -507,7 +416,7 @@ class Agent:
         out = Condensed(robot=self.robot, version=self._content_version, ids=np.array(ids, np.int64),
                         poses=self.local[rows].copy(), edges=edges, z=z, info=info_to6(info))
         table = edge_table(out)
-        if self._content_table is None or not _same_table(table, self._content_table):
+        if self._content_table is None or not same_table(table, self._content_table):
             self._content_version += 1                    # peers hear of a new version only when content changed
             self._content_table = table
             out.version = self._content_version
@@ -580,7 +489,7 @@ class Agent:
         as_array = lambda rows: np.array(rows, np.int64).reshape(-1, 2)   # noqa: E731
         return as_array(acc), as_array(rej)
 
-    def accepted_closures(self) -> list[_Candidate]:
+    def accepted_closures(self) -> list[Candidate]:
         return [self._candidates[p][k] for p, keys in self._accepted.items() for k in keys]
 
     # -- method (a): neighbourhood optimisation over condensed graphs --------------------------------
@@ -601,13 +510,13 @@ class Agent:
         self._neighbourhood_key = key
         extra: dict[int, np.ndarray] = {}
         owner: dict[int, int] = {v: self.robot for v in self.ids}
-        edges: list[_Candidate] = []
+        edges: list[Candidate] = []
         for r, chain in self._chains.items():
             for v, p in zip(chain.ids.tolist(), chain.poses):
                 extra[v], owner[v] = p, r
             ids = chain.ids.tolist()
             for (a, b), z, v in zip(np.asarray(chain.edges).tolist(), chain.z, chain.info):
-                edges.append(_Candidate(ids[a], ids[b], np.asarray(z, float), info_from6(v)))
+                edges.append(Candidate(ids[a], ids[b], np.asarray(z, float), info_from6(v)))
         closures = [c for c in self.accepted_closures() + list(self._third_party.values())
                     if c.a in owner and c.b in owner]
         pairs = [tuple(sorted((owner[c.a], owner[c.b]))) for c in closures]
@@ -620,8 +529,8 @@ class Agent:
         self._solve_neighbourhood(extra, edges, strong, [], robust="cauchy" if closures else None)
         self.gnc_rejected = self._solve_neighbourhood(extra, edges, [], strong + weak, robust="gnc") if closures else 0
 
-    def _solve_neighbourhood(self, extra: dict[int, np.ndarray], edges: list[_Candidate], closures: list[_Candidate],
-                             doubtful: list[_Candidate], *, robust: str | None) -> int:
+    def _solve_neighbourhood(self, extra: dict[int, np.ndarray], edges: list[Candidate], closures: list[Candidate],
+                             doubtful: list[Candidate], *, robust: str | None) -> int:
         """One neighbourhood solve (GNC on the inter-robot closures when some are ``doubtful``);
         returns how many closures GNC rejected."""
         graph, index = self._own_graph(extra, edges + closures + doubtful)
@@ -661,260 +570,14 @@ class Agent:
         self.gnc_rejected_pairs = [(int(graph.ids[a]), int(graph.ids[b])) for a, b in out]
         return len(result.outliers)
 
-    # -- method (b) and the baseline: block Gauss-Seidel on separator estimates ------------------------
-    def _block_step(self) -> dict[int, Separators]:
-        closures = [c for c in self.accepted_closures()]
-        anchor = self.gauge_root == self.robot
-        team = tuple(self.neighbours())
-        if self.method == "dgs" and team != self._phase_team:
-            self._phase_team = team                        # new neighbours: the two linear stages again (warm)
-            self.phase, self._solved_phase = 1, 0
-        undecided = any(p not in self._decided_for for p in self._candidates)
-        if self.phase == 1:
-            change = self._rotation_step(closures, anchor)
-        elif self.phase == 2:
-            change = self._translation_step(closures, anchor)
-        else:
-            change = self._refine_step(closures, anchor)
-        if math.isfinite(change):
-            self._solved_phase = self.phase
-        elif self._solved_phase < self.phase:
-            return {}                        # nothing computed in this stage yet: our values would mislead
-        self.converged = change < (self.tol if self.phase == 3 else self.stage_tol)
-        messages = self._separator_messages(closures)       # what this stage computed, before moving on
-        if self.converged and self.phase < 3 and not undecided and all(
-                self._peer_phase.get(p, (0, False))[0] > self.phase
-                or self._peer_phase.get(p, (0, False)) == (self.phase, True) for p in self.neighbours()):
-            self.phase += 1
-            self.converged = False
-        return messages
-
-    def _ghosts(self, closures: list[_Candidate], phase: int) -> dict[int, np.ndarray]:
-        store = self._ghost[phase]
-        return {c.peer_id: store[c.peer_id] for c in closures if c.peer_id in store}
-
-    def _rotation_step(self, closures: list[_Candidate], anchor: bool) -> float:
-        ghosts = self._ghosts(closures, 1)
-        graph, index = self._own_graph(ghosts, [c for c in closures if c.peer_id in ghosts])
-        known = {index[v]: g for v, g in ghosts.items()}
-        if anchor:
-            known[0] = np.array([1.0, 0.0])
-        if not known:
-            return math.inf
-        try:
-            r = chordal_rotations(graph, known)[:len(self.ids)]
-        except RuntimeError:
-            return math.inf
-        new = self._r + self.sor * (r - self._r)
-        change = float(np.abs(new - self._r).max())
-        self._r = new
-        self.estimate[:, 2] = np.arctan2(new[:, 1], new[:, 0])
-        return change
-
-    def _translation_step(self, closures: list[_Candidate], anchor: bool) -> float:
-        ghosts_t = self._ghosts(closures, 2)
-        ghosts_r = self._ghosts(closures, 1)
-        usable = {v: t for v, t in ghosts_t.items() if v in ghosts_r}
-        graph, index = self._own_graph(usable, [c for c in closures if c.peer_id in usable])
-        theta = np.zeros(graph.n)
-        theta[:len(self.ids)] = self.estimate[:, 2]
-        for v in usable:
-            theta[index[v]] = math.atan2(ghosts_r[v][1], ghosts_r[v][0])
-        known = {index[v]: t for v, t in usable.items()}
-        if anchor:
-            known[0] = np.zeros(2)
-        if not known:
-            return math.inf
-        try:
-            t = chordal_translations(graph, theta, known)[:len(self.ids)]
-        except RuntimeError:
-            return math.inf
-        new = self.estimate[:, :2] + self.sor * (t - self.estimate[:, :2])
-        change = float(np.abs(new - self.estimate[:, :2]).max())
-        self.estimate[:, :2] = new
-        return change
-
-    def _refine_step(self, closures: list[_Candidate], anchor: bool) -> float:
-        ghosts = self._ghosts(closures, 3)
-        rot, trans = self._ghosts(closures, 1), self._ghosts(closures, 2)
-        for v, t in trans.items():          # a neighbour still finishing phase 2: its stage-two estimate
-            if v not in ghosts and v in rot:
-                ghosts[v] = np.array([t[0], t[1], math.atan2(rot[v][1], rot[v][0])])
-        use = [c for c in closures if c.peer_id in ghosts]
-        graph, index = self._own_graph(ghosts, use)
-        graph.fixed = {index[v] for v in ghosts} | ({0} if anchor or not ghosts else set())
-        try:
-            result = optimize(graph, initial=graph.poses, max_iterations=self.lm_iterations)
-        except GraphError as exc:
-            log.debug("robot %d: local refinement skipped: %s", self.robot, exc)
-            return math.inf
-        new = result.poses[:len(self.ids)]
-        d = self.estimate - new
-        d[:, 2] = wrap(d[:, 2])
-        self.estimate = new
-        return float(np.abs(d).max())
-
-    def _separator_messages(self, closures: list[_Candidate]) -> dict[int, Separators]:
-        """Each neighbour gets the separators it shares closures with -- only those that moved more
-        than ``send_tol`` since it last heard of them (event-triggered: the tail of the iteration
-        costs little), and the stage's flag whenever it changes."""
-        out: dict[int, Separators] = {}
-        by_peer: dict[int, list[int]] = {}
-        for c in closures:
-            by_peer.setdefault(self._peer_owner[c.peer_id], []).append(self._index[c.own])
-        for p, rows in by_peer.items():
-            rows = np.array(sorted(set(rows)), np.int64)
-            ids = np.array(self.ids, np.int64)[rows]
-            values = (self._r if self.phase == 1 else self.estimate[:, :2] if self.phase == 2 else self.estimate)[rows]
-            state, known = self._last_sent.setdefault(p, ((0, False), {}))
-            told = np.array([known.get((self.phase, int(v)), np.full(values.shape[1], np.inf)) for v in ids])
-            diff = np.abs(told - values)
-            if self.phase == 3:
-                diff[:, 2] = np.abs(wrap(told[:, 2] - values[:, 2])) if np.isfinite(told).all() else diff[:, 2]
-            moved = ~(diff.max(axis=1, initial=0.0) <= self.send_tol)
-            if not moved.any() and state == (self.phase, self.converged):
-                continue                     # nothing new for this peer: stay quiet
-            for v, value in zip(ids[moved].tolist(), values[moved]):
-                known[(self.phase, v)] = value.copy()
-            self._last_sent[p] = ((self.phase, self.converged), known)
-            out[p] = Separators(phase=self.phase, ids=ids[moved], values=values[moved].copy(), converged=self.converged)
-        return out
-
 
 # -- helpers ---------------------------------------------------------------------------------------
-def _inverse_info(z: np.ndarray, info: np.ndarray) -> np.ndarray:
-    """Information of the same closure read backwards (measurement z^-1).
-
-    The residual of the reversed edge is e' = -Ad(z) e to first order (Ad(z) = [[R, (y, -x)^T], [0, 1]],
-    SE(2)'s adjoint), so its information is Ad^-T info Ad^-1."""
-    c, s = math.cos(z[2]), math.sin(z[2])
-    adjoint = np.array([[c, -s, z[1]], [s, c, -z[0]], [0.0, 0.0, 1.0]])
-    inv = np.linalg.inv(adjoint)
-    return inv.T @ info @ inv
-
-
 def _extend(poses: np.ndarray, odometry: list[np.ndarray]) -> np.ndarray:
     """``poses`` lengthened by composing odometry up to ``len(odometry)`` keyframes."""
     out = list(poses)
     while len(out) < len(odometry):
         out.append(compose(out[-1], odometry[len(out)]) if out else np.zeros(3))
     return np.array(out).reshape(-1, 3)
-
-
-def condense_exact(ids: list[int], odometry: list[np.ndarray], odometry_info: list[np.ndarray],
-                   intra: list[tuple[int, int, np.ndarray, np.ndarray]], separators: list[int], *,
-                   max_run: int = 0) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray]:
-    """Eliminate every keyframe that only sits on the odometry chain: each run of odometry
-    edges between kept keyframes becomes one edge (measurements composed, covariance
-    propagated, Sigma <- Ad(z_k^-1) Sigma Ad(z_k^-1)^T + Sigma_k -- exact for the linearised
-    problem). Kept: the first pose, the separators and the ends of intra-robot closures
-    (eliminating those too would fill the graph in densely). Returns (ids, edges (E, 2) rows
-    of ids, z (E, 3), info (E, 3, 3)); a chain that runs past the last kept keyframe adds nothing."""
-    keep = set(separators) | {a for a, _, _, _ in intra} | {b for _, b, _, _ in intra} | {ids[0]}
-    if max_run > 0:                    # also keep every max_run-th keyframe: shorter runs, smaller linearisation error
-        keep |= set(ids[::max_run])
-    kept = [v for v in ids if v in keep]
-    row = {v: k for k, v in enumerate(kept)}
-    edges, zs, infos = [], [], []
-    n = len(ids)
-    if n > 1:
-        z_all = np.asarray(odometry[1:], float).reshape(-1, 3)
-        cov_all = np.linalg.inv(np.asarray(odometry_info[1:], float).reshape(-1, 3, 3))   # batched: once per call
-        inv_z = between(z_all, np.zeros_like(z_all))                                     # z_k^-1
-        adj = np.zeros((n - 1, 3, 3))
-        c, s_ = np.cos(inv_z[:, 2]), np.sin(inv_z[:, 2])
-        adj[:, 0, 0], adj[:, 0, 1], adj[:, 1, 0], adj[:, 1, 1] = c, -s_, s_, c
-        adj[:, 0, 2], adj[:, 1, 2], adj[:, 2, 2] = inv_z[:, 1], -inv_z[:, 0], 1.0
-        x = y = t = 0.0
-        cov_acc, start = np.zeros((3, 3)), 0
-        for k in range(1, n):
-            dx, dy, dt = z_all[k - 1]
-            ct, st = math.cos(t), math.sin(t)
-            x, y, t = x + ct * dx - st * dy, y + st * dx + ct * dy, t + dt
-            a_k = adj[k - 1]
-            cov_acc = a_k @ cov_acc @ a_k.T + cov_all[k - 1]
-            if ids[k] in row:
-                edges.append((row[ids[start]], row[ids[k]]))
-                zs.append((x, y, (t + math.pi) % (2 * math.pi) - math.pi))
-                infos.append(cov_acc)
-                x = y = t = 0.0
-                cov_acc, start = np.zeros((3, 3)), k
-        infos = list(np.linalg.inv(np.array(infos).reshape(-1, 3, 3))) if infos else []
-    for a, b, z, w in intra:
-        edges.append((row[a], row[b]))
-        zs.append(z)
-        infos.append(w)
-    return (kept, np.array(edges, np.int64).reshape(-1, 2), np.array(zs, float).reshape(-1, 3),
-            np.array(infos, float).reshape(-1, 3, 3))
-
-
-def edge_table(item: Condensed) -> dict[tuple[int, int, int], np.ndarray]:
-    """A condensed graph's edges by key (id_a, id_b, n-th of that pair) -> z (3) and info (6)."""
-    ids = np.asarray(item.ids).tolist()
-    table: dict[tuple[int, int, int], np.ndarray] = {}
-    for (a, b), z, v in zip(np.asarray(item.edges).reshape(-1, 2).tolist(), np.asarray(item.z).reshape(-1, 3),
-                            np.asarray(item.info).reshape(-1, 6)):
-        n = 0
-        while (ids[a], ids[b], n) in table:
-            n += 1
-        table[(ids[a], ids[b], n)] = np.concatenate([z, v])
-    return table
-
-
-def _same_table(a: dict, b: dict) -> bool:
-    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
-
-
-def delta(current: Condensed, base_table: dict, base: int, table: dict | None = None) -> Condensed:
-    """``current`` as changes on top of the version whose edge table is ``base_table``."""
-    table = edge_table(current) if table is None else table
-    changed = [k for k, v in table.items() if k not in base_table or not np.array_equal(base_table[k], v)]
-    removed = [k for k in base_table if k not in table]
-    ids = sorted({k[0] for k in changed} | {k[1] for k in changed})
-    row = {v: r for r, v in enumerate(ids)}
-    values = np.array([table[k] for k in changed]).reshape(-1, 9)
-    return Condensed(robot=current.robot, version=current.version, ids=np.array(ids, np.int64),
-                     poses=np.zeros((len(ids), 3)),
-                     edges=np.array([(row[k[0]], row[k[1]]) for k in changed], np.int64).reshape(-1, 2),
-                     z=values[:, :3], info=values[:, 3:], base=base,
-                     removed=np.array(removed, np.int64).reshape(-1, 3),
-                     nth=np.array([k[2] for k in changed], np.int64) if any(k[2] for k in changed) else np.zeros(0, np.int64))
-
-
-def apply_delta(old: Condensed, change: Condensed) -> Condensed:
-    """The whole condensed graph from the one held (``old``, version ``change.base``) and a delta."""
-    table = edge_table(old)
-    for key in np.asarray(change.removed).reshape(-1, 3).tolist():
-        table.pop(tuple(key), None)
-    ids_c = np.asarray(change.ids).tolist()
-    nth = np.asarray(change.nth).reshape(-1).tolist() or [0] * len(change.edges)
-    for (a, b), n, z, v in zip(np.asarray(change.edges).reshape(-1, 2).tolist(), nth, np.asarray(change.z).reshape(-1, 3),
-                               np.asarray(change.info).reshape(-1, 6)):
-        table[(ids_c[a], ids_c[b], int(n))] = np.concatenate([z, v])
-    root = int(old.ids[0])
-    ids = [root] + sorted({v for k in table for v in k[:2]} - {root})
-    row = {v: r for r, v in enumerate(ids)}
-    keys = list(table)
-    values = np.array([table[k] for k in keys]).reshape(-1, 9)
-    edges = np.array([(row[k[0]], row[k[1]]) for k in keys], np.int64).reshape(-1, 2)
-    return Condensed(robot=old.robot, version=change.version, ids=np.array(ids, np.int64),
-                     poses=condensed_poses(np.array(ids, np.int64), edges, values[:, :3]), edges=edges,
-                     z=values[:, :3], info=values[:, 3:])
-
-
-def condensed_poses(ids: np.ndarray, edges: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """(K, 3) poses composed along a condensed graph's edges from its first vertex (its odometry)."""
-    g = PoseGraph2D(ids=np.asarray(ids, np.int64), poses=np.zeros((len(ids), 3)), edges=np.asarray(edges, np.int64).reshape(-1, 2),
-                    z=np.asarray(z, float).reshape(-1, 3), info=np.tile(np.eye(3), (len(edges), 1, 1)),
-                    known=np.zeros(len(ids), bool))
-    return spanning_tree_poses(g, root=0) if len(ids) else np.zeros((0, 3))
-
-
-def condensed_graph(item: Condensed) -> PoseGraph2D:
-    """The condensed graph as a pose graph (its own frame)."""
-    return PoseGraph2D(ids=np.asarray(item.ids, np.int64), poses=np.asarray(item.poses, float),
-                       edges=np.asarray(item.edges, np.int64).reshape(-1, 2), z=np.asarray(item.z, float).reshape(-1, 3),
-                       info=info_from6(np.asarray(item.info).reshape(-1, 6)), known=np.ones(len(item.ids), bool))
 
 
 def _side(item: Condensed, rows: list[int]) -> Side:

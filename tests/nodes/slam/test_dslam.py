@@ -238,7 +238,7 @@ def test_reversed_closure_information_is_first_order_exact():
     from nodes.slam.pose_graph import compose
     xj = compose(compose(xi, z), np.array([0.001, -0.002, 0.0015]))
     forward = PoseGraph2D.from_edges([(0, 1, z, info)], {0: xi, 1: xj})
-    backward = PoseGraph2D.from_edges([(1, 0, between(z, np.zeros(3)), dslam._inverse_info(z, info))], {0: xi, 1: xj})
+    backward = PoseGraph2D.from_edges([(1, 0, between(z, np.zeros(3)), dslam.inverse_info(z, info))], {0: xi, 1: xj})
     assert edge_chi2(backward, backward.poses)[0] == pytest.approx(edge_chi2(forward, forward.poses)[0], rel=1e-2)
 
 
