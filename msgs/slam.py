@@ -29,6 +29,7 @@ class ClosureSet(_Item, tag="closures"):
     accepted: np.ndarray          # (C,) bool
     decision: bool = False
     request: list[int] = []       # answering a RelPoseRequest: [vertex, match_vertex] (empty otherwise)
+    third_party: bool = False     # the sender's whole current set of the closures it decided with others
 
 
 class CondensedGraph(_Item, tag="condensed"):

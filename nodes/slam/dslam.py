@@ -115,6 +115,7 @@ class Agent(BlockGaussSeidel):
         self.gnc_rejected = 0                              # ddf: inter-robot closures GNC turned down last time
         self.gnc_rejected_pairs: list[tuple[int, int]] = []
         self._early: list[tuple] = []
+        self._vetoed: set[tuple[int, int]] = set()        # closures we decided and the neighbourhood's GNC rejected
         self._third_party: dict[tuple[int, int], Candidate] = {}   # ddf: accepted closures between two peers
         self._team: dict[int, np.ndarray] = {}
         self._fresh = True
@@ -139,6 +140,8 @@ class Agent(BlockGaussSeidel):
         self._peer_epoch: dict[int, int] = {}
         self._decided_size: dict[int, int] = {}           # peer -> closures in our last decision for it
         self._heard_decided: dict[int, int] = {}          # peer -> closures in its last decision for us
+        self._third_keys: dict[int, frozenset] = {}       # ddf: peer -> closures of other pairs last sent to it
+        self._third_from: dict[int, set] = {}             # ddf: peer -> its closures with others, as we hold them
         self._third_sent: dict[int, int] = {}             # ddf: peer -> closures of other pairs we told it of
         self._third_heard: dict[int, int] = {}            # ddf: peer -> closures of other pairs it told us of
         self._neighbourhood_key: tuple = ()
@@ -203,6 +206,7 @@ class Agent(BlockGaussSeidel):
         decided, version, third = packet.ack
         if self._third_sent.get(peer, 0) != third:
             self._third_sent.pop(peer, None)              # our news of other pairs was lost: send it again
+            self._third_keys.pop(peer, None)
         if peer > self.robot and peer in self._decided_for and decided != self._decided_size.get(peer, 0):
             self._decided_for.pop(peer)                   # our decision was lost on the way: decide and send again
         self._peer_has[peer] = version                    # the condensed graph it holds from us (-1: none)
@@ -244,14 +248,20 @@ class Agent(BlockGaussSeidel):
 
     def _take_closures(self, peer: int, item: Closures) -> None:
         decided = False
-        others = sum(a not in self._index and b not in self._index for a, b in item.ids.tolist())
-        if others:
-            self._third_heard[peer] = others
+        if item.third_party:                              # the sender's whole set of closures between it and others
+            for key in self._third_from.pop(peer, set()):
+                self._third_party.pop(key, None)
+            fresh = {}
+            for (a, b), z, v in zip(item.ids.tolist(), item.z, item.info):
+                if a not in self._index and b not in self._index:
+                    fresh[(a, b)] = Candidate(a, b, np.asarray(z, float), info_from6(v))
+            self._third_party.update(fresh)
+            self._third_from[peer] = set(fresh)
+            self._third_heard[peer] = len(item.ids)
+            self._neighbourhood_key = ()
+            return
         for (a, b), z, v, ok in zip(item.ids.tolist(), item.z, item.info, item.accepted.tolist()):
             if a not in self._index and b not in self._index:
-                if item.decision and ok:                 # decided between two other robots: for the neighbourhood
-                    self._third_party[(a, b)] = Candidate(a, b, np.asarray(z, float), info_from6(v))
-                    self._neighbourhood_key = ()
                 continue
             self.add_closure(a, b, z, info_from6(v), peer=peer)
             if item.decision:
@@ -315,17 +325,21 @@ class Agent(BlockGaussSeidel):
 
     def _third_party_news(self) -> dict[int, Closures]:
         """ddf: each robot needs the closures we decided between us and *other* robots for its
-        neighbourhood graph; sent whole whenever the set grew or the robot says it has another."""
+        neighbourhood graph; the whole set is sent whenever it changed (grew, or lost a vetoed
+        closure) or the robot says it holds another count."""
         out = {}
         for p in range(self.robots):
             if p == self.robot:
                 continue
             rows = [c for q, keys in self._accepted.items() if q > self.robot and q != p
                     for k, c in self._candidates[q].items() if k in keys]
-            if rows and self._third_sent.get(p) != len(rows):
-                out[p] = Closures(ids=np.array([(c.a, c.b) for c in rows], np.int64), z=np.array([c.z for c in rows]),
-                                  info=info_to6(np.array([c.info for c in rows])), accepted=np.ones(len(rows), bool),
-                                  decision=True)
+            keys = frozenset((c.a, c.b) for c in rows)
+            if (rows or p in self._third_keys) and self._third_keys.get(p) != keys:
+                out[p] = Closures(ids=np.array([(c.a, c.b) for c in rows], np.int64).reshape(-1, 2),
+                                  z=np.array([c.z for c in rows]).reshape(-1, 3),
+                                  info=info_to6(np.array([c.info for c in rows]).reshape(-1, 3, 3)),
+                                  accepted=np.ones(len(rows), bool), decision=True, third_party=True)
+                self._third_keys[p] = keys
                 self._third_sent[p] = len(rows)
         return out
 
@@ -440,7 +454,7 @@ class Agent(BlockGaussSeidel):
     def _structure(self) -> tuple:
         """What, when it changes, must be acted on at once (rather than at the ``solve_every`` pace)."""
         return (sum(len(f) for f in self._candidates.values()), tuple(sorted((p, len(k)) for p, k in self._accepted.items())),
-                len(self._third_party), tuple(sorted((r, c.version) for r, c in self._chains.items())))
+                frozenset(self._third_party), tuple(sorted((r, c.version) for r, c in self._chains.items())))
 
     def _decide(self, own_condensed: Condensed) -> dict[int, list[Closures]]:
         """PCM on each higher-numbered peer whose candidates changed and whose condensed graph we hold.
@@ -463,6 +477,7 @@ class Agent(BlockGaussSeidel):
             measured = [c.from_own() for c in cands]
             keep = select_consistent(np.array([m[0] for m in measured]), np.array([m[1] for m in measured]), own, other,
                                      gate=self.pcm_gate, min_clique=self.pcm_min_clique, trust_lone=self.trust_lone)
+            keep &= np.array([(c.a, c.b) not in self._vetoed for c in cands], bool)   # the team's GNC said no
             self._accepted[peer] = {k for k, ok in zip(keys, keep) if ok}
             self._rejected[peer] = int((~keep).sum())
             self._decided_for[peer] = len(found)
@@ -528,6 +543,17 @@ class Agent(BlockGaussSeidel):
         self._neighbourhood_structure = structure
         self._solve_neighbourhood(extra, edges, strong, [], robust="cauchy" if closures else None)
         self.gnc_rejected = self._solve_neighbourhood(extra, edges, [], strong + weak, robust="gnc") if closures else 0
+        if self.gnc_rejected and self._fresh:
+            # The passes above started among false closures and can end in their basin even once GNC has
+            # weighed them out (M3500 with 30 % false: all rejected, cost 47x). Solve again without them.
+            out = set(self.gnc_rejected_pairs)
+            kept = [c for c in strong + weak if (c.a, c.b) not in out]
+            self._solve_neighbourhood(extra, edges, kept, [], robust=None)
+            self.gnc_rejected_pairs = sorted(out)
+            for peer, found in self._candidates.items():  # closures we decided: withdraw them for everyone
+                if peer > self.robot and any((c.a, c.b) in out for c in found.values()):
+                    self._vetoed |= {(c.a, c.b) for c in found.values() if (c.a, c.b) in out}
+                    self._decided_for.pop(peer, None)     # decide again (without them) and tell
 
     def _solve_neighbourhood(self, extra: dict[int, np.ndarray], edges: list[Candidate], closures: list[Candidate],
                              doubtful: list[Candidate], *, robust: str | None) -> int:

@@ -157,13 +157,13 @@ _F, _I = np.float32, np.int32
 
 def _closures_msg(c: Closures) -> ClosureSet:
     return ClosureSet(ids=c.ids.astype(_I), z=c.z.astype(_F), info=c.info.astype(_F),
-                      accepted=c.accepted.astype(bool), decision=c.decision)
+                      accepted=c.accepted.astype(bool), decision=c.decision, third_party=c.third_party)
 
 
 def _closures_item(m: ClosureSet) -> Closures:
     return Closures(ids=np.asarray(m.ids, np.int64).reshape(-1, 2), z=np.asarray(m.z, float).reshape(-1, 3),
                     info=np.asarray(m.info, float).reshape(-1, 6), accepted=np.asarray(m.accepted, bool).reshape(-1),
-                    decision=m.decision)
+                    decision=m.decision, third_party=m.third_party)
 
 
 def to_message(packet: Packet) -> PeerPacket:

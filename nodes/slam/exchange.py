@@ -38,6 +38,7 @@ class Closures:
     info: np.ndarray
     accepted: np.ndarray
     decision: bool = False
+    third_party: bool = False         # the sender's whole current set of closures between it and others
 
 
 @dataclass
