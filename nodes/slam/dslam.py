@@ -76,7 +76,7 @@ class Agent(BlockGaussSeidel):
                  pcm_gate: float = CHI2_3DOF_999, tol: float = 1e-4, stage_tol: float = 1e-2,
                  lm_iterations: int = 10, max_run: int = 0, front_end: PlaceFrontEnd | None = None,
                  epoch: int = 0, send_tol: float = 1e-4, pcm_min_clique: int = 2, trust_lone: bool = True, strong_pair: int = 3,
-                 resend_rounds: int = 1, heartbeat_rounds: int = 5, solve_every: int = 1) -> None:
+                 resend_rounds: int = 1, heartbeat_rounds: int = 5, solve_every: int = 1, solve_gap: int = 1) -> None:
         if method not in METHODS:
             raise ValueError(f"method {method!r}: choose one of {METHODS}")
         if not 0 <= robot < robots:
@@ -91,6 +91,7 @@ class Agent(BlockGaussSeidel):
         self.pcm_min_clique, self.trust_lone, self.strong_pair = pcm_min_clique, trust_lone, strong_pair
  
         self.solve_every = solve_every                    # rounds between solves while only odometry grows
+        self.solve_gap = solve_gap                        # and at least this many between solves on new closures
         self._last_solve_round = -10**9
         self._last_structure: tuple = ()
         self.heartbeat_rounds = heartbeat_rounds          # an empty packet (acks only) after this many quiet rounds
@@ -284,8 +285,9 @@ class Agent(BlockGaussSeidel):
         if not self.ids:
             return [Packet(self.robot, p, self.gauge_root, items, self.epoch, self._ack(p)) for p, items in sorted(out.items())]
         structure = self._structure()
-        due = (structure != self._last_structure or self._chain_cache is None
-               or self.rounds - self._last_solve_round >= self.solve_every)
+        since = self.rounds - self._last_solve_round
+        due = ((structure != self._last_structure and since >= self.solve_gap) or self._chain_cache is None
+               or since >= self.solve_every)
         if due:                                   # new closures, decisions or peer graphs: at once; growth: at a pace
             self._update_local()
             self._last_solve_round, self._last_structure = self.rounds, structure
@@ -471,6 +473,8 @@ class Agent(BlockGaussSeidel):
             cands = [found[k] for k in keys]
             own_sep = own_condensed
             own_pos = {v: k for k, v in enumerate(own_sep.ids.tolist())}
+            if any(c.own not in own_pos for c in cands):
+                continue                                   # our own summary predates some closures: next solve
             own = _side(own_sep, [own_pos[c.own] for c in cands])
             peer_pos = {v: k for k, v in enumerate(chain.ids.tolist())}
             other = _side(chain, [peer_pos[c.peer_id] for c in cands])
@@ -541,6 +545,12 @@ class Agent(BlockGaussSeidel):
         structure = self._structure()
         self._fresh = structure != self._neighbourhood_structure     # new closures or peer graphs: start afresh
         self._neighbourhood_structure = structure
+        if not self._fresh:
+            # The same closures, more odometry: one warm solve, GNC's last verdict kept (it runs again on news).
+            out = set(self.gnc_rejected_pairs)
+            self._solve_neighbourhood(extra, edges, [c for c in closures if (c.a, c.b) not in out], [], robust=None)
+            self.gnc_rejected_pairs = sorted(out)
+            return
         self._solve_neighbourhood(extra, edges, strong, [], robust="cauchy" if closures else None)
         self.gnc_rejected = self._solve_neighbourhood(extra, edges, [], strong + weak, robust="gnc") if closures else 0
         if self.gnc_rejected and self._fresh:

@@ -47,7 +47,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     keyframe_hz: float = 10.0
     round_hz: float = 5.0
     resend_s: float = 1.0               # ddf: a grown condensed graph is resent at most this often
-    solve_s: float = 1.0                # re-optimise at least this often while only odometry grows (new closures: at once)
+    solve_s: float = 1.0                # re-optimise at least this often while only odometry grows
+    solve_gap_s: float = 0.4            # and at most this often when closures or peer graphs keep arriving
     place_threshold: float = 0.5
     state_dir: str = ""                 # where the team's start time is kept across restarts ('' = none)
 
@@ -84,6 +85,7 @@ class DslamAgent(Node):
                            epoch=time.time_ns() // 1_000_000,   # any change tells the peers we restarted
                            resend_rounds=max(1, round(cfg.resend_s * cfg.round_hz)),
                            solve_every=max(1, round(cfg.solve_s * cfg.round_hz)),
+                           solve_gap=max(1, round(cfg.solve_gap_s * cfg.round_hz)),
                            front_end=front)
         self.stream = robot_stream(scenario, cfg.robot, truth=truth, describer=describer, seed=cfg.seed)
         self.fed = 0
