@@ -15,7 +15,7 @@ import numpy as np
 from tether.message import Message, const
 
 
-class _Item(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind"):
+class _Item(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", array_like=True):
     pass
 
 
