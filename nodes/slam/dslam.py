@@ -30,7 +30,8 @@ Back ends (``method``), all built on :mod:`nodes.slam.pose_graph` (no second sol
     first, then translations, each a linear least-squares problem solved block by block
     (one block per robot, its neighbours' separator estimates as fixed values, optional
     over-relaxation ``sor``), then nonlinear block refinement with the local LM solver.
-    Only separator estimates travel.
+    Separator estimates travel, only those that moved by ``send_tol`` (and each robot's
+    condensed graph goes to the lower-numbered peers that run PCM on its closures).
 ``block_gs``
     The naive baseline: nonlinear block Gauss-Seidel from each robot's own odometry frame.
 
@@ -70,7 +71,18 @@ __all__ = ["Agent", "Closures", "Condensed", "Packet", "Separators", "METHODS", 
 
 # -- the agent --------------------------------------------------------------------------------------
 class Agent(BlockGaussSeidel):
-    """One robot of a decentralised pose-graph SLAM team (see the module docstring)."""
+    """One robot of a decentralised pose-graph SLAM team (see the module docstring).
+
+    Parameters (keyword): ``method`` and ``condense`` (above); ``max_run`` (exact
+    condensation: keep every k-th keyframe too, 0 = only what must stay); ``pcm_gate``,
+    ``pcm_min_clique``, ``trust_lone`` (PCM, :mod:`nodes.slam.pcm`); ``strong_pair`` (ddf: pairs
+    with this many accepted closures anchor the first neighbourhood pass); ``sor``, ``tol``,
+    ``stage_tol``, ``send_tol``, ``lm_iterations`` (dgs / block_gs); ``solve_every`` and
+    ``solve_gap`` (rounds between solves while only odometry grows / while news keeps
+    coming), ``resend_rounds``, ``heartbeat_rounds`` (pacing of the exchange); ``front_end``
+    (place recognition; None: inter-robot closures come through :meth:`add_closure`);
+    ``epoch`` (changes when the robot restarts).
+    """
 
     def __init__(self, robot: int, robots: int, *, method: str = "ddf", condense: str = "exact", sor: float = 1.0,
                  pcm_gate: float = CHI2_3DOF_999, tol: float = 1e-4, stage_tol: float = 1e-2,
@@ -165,7 +177,7 @@ class Agent(BlockGaussSeidel):
         self._index[vertex] = len(self.ids)
         self.ids.append(vertex)
         if self._early:
-            self._take_early(vertex)
+            self._take_early()
         z = np.zeros(3) if odometry is None else np.asarray(odometry, float)
         self._odometry.append(z)
         self._odometry_info.append(np.eye(3) if info is None else np.asarray(info, float))
@@ -237,7 +249,7 @@ class Agent(BlockGaussSeidel):
                     store[vid] = value
                     self._peer_owner.setdefault(vid, peer)
 
-    def _take_early(self, added: int | None = None) -> None:
+    def _take_early(self) -> None:
         """Closures the exchange gave before our end's keyframe existed wait here for it."""
         waiting, self._early = self._early, []
         for a, b, z, w, owner in waiting:
