@@ -69,8 +69,8 @@ def _world_start(rows: list) -> int:
 
 
 def episode_from_log(path: Path, goal: tuple[float, float, float]):
-    """Rebuild an :class:`social_nav.Episode` (times from the first command) from a live log."""
-    from social_nav import Episode, contact_onsets
+    """Rebuild an :class:`social_nav_episode.Episode` (times from the first command) from a live log."""
+    from social_nav_episode import Episode, contact_onsets
     from tether.log import LogReader
 
     reader = LogReader(path)

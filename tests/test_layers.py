@@ -1,0 +1,25 @@
+"""The import map: benchmarks do not import each other in circles (issue 23, section 5)."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _imports(path: Path) -> set[str]:
+    """Top-level module names ``path`` imports anywhere (function bodies included)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def test_benchmarks_do_not_import_each_other_in_circles():
+    benches = {p.stem: p for p in (REPO / "bench").glob("*.py")}
+    graph = {name: _imports(path) & set(benches) - {name} for name, path in benches.items()}
+    cycles = sorted({tuple(sorted((a, b))) for a, deps in graph.items() for b in deps if a in graph.get(b, set())})
+    assert cycles == [], f"benchmarks importing each other: {cycles} (shared code belongs in a module both use)"
