@@ -23,3 +23,13 @@ def test_benchmarks_do_not_import_each_other_in_circles():
     graph = {name: _imports(path) & set(benches) - {name} for name, path in benches.items()}
     cycles = sorted({tuple(sorted((a, b))) for a, deps in graph.items() for b in deps if a in graph.get(b, set())})
     assert cycles == [], f"benchmarks importing each other: {cycles} (shared code belongs in a module both use)"
+
+
+def test_capability_nodes_do_not_reach_up_into_simulators_or_drivers():
+    """nodes/ sits below sim/ and drivers/: learning takes demonstrations as arrays and logs, the
+    simulator makes them (sim/irl_demos.py). The sonar evaluation node draws the simulated scene
+    it is scored against: an observer of a simulation by purpose, exempt."""
+    upward = []
+    for path in sorted((REPO / "nodes").rglob("*.py")):
+        upward += [f"{path.relative_to(REPO)}: {n}" for n in sorted(_imports(path)) if n in ("sim", "drivers", "bench")]
+    assert [u for u in upward if not u.startswith("nodes/sonar/evaluate.py")] == []
