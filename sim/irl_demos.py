@@ -28,8 +28,8 @@ from msgs.nav import Goal2D
 from nodes.nav.dijkstra import GridFrame
 from nodes.nav.irl import Demo, cell_costs
 from nodes.nav.irl_learn import (CAMERA_FX_PX, ORACLE_WEIGHTS, PLANNER_PARAMS, DemoSet, FeaturePipeline,
-                                 add_learning_arguments, demos_from_poses, learn_main, load_demos, log_demos,
-                                 save_demos)
+                                 add_learning_arguments, demos_from_poses, learn_main)
+from nodes.nav.irl_learn import collect_demos as collect_logs
 from nodes.nav.social_planner import PlannerParams, SocialPlanner, predict_conflicts
 from sim.crowd import CrowdWorld
 from sim.crowd_render import CameraModel
@@ -150,24 +150,20 @@ def record_oracle(scene: str, path: str | Path, *, dt_s: float = 1.0 / 15.0, per
 
 def collect_demos(args: argparse.Namespace) -> tuple[DemoSet, set[str]]:
     """Demos from the cache, the logs, the oracle drives and the track data sets named on the command line."""
-    if args.cache and Path(args.cache).is_file():
-        log.info("reusing demos from %s", args.cache)
-        demos = load_demos(args.cache)
-        return demos, {n for n in demos.scenes if n.startswith("oracle-")}
-    logs = list(args.demos)
-    for scene in args.record_oracle:
-        path = Path(args.log_dir) / f"oracle-{scene}.mcap"
-        record_oracle(scene, path)
-        logs.append(str(path))
-    scenes, oracle = log_demos(logs, horizon_s=args.horizon_s, rim_m=args.rim_m)
-    for k, dataset in enumerate(args.tracks + [h for h in args.holdout if h not in args.tracks and h in ROW_PERIOD_S]):
-        scenes[dataset] = pedestrian_demos(dataset, args.peds, horizon_s=args.horizon_s, seed=k, rim_m=args.rim_m)
-    demos = DemoSet({k: v for k, v in scenes.items() if v})
-    if not demos.scenes:
-        raise ValueError("no demonstrations: give --demos logs, --tracks data sets or --record-oracle scenes")
-    if args.cache:
-        save_demos(args.cache, demos)
-    return demos, oracle
+    def oracle_logs() -> list[str]:
+        out = []
+        for scene in args.record_oracle:
+            path = Path(args.log_dir) / f"oracle-{scene}.mcap"
+            record_oracle(scene, path)
+            out.append(str(path))
+        return out
+
+    def pedestrians(scenes: dict) -> None:
+        for k, dataset in enumerate(args.tracks + [h for h in args.holdout if h not in args.tracks and h in ROW_PERIOD_S]):
+            scenes[dataset] = pedestrian_demos(dataset, args.peds, horizon_s=args.horizon_s, seed=k, rim_m=args.rim_m)
+
+    return collect_logs(args, extra_logs=oracle_logs, more=pedestrians,
+                        hint="give --demos logs, --tracks data sets or --record-oracle scenes")
 
 
 def main(argv: list[str] | None = None) -> int:

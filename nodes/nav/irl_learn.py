@@ -328,16 +328,22 @@ def learn_main(args: argparse.Namespace, collect) -> int:
     return 0
 
 
-def _collect_logs(args: argparse.Namespace) -> tuple[DemoSet, set[str]]:
+def collect_demos(args: argparse.Namespace, *, extra_logs=None, more=None,
+                  hint: str = "give --demos logs or a --cache (real pedestrians and oracle drives: python -m sim.irl_demos)"
+                  ) -> tuple[DemoSet, set[str]]:
+    """Demos from the cache (``args.cache``, reused when it exists), else from ``args.demos`` plus
+    ``extra_logs()`` (paths) and whatever ``more(scenes)`` adds; saved to the cache when named."""
     if args.cache and Path(args.cache).is_file():
         log.info("reusing demos from %s", args.cache)
         demos = load_demos(args.cache)
         return demos, {n for n in demos.scenes if n.startswith("oracle-")}
-    scenes, oracle = log_demos(args.demos, horizon_s=args.horizon_s, rim_m=args.rim_m)
+    logs = list(args.demos) + (list(extra_logs()) if extra_logs is not None else [])
+    scenes, oracle = log_demos(logs, horizon_s=args.horizon_s, rim_m=args.rim_m)
+    if more is not None:
+        more(scenes)
     demos = DemoSet({k: v for k, v in scenes.items() if v})
     if not demos.scenes:
-        raise ValueError("no demonstrations: give --demos logs or a --cache (real pedestrians and oracle drives: "
-                         "python -m sim.irl_demos)")
+        raise ValueError(f"no demonstrations: {hint}")
     if args.cache:
         save_demos(args.cache, demos)
     return demos, oracle
@@ -347,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Learn IRL cost weights (MAP-BIRL or MaxEnt) from recorded logs "
                                              "(demos from real pedestrians or an oracle drive: python -m sim.irl_demos).")
     add_learning_arguments(ap)
-    return learn_main(ap.parse_args(argv), _collect_logs)
+    return learn_main(ap.parse_args(argv), collect_demos)
 
 
 if __name__ == "__main__":
