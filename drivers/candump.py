@@ -235,3 +235,15 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def import_candump(src: str | Path, dst: str | Path, *, topic: str | None = None,
+                   max_bytes: int | None = None) -> "ImportResult":
+    """``tether import candump``: ``candump -L`` and python-can ``.log`` files -> ``can/frame``
+    (``max_bytes`` unused: nothing is compressed)."""
+    from tether.imports import ImportResult, write_messages
+
+    result = ImportResult(unit="line")
+    frames = read_candump(src, errors="skip", on_skip=result.skip)
+    return write_messages(frames, dst, topic or "can/frame", result)
+

@@ -199,3 +199,14 @@ def write_rmlog(path: str | Path, messages: list[tuple[float, bytes]], *, compre
             f.write(RMLOG_ITEM.pack(RMLOG_ITEM_MAGIC, RMLOG_ITEM.size, RT_OCULUS_SONAR, 0, t, int(compress),
                                     len(data), len(payload)))
             f.write(payload)
+
+
+def import_oculus(src: str | Path, dst: str | Path, *, topic: str | None = None,
+                  max_bytes: int | None = None) -> "ImportResult":
+    """``tether import oculus``: raw Oculus message streams and ViewPoint ``.oculus`` logs -> ``sonar/ping``."""
+    from tether.imports import ImportResult, write_messages
+
+    result = ImportResult()
+    pings = iter_oculus_file(src, on_skip=result.skip, max_bytes=max_bytes or DEFAULT_MAX_BYTES)
+    return write_messages(pings, dst, topic or "sonar/ping", result)
+

@@ -33,3 +33,17 @@ def test_capability_nodes_do_not_reach_up_into_simulators_or_drivers():
     for path in sorted((REPO / "nodes").rglob("*.py")):
         upward += [f"{path.relative_to(REPO)}: {n}" for n in sorted(_imports(path)) if n in ("sim", "drivers", "bench")]
     assert [u for u in upward if not u.startswith("nodes/sonar/evaluate.py")] == []
+
+
+def test_import_verbs_come_from_entry_points(tmp_path):
+    """The runtime finds importers by entry point; an unknown kind is one line naming the known ones."""
+    import subprocess
+    import sys
+
+    from tether.imports import importers
+
+    assert {"oculus", "candump"} <= set(importers())
+    assert importers()["candump"].value == "drivers.candump:import_candump"
+    out = subprocess.run([sys.executable, "-m", "tether.cli", "import", "nosuch", str(tmp_path / "x"), "-o",
+                          str(tmp_path / "y.mcap")], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert out.returncode == 2 and "no importer 'nosuch'; registered: candump, oculus" in out.stderr

@@ -389,9 +389,9 @@ def _size(text: str) -> int:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from tether.imports import IMPORTERS
+    from tether.imports import importer
 
-    result = IMPORTERS[args.kind](args.file, args.output, topic=args.topic, max_bytes=args.max_bytes)
+    result = importer(args.kind)(args.file, args.output, topic=args.topic, max_bytes=args.max_bytes)
     print(result.summary(args.file, args.output))
     if result.imported == 0:
         Path(args.output).unlink(missing_ok=True)
@@ -634,8 +634,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="with --recover, cut or merge: the new log")
     p.set_defaults(func=cmd_log)
 
-    p = sub.add_parser("import", help="convert a foreign log (oculus, candump) to a tether log")
-    p.add_argument("kind", choices=("oculus", "candump"), help="the foreign format")
+    p = sub.add_parser("import", help="convert a foreign log (oculus, candump, ...) to a tether log")
+    p.add_argument("kind", help="the foreign format: an importer registered by entry point (tether.importers); "
+                                "this project's: oculus, candump")
     p.add_argument("file", help="the foreign log")
     p.add_argument("-o", "--output", required=True, help="the tether MCAP log to write")
     p.add_argument("--topic", help="topic to write (default sonar/ping or can/frame)")

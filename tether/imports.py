@@ -1,7 +1,8 @@
 """Importers of foreign logs into tether logs (``tether import KIND FILE -o LOG``).
 
-Each importer streams the foreign file through a parser that lives with its driver
-(the runtime holds no protocol code) and writes a tether MCAP log. Foreign files are
+Each importer lives with its driver and is found by entry point (group ``tether.importers``),
+so the runtime holds no protocol code and imports no driver; it streams the foreign file
+through the driver's parser and writes a tether MCAP log (:func:`write_messages`). Foreign files are
 untrusted input: a parser bounds what it allocates by the file's own size (and by
 ``max_bytes`` for anything it decompresses), and a bad record is skipped and reported
 with its offset, never fatal. :class:`ImportResult` says what came in and what did not.
@@ -11,13 +12,17 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from importlib.metadata import EntryPoint, entry_points
 from typing import Callable, Iterable
+
+from tether.errors import ConfigError
 
 from tether.log import LogWriter
 from tether.message import Message
 
 log = logging.getLogger("tether.import")
 
+GROUP = "tether.importers"
 MAX_SKIP_LINES = 20         # then one summary: a wholly damaged file must not flood the terminal
 
 
@@ -41,7 +46,8 @@ class ImportResult:
         return text + (f"; skipped {self.skipped} bad records" if self.skipped else "")
 
 
-def _write(messages: Iterable[Message], dst: str | Path, topic: str, result: ImportResult) -> ImportResult:
+def write_messages(messages: Iterable[Message], dst: str | Path, topic: str, result: ImportResult) -> ImportResult:
+    """Write an importer's messages to a tether log, log time = acquisition stamp (kept monotonic)."""
     with LogWriter(dst) as out:
         last = 0
         for msg in messages:
@@ -52,24 +58,17 @@ def _write(messages: Iterable[Message], dst: str | Path, topic: str, result: Imp
     return result
 
 
-def import_oculus(src: str | Path, dst: str | Path, *, topic: str | None = None,
-                  max_bytes: int | None = None) -> ImportResult:
-    """Raw Oculus message streams and ViewPoint ``.oculus`` logs -> ``sonar/ping``."""
-    from drivers.oculus_file import DEFAULT_MAX_BYTES, iter_oculus_file
-
-    result = ImportResult()
-    pings = iter_oculus_file(src, on_skip=result.skip, max_bytes=max_bytes or DEFAULT_MAX_BYTES)
-    return _write(pings, dst, topic or "sonar/ping", result)
+def importers() -> dict[str, EntryPoint]:
+    """Import verbs by name: every ``tether.importers`` entry point of the installed packages
+    (this project's drivers register theirs in pyproject.toml; a third-party package adds one the
+    same way, as python-can finds its backends). Nothing is imported until a verb is used."""
+    return {ep.name: ep for ep in entry_points(group=GROUP)}
 
 
-def import_candump(src: str | Path, dst: str | Path, *, topic: str | None = None,
-                   max_bytes: int | None = None) -> ImportResult:
-    """``candump -L`` and python-can ``.log`` files -> ``can/frame`` (``max_bytes`` unused: nothing is compressed)."""
-    from drivers.candump import read_candump
-
-    result = ImportResult(unit="line")
-    frames = read_candump(src, errors="skip", on_skip=result.skip)
-    return _write(frames, dst, topic or "can/frame", result)
-
-
-IMPORTERS: dict[str, Callable[..., ImportResult]] = {"oculus": import_oculus, "candump": import_candump}
+def importer(kind: str) -> Callable[..., ImportResult]:
+    """The import function registered as ``kind``; a ConfigError naming the known ones otherwise."""
+    found = importers()
+    if kind not in found:
+        known = ", ".join(sorted(found)) or "none (is the package installed? pip install -e .)"
+        raise ConfigError(f"no importer {kind!r}; registered: {known}")
+    return found[kind].load()

@@ -153,7 +153,7 @@ def test_an_error_frame_with_a_long_payload_keeps_eight_bytes():
 
 
 def test_mutated_real_log_imports_without_a_traceback(tmp_path, shared_data):
-    from tether.imports import import_candump
+    from drivers.candump import import_candump
 
     lines = (shared_data / REAL).read_text().splitlines()
     rng = np.random.default_rng(9)
