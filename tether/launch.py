@@ -34,6 +34,7 @@ from tether.link import LinkModel, parse_link
 from tether.node import MAX_TIMER_HZ, Node, Ports, Tick
 from tether.runner import load_node_class
 from tether.runtime import RunSpec, Source
+from tether.stats import NodeStats
 from tether.transport import ipc_endpoint, runtime_dir
 from tether.yamlsafe import Located, load_yaml, load_yaml_file
 
@@ -82,11 +83,9 @@ class LaunchFile:
     def link_between(self, a: NodeEntry, b: NodeEntry) -> LinkModel | None:
         """The link model a message from node ``a`` to node ``b`` crosses (by node id or machine), if any."""
         for ends, model in self.links:
-            if ({a.id, a.machine} & ends) and ({b.id, b.machine} & ends) and a.id != b.id:
-                left, right = sorted(ends)
-                if (left in (a.id, a.machine) and right in (b.id, b.machine)) or \
-                        (right in (a.id, a.machine) and left in (b.id, b.machine)):
-                    return model
+            x, y = sorted(ends)
+            if any(u in (a.id, a.machine) and v in (b.id, b.machine) for u, v in ((x, y), (y, x))):
+                return model
         return None
 
     def node(self, node_id: str) -> NodeEntry:
@@ -298,7 +297,8 @@ def _check_wiring(where: str, launch: LaunchFile, raws: Mapping[str, Any]) -> No
             if not slash or src_id not in by_id:
                 raise ConfigError(f"{at}: input {name!r} comes from {src!r}: no node {src_id!r} "
                                   f"(expected 'node/output' or 'timer/hz/N')")
-            out_type = by_id[src_id].ports.outputs.get(output)
+            # Every node also publishes its statistics on <id>/_stats: a monitor may take them as an input.
+            out_type = NodeStats if output == "_stats" else by_id[src_id].ports.outputs.get(output)
             if out_type is None:
                 raise ConfigError(f"{at}: input {name!r}: node {src_id!r} has no output {output!r} "
                                   f"(outputs: {sorted(by_id[src_id].ports.outputs) or 'none'})")

@@ -89,6 +89,7 @@ class NodeRuntime(Context):
         self._subscribers: dict[str, int] = collections.Counter()
         self._started_ns = time.monotonic_ns()
         self._stats_errors = 0
+        self._stats_seq = 0
         self._stats_error_logged_ns = -ERROR_LOG_PERIOD_NS
         self._largest_sent = 0
         self._sndhwm = HWM_MAX
@@ -106,7 +107,6 @@ class NodeRuntime(Context):
         self.inputs: dict[str, InputState] = {}
         self.routes: dict[bytes, list[InputState]] = {}
         self.timers: dict[str, int] = dict(ports.timers)
-        subs = Subscriptions(self.ctx, self.curve)
         for name, port in ports.inputs.items():
             src = self.spec.inputs.get(name)
             if src is not None and src.timer_ns:
@@ -121,15 +121,31 @@ class NodeRuntime(Context):
                 state.link = LinkModel.from_json(src.link)
             self.inputs[name] = state
             self.routes.setdefault(src.topic.encode(), []).append(state)
-            self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
+        self.subs: list[zmq.Socket] = []
+        self._links: LinkWatch | None = None
+        self._resubscribe_due = False
+        self._largest_in: dict[str, int] = {}
+        self._subscribe({})
+
+    def _subscribe(self, rcvhwm: dict[bool, int]) -> None:
+        """(Re)make the SUB sockets -- receive high-water marks ``rcvhwm`` by kind (secure or not),
+        set before they connect -- for every input that has a topic; close the old ones."""
+        subs = Subscriptions(self.ctx, self.curve, rcvhwm=rcvhwm)
+        for name in self.inputs:
+            src = self.spec.inputs.get(name)
+            if src is not None and src.topic and name not in self.timers:
+                self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
+        old = self.subs
+        if self._links is not None:
+            self._links.close()
         self.subs = subs.sockets
         self._links = LinkWatch(self.subs, subs.endpoints) if self.subs else None
-        self._rcvhwm: dict[zmq.Socket, int] = {sock: HWM_MAX for sock in self.subs}
-        self._resubscribe_due = False
-        self._poller: zmq.Poller | None = None
-        self._rcvtimeo = -1
+        self._rcvhwm = {sock: subs.rcvhwm_of(sock) for sock in self.subs}
         self._poll_lists: dict[zmq.Socket, list[tuple[zmq.Socket, int]]] = {}
-        self._largest_in: dict[str, int] = {}
+        self._rcvtimeo = -1
+        self._poller: zmq.Poller | None = None
+        for sock in old:
+            sock.close(linger=0)
 
     def _open_seq_store(self) -> None:
         """Seq numbers kept across restarts: what this node missed while down is counted on return."""
@@ -286,31 +302,14 @@ class NodeRuntime(Context):
             src = self.spec.inputs.get(name)
             if src is None or not src.topic or name in self.timers:
                 continue
-            kind = bool(self.curve is not None and src.secure)
+            kind = Subscriptions.kind(self.curve, src.secure)
             out[kind] = min(out.get(kind, HWM_MAX), hwm_for(st.max_bytes, self._largest_in.get(name, 0)))
         return out
 
     def _resubscribe(self) -> None:
         """Replace the SUB sockets by ones made with the wanted receive high-water marks."""
         self._resubscribe_due = False
-        hwm = self._wanted_rcvhwm()
-        subs = Subscriptions(self.ctx, self.curve, rcvhwm=hwm)
-        for name in self.inputs:
-            src = self.spec.inputs.get(name)
-            if src is None or not src.topic or name in self.timers:
-                continue
-            self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
-        old = self.subs
-        if self._links is not None:
-            self._links.close()
-        self.subs = subs.sockets
-        self._links = LinkWatch(self.subs, subs.endpoints) if self.subs else None
-        self._rcvhwm = {sock: hwm.get(sock is subs._secure, HWM_MAX) for sock in self.subs}
-        self._poll_lists = {}
-        self._rcvtimeo = -1
-        self._poller = None
-        for sock in old:
-            sock.close(linger=0)
+        self._subscribe(self._wanted_rcvhwm())
 
     def _log_error(self, state: InputState, text: str) -> None:
         now = time.monotonic_ns()
@@ -397,7 +396,9 @@ class NodeRuntime(Context):
         try:
             self._read_subscriptions()
             with self._pub_lock:
-                _send(self.pub, self._stats_topic, self._codec.encode(self.stats()))
+                self._stats_seq += 1              # numbered like any output, so a subscriber sees losses and restarts
+                msg = msgspec.structs.replace(self.stats(), seq=self._stats_seq)
+                _send(self.pub, self._stats_topic, self._codec.encode(msg))
         except Exception as exc:  # noqa: BLE001 - statistics must never be what kills a node
             self._stats_errors += 1
             now = time.monotonic_ns()

@@ -194,8 +194,16 @@ class Subscriptions:
         self._connected: set[tuple[str, bool]] = set()
         self.endpoints: dict[zmq.Socket, set[str]] = {}
 
+    @staticmethod
+    def kind(curve: CurveKeys | None, secure: bool) -> bool:
+        """Which socket an input lands on: the Curve one (True) or the plain one."""
+        return curve is not None and secure
+
+    def rcvhwm_of(self, sock: zmq.Socket) -> int:
+        return self.rcvhwm.get(sock is self._secure, HWM_MAX)
+
     def add(self, topic: str, endpoint: str, *, secure: bool = False, server_key: bytes | str = b"") -> zmq.Socket:
-        use_curve = self.curve is not None and secure
+        use_curve = self.kind(self.curve, secure)
         if use_curve:
             self._secure = sock = self._secure or make_sub(self.ctx, self.rcvhwm.get(True, HWM_MAX))
         else:

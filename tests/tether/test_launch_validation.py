@@ -158,3 +158,20 @@ def test_check_cli_exits_nonzero_with_one_line_and_no_traceback(tmp_path: Path) 
     ok = subprocess.run([sys.executable, "-m", "tether.cli", "check", str(_write(tmp_path, GOOD))],
                         capture_output=True, text=True)
     assert ok.returncode == 0 and "ok (2 nodes, 1 connections)" in ok.stdout
+
+
+def test_a_node_statistics_are_an_output_a_monitor_can_take(tmp_path: Path) -> None:
+    """``<id>/_stats`` is every node's NodeStats stream: wired like an output, typed like one."""
+    from nodes.slam.dslam_monitor import TeamMonitor  # noqa: F401  (a node with NodeStats inputs)
+
+    ok = """
+    name: g
+    nodes:
+      - {id: counter, node: nodes.std.demo:Counter}
+      - {id: mon, node: nodes.slam.dslam_monitor:TeamMonitor, params: {robots: 1, graph: x.g2o},
+         inputs: {stats_0: counter/_stats}}
+    """
+    launch = load_launch(_write(tmp_path, ok))
+    assert plan(launch, token="t")["mon"].inputs["stats_0"].topic == "counter/_stats"
+    with pytest.raises(ConfigError, match="takes std.Float64 but counter/_stats publishes std.NodeStats"):
+        load_launch(_write(tmp_path, GOOD.replace("counter/value", "counter/_stats")))
