@@ -46,7 +46,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from msgs.slam import ClosureSet, RobotTrajectory  # noqa: E402
+from msgs.slam import ClosureSet, PeerPacket, RobotTrajectory  # noqa: E402
 from nodes.slam.dslam import Agent, info_to6  # noqa: E402
 from nodes.slam.dslam_agent import transmit  # noqa: E402
 from nodes.slam.graph_io import read_graph  # noqa: E402
@@ -73,16 +73,16 @@ def upload_bytes(scenario) -> tuple[int, int]:
         mine = lo == r                     # each edge once, by its lower-numbered end (robot 0 has its own)
         msg = ClosureSet(ids=g.ids[g.edges[mine]].astype(np.int32), z=g.z[mine].astype(np.float32),
                          info=info_to6(g.info[mine]).astype(np.float32), accepted=np.ones(int(mine.sum()), bool))
-        up += sum(len(memoryview(f).cast("B")) for f in codec.encode(_wrap(msg, r))) + len(f"robot{r}/to_0")
+        up += transmit_bytes(codec, PeerPacket(sender=r, receiver=0, items=[msg]), f"robot{r}/to_0")
         v = scenario.vertices(r)
         traj = RobotTrajectory(robot=r, ids=g.ids[v], poses=np.zeros((len(v), 3), np.float32))
-        back += sum(len(memoryview(f).cast("B")) for f in codec.encode(traj)) + len("robot0/to_1")
+        back += transmit_bytes(codec, traj, "robot0/to_1")
     return up, up + back
 
 
-def _wrap(item, sender):
-    from msgs.slam import PeerPacket
-    return PeerPacket(sender=sender, receiver=0, items=[item])
+def transmit_bytes(codec: Codec, msg, topic: str) -> int:
+    """Bytes of ``msg`` on the wire: its frames plus the topic frame (as the runtime counts them)."""
+    return sum(len(memoryview(f).cast("B")) for f in codec.encode(msg)) + len(topic)
 
 
 def run(scenario, reference, params: dict, rounds: int):
@@ -90,7 +90,8 @@ def run(scenario, reference, params: dict, rounds: int):
     for a in agents:
         feed_all(a, scenario)
     t0 = time.process_time()
-    records = run_team(scenario, agents, rounds=rounds, transmit=transmit, reference=reference)
+    codec = Codec()                            # one encoder/decoder pair per run, as a node has
+    records = run_team(scenario, agents, rounds=rounds, transmit=lambda p: transmit(p, codec), reference=reference)
     return records, agents, time.process_time() - t0
 
 
@@ -152,7 +153,8 @@ def cpu_share(scenario, params: dict, keyframe_hz: float = 10.0, round_hz: float
 
     ref = centralised(scenario)
     t0 = time.process_time()
-    run_team(scenario, agents, rounds=rounds, transmit=transmit, reference=ref, before_round=before)
+    codec = Codec()
+    run_team(scenario, agents, rounds=rounds, transmit=lambda p: transmit(p, codec), reference=ref, before_round=before)
     return (time.process_time() - t0) / len(agents) / (rounds / round_hz)
 
 

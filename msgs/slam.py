@@ -104,7 +104,6 @@ class RobotTrajectory(Message, tag="slam.RobotTrajectory"):
     poses: np.ndarray = const(np.zeros((0, 3)))          # (N, 3) x_m, y_m, theta_rad
     closures_accepted: int = 0
     closures_rejected: int = 0
-    bytes_sent: int = 0
     rounds: int = 0
     accepted: np.ndarray = const(np.zeros((0, 2), np.int64))   # (C, 2) inter-robot closures in use (vertex ids)
     rejected: np.ndarray = const(np.zeros((0, 2), np.int64))   # (C, 2) candidates turned down (PCM or GNC)

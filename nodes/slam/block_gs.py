@@ -23,7 +23,7 @@ class BlockGaussSeidel:
     """The ``dgs`` and ``block_gs`` rounds of an agent (see the module docstring)."""
 
     def _block_step(self) -> dict[int, Separators]:
-        closures = [c for c in self.accepted_closures()]
+        closures = self.accepted_closures()
         anchor = self.gauge_root == self.robot
         team = tuple(self.neighbours())
         if self.method == "dgs" and team != self._phase_team:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from nodes.slam.exchange import Condensed, info_from6
-from nodes.slam.pose_graph import PoseGraph2D, between, spanning_tree_poses
+from nodes.slam.pose_graph import PoseGraph2D, adjoint, between, spanning_tree_poses, wrap
 
 
 def condense_exact(ids: list[int], odometry: list[np.ndarray], odometry_info: list[np.ndarray],
@@ -29,11 +29,7 @@ def condense_exact(ids: list[int], odometry: list[np.ndarray], odometry_info: li
     if n > 1:
         z_all = np.asarray(odometry[1:], float).reshape(-1, 3)
         cov_all = np.linalg.inv(np.asarray(odometry_info[1:], float).reshape(-1, 3, 3))   # batched: once per call
-        inv_z = between(z_all, np.zeros_like(z_all))                                     # z_k^-1
-        adj = np.zeros((n - 1, 3, 3))
-        c, s_ = np.cos(inv_z[:, 2]), np.sin(inv_z[:, 2])
-        adj[:, 0, 0], adj[:, 0, 1], adj[:, 1, 0], adj[:, 1, 1] = c, -s_, s_, c
-        adj[:, 0, 2], adj[:, 1, 2], adj[:, 2, 2] = inv_z[:, 1], -inv_z[:, 0], 1.0
+        adj = adjoint(between(z_all, np.zeros_like(z_all)))                            # Ad(z_k^-1)
         x = y = t = 0.0
         cov_acc, start = np.zeros((3, 3)), 0
         for k in range(1, n):
@@ -44,7 +40,7 @@ def condense_exact(ids: list[int], odometry: list[np.ndarray], odometry_info: li
             cov_acc = a_k @ cov_acc @ a_k.T + cov_all[k - 1]
             if ids[k] in row:
                 edges.append((row[ids[start]], row[ids[k]]))
-                zs.append((x, y, (t + math.pi) % (2 * math.pi) - math.pi))
+                zs.append((x, y, wrap(t)))
                 infos.append(cov_acc)
                 x = y = t = 0.0
                 cov_acc, start = np.zeros((3, 3)), k

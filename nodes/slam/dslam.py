@@ -101,18 +101,15 @@ class Agent(BlockGaussSeidel):
         self.sor, self.pcm_gate, self.tol, self.lm_iterations = sor, pcm_gate, tol, lm_iterations
         self.stage_tol, self.max_run, self.send_tol = stage_tol, max_run, send_tol
         self.pcm_min_clique, self.trust_lone, self.strong_pair = pcm_min_clique, trust_lone, strong_pair
- 
         self.solve_every = solve_every                    # rounds between solves while only odometry grows
         self.solve_gap = solve_gap                        # and at least this many between solves on new closures
         self._last_solve_round = -10**9
         self._last_structure: tuple = ()
         self.heartbeat_rounds = heartbeat_rounds          # an empty packet (acks only) after this many quiet rounds
         self._last_packet: dict[int, int] = {}
-        self.resend_rounds = resend_rounds                # a grown condensed graph goes out at most this often,
-        # unless it has new separators (a live robot's graph grows every keyframe)
- 
-        self.epoch = epoch                                # how many times this robot restarted
-        self.front_end = front_end                        # place recognition (None: closures come from add_closure)                        # dgs: change that ends the two linear stages (Choudhary: 1e-1..1e-2)
+        self.resend_rounds = resend_rounds                # a grown condensed graph goes out at most this often
+        self.epoch = epoch                                # changes when this robot restarts
+        self.front_end = front_end                        # place recognition (None: closures come from add_closure)
         self.ids: list[int] = []
         self._index: dict[int, int] = {}
         self._odometry: list[np.ndarray] = []            # z from the previous keyframe (first: identity)
@@ -125,14 +122,13 @@ class Agent(BlockGaussSeidel):
         self._decided_for: dict[int, int] = {}             # peer -> candidate count PCM last decided on
         self._rejected: dict[int, int] = {}                # peer -> closures PCM turned down (our decisions)
         self._last_sent: dict[int, tuple] = {}
-        self.gnc_rejected = 0                              # ddf: inter-robot closures GNC turned down last time
         self.gnc_rejected_pairs: list[tuple[int, int]] = []
         self._early: list[tuple] = []
         self._vetoed: set[tuple[int, int]] = set()        # closures we decided and the neighbourhood's GNC rejected
         self._third_party: dict[tuple[int, int], Candidate] = {}   # ddf: accepted closures between two peers
-        self._team: dict[int, np.ndarray] = {}
-        self._fresh = True
-        self._neighbourhood_structure: tuple = ()            # ddf: last neighbourhood estimate by vertex id
+        self._team: dict[int, np.ndarray] = {}            # ddf: last neighbourhood estimate by vertex id
+        self._fresh = True                                 # ddf: closures or peer graphs changed since the last solve
+        self._neighbourhood_structure: tuple = ()
         self._peer_owner: dict[int, int] = {}             # peer vertex id -> robot
         self._chains: dict[int, Condensed] = {}            # latest condensed graph of each peer
         self._ghost: dict[int, dict[int, np.ndarray]] = {1: {}, 2: {}, 3: {}}
@@ -151,11 +147,9 @@ class Agent(BlockGaussSeidel):
         self._content_version = 0
         self._content_table: dict | None = None           # versions start at 1 (0 and -1: nothing held)
         self._peer_epoch: dict[int, int] = {}
-        self._decided_size: dict[int, int] = {}           # peer -> closures in our last decision for it
         self._heard_decided: dict[int, int] = {}          # peer -> closures in its last decision for us
         self._third_keys: dict[int, frozenset] = {}       # ddf: peer -> closures of other pairs last sent to it
         self._third_from: dict[int, set] = {}             # ddf: peer -> its closures with others, as we hold them
-        self._third_sent: dict[int, int] = {}             # ddf: peer -> closures of other pairs we told it of
         self._third_heard: dict[int, int] = {}            # ddf: peer -> closures of other pairs it told us of
         self._neighbourhood_key: tuple = ()
         self._r = np.zeros((0, 2))
@@ -217,10 +211,9 @@ class Agent(BlockGaussSeidel):
             raise ValueError(f"packet from robot {peer}: not a peer of robot {self.robot}")
         self._peer_root[peer] = packet.gauge_root
         decided, version, third = packet.ack
-        if self._third_sent.get(peer, 0) != third:
-            self._third_sent.pop(peer, None)              # our news of other pairs was lost: send it again
-            self._third_keys.pop(peer, None)
-        if peer > self.robot and peer in self._decided_for and decided != self._decided_size.get(peer, 0):
+        if len(self._third_keys.get(peer, ())) != third:
+            self._third_keys.pop(peer, None)              # our news of other pairs was lost: send it again
+        if peer > self.robot and peer in self._decided_for and decided != self._decided_for[peer]:
             self._decided_for.pop(peer)                   # our decision was lost on the way: decide and send again
         self._peer_has[peer] = version                    # the condensed graph it holds from us (-1: none)
         if self._peer_epoch.setdefault(peer, packet.epoch) != packet.epoch:
@@ -354,7 +347,6 @@ class Agent(BlockGaussSeidel):
                                   info=info_to6(np.array([c.info for c in rows]).reshape(-1, 3, 3)),
                                   accepted=np.ones(len(rows), bool), decision=True, third_party=True)
                 self._third_keys[p] = keys
-                self._third_sent[p] = len(rows)
         return out
 
     def _ack(self, peer: int) -> tuple[int, int, int]:
@@ -496,8 +488,7 @@ class Agent(BlockGaussSeidel):
             keep &= np.array([(c.a, c.b) not in self._vetoed for c in cands], bool)   # the team's GNC said no
             self._accepted[peer] = {k for k, ok in zip(keys, keep) if ok}
             self._rejected[peer] = int((~keep).sum())
-            self._decided_for[peer] = len(found)
-            self._decided_size[peer] = len(keys)
+            self._decided_for[peer] = len(found)           # == len(keys): all of them are in the summary
             self._neighbourhood_key = ()
             out[peer] = Closures(ids=np.array([(c.a, c.b) for c in cands], np.int64).reshape(-1, 2),
                                  z=np.array([c.z for c in cands]),
@@ -564,8 +555,7 @@ class Agent(BlockGaussSeidel):
             self.gnc_rejected_pairs = sorted(out)
             return
         self._solve_neighbourhood(extra, edges, strong, [], robust="cauchy" if closures else None)
-        self.gnc_rejected = self._solve_neighbourhood(extra, edges, [], strong + weak, robust="gnc") if closures else 0
-        if self.gnc_rejected and self._fresh:
+        if closures and self._solve_neighbourhood(extra, edges, [], strong + weak, robust="gnc"):
             # The passes above started among false closures and can end in their basin even once GNC has
             # weighed them out (M3500 with 30 % false: all rejected, cost 47x). Solve again without them.
             out = set(self.gnc_rejected_pairs)

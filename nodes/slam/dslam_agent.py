@@ -90,8 +90,6 @@ class DslamAgent(Node):
         self.stream = robot_stream(scenario, cfg.robot, truth=truth, describer=describer, seed=cfg.seed)
         self.fed = 0
         self.started = self._team_start()
-        self.bytes_sent = 0
-        self.codec = Codec()
 
     def _team_start(self) -> float:
         """When the team started: kept in ``state_dir`` with the launcher's pid, so a robot the
@@ -124,23 +122,21 @@ class DslamAgent(Node):
             feed(self.agent, self.stream[self.fed], given_closures=False)
             self.fed += 1
         out: list[tuple[str, object]] = []
-        for packet in self.agent.step():
-            msg = to_message(packet)
-            self.bytes_sent += wire_bytes(msg, self.codec)
-            out.append((f"to_{packet.receiver}", msg))
+        for packet in self.agent.step():              # the runtime counts the bytes of every output (_stats)
+            out.append((f"to_{packet.receiver}", to_message(packet)))
         a = self.agent
         accepted, rejected = a.closure_pairs()
         out.append(("trajectory", RobotTrajectory(
             robot=a.robot, gauge_root=a.gauge_root, ids=np.array(a.ids, np.int64), poses=a.estimate.copy(),
-            closures_accepted=len(accepted), closures_rejected=len(rejected), bytes_sent=self.bytes_sent,
-            rounds=a.rounds, accepted=accepted, rejected=rejected)))
+            closures_accepted=len(accepted), closures_rejected=len(rejected), rounds=a.rounds,
+            accepted=accepted, rejected=rejected)))
         return out
 
     def teardown(self) -> None:
         a = self.agent
         accepted, rejected = a.closure_pairs()
-        self.log.info("robot %d: %d keyframes, %d rounds, %d B sent, %d inter-robot closures accepted, %d rejected%s",
-                      a.robot, len(a.ids), a.rounds, self.bytes_sent, len(accepted), len(rejected),
+        self.log.info("robot %d: %d keyframes, %d rounds, %d inter-robot closures accepted, %d rejected%s",
+                      a.robot, len(a.ids), a.rounds, len(accepted), len(rejected),
                       " -- tied to no lower-numbered robot: its own frame" if a.own_frame and a.robot else "")
 
 
@@ -230,15 +226,10 @@ def from_message(msg: PeerPacket) -> Packet:
     return Packet(msg.sender, msg.receiver, msg.gauge_root, items, epoch=msg.epoch, ack=ack)
 
 
-def wire_bytes(msg: PeerPacket, codec: Codec | None = None) -> int:
-    """Bytes of ``msg`` on the wire: its frames (body and array buffers) plus the topic frame."""
-    frames = (codec or Codec()).encode(msg)
-    return sum(len(memoryview(f).cast("B")) for f in frames) + len(f"robot{msg.sender}/to_{msg.receiver}")
-
-
-def transmit(packet: Packet) -> tuple[int, Packet]:
-    """What the bus does to a packet: its bytes on the wire, and the packet as the receiver decodes it."""
-    codec = Codec()
+def transmit(packet: Packet, codec: Codec | None = None) -> tuple[int, Packet]:
+    """What the bus does to a packet: its bytes on the wire (frames plus the topic frame, as the
+    runtime counts them), and the packet as the receiver decodes it."""
+    codec = codec or Codec()
     msg = to_message(packet)
     frames = [bytes(memoryview(f).cast("B")) for f in codec.encode(msg)]
     nbytes = sum(map(len, frames)) + len(f"robot{msg.sender}/to_{msg.receiver}")

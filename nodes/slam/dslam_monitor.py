@@ -1,9 +1,10 @@
 """dslam_monitor: watches a decentralised SLAM team and scores it at the end (seed 10).
 
-Inputs ``robot_<r>`` (RobotTrajectory of each robot). Every ``report_s`` seconds it logs
-the team's cost ratio -- chi2 of the robots' own estimates on the whole (inlier) graph
+Inputs ``robot_<r>`` (RobotTrajectory of each robot) and ``stats_<r>`` (the robot's own
+``_stats``: the runtime counts the bytes every output sent). Every ``report_s`` seconds it
+logs the team's cost ratio -- chi2 of the robots' own estimates on the whole (inlier) graph
 over the centralised optimum's, the same back end on the full graph -- and the bytes the
-robots sent; at shutdown it logs the final figures and writes ``out_dir``/dslam_team.png
+robots sent to each other (their ``to_<p>`` outputs, summed over restarts); at shutdown it logs the final figures and writes ``out_dir``/dslam_team.png
 (trajectories by robot, accepted and rejected inter-robot closures). The monitor is an
 observer: it sends nothing to the robots.
 """
@@ -17,10 +18,11 @@ import msgspec
 import numpy as np
 
 from msgs.slam import RobotTrajectory
+from msgs.std import NodeStats
 from nodes.slam.dslam_agent import MAX_ROBOTS, peer_handlers
 from nodes.slam.graph_io import read_graph
-from nodes.slam.multirobot import centralised, cost_ratio, split_graph
-from nodes.slam.pose_graph import GraphError, PoseGraph2D, chi2, optimize
+from nodes.slam.multirobot import assemble, centralised, cost_ratio, split_graph
+from nodes.slam.pose_graph import GraphError
 from nodes.slam.team_plot import draw_team
 from tether import Input, Node
 
@@ -45,7 +47,9 @@ class TeamMonitor(Node):
 
     @classmethod
     def ports_for(cls, config: Config):
-        return {f"robot_{r}": Input(RobotTrajectory, latest=True) for r in range(config.robots)}, {}, {}
+        inputs = {f"robot_{r}": Input(RobotTrajectory, latest=True) for r in range(config.robots)}
+        inputs |= {f"stats_{r}": Input(NodeStats, latest=True) for r in range(config.robots)}
+        return inputs, {}, {}
 
     def setup(self) -> None:
         cfg = self.config
@@ -53,6 +57,8 @@ class TeamMonitor(Node):
         self.reference = centralised(self.scenario)
         self.index = {int(v): k for k, v in enumerate(self.scenario.graph.ids)}
         self.latest: dict[int, RobotTrajectory] = {}
+        self.sent: dict[str, tuple[int, int]] = {}            # node id -> (pid, bytes sent to peers by that process)
+        self.banked = 0                                        # bytes sent by processes that have since restarted
         self.last_report = time.monotonic()
 
     def _take(self, msg: RobotTrajectory) -> None:
@@ -66,39 +72,41 @@ class TeamMonitor(Node):
             self.log.info("team: cost ratio %.4f, %d B sent, keyframes %s, frames %s", ratio, nbytes,
                           [len(self.latest[r].ids) if r in self.latest else 0 for r in range(self.config.robots)], frames)
 
+    def _stats(self, msg: NodeStats) -> None:
+        sent = sum(n for out, n in msg.published_bytes.items() if out.startswith("to_"))
+        previous = self.sent.get(msg.node_id)
+        if previous is not None and previous[0] != msg.pid:
+            self.banked += previous[1]                         # a restarted robot counts from zero again
+        self.sent[msg.node_id] = (msg.pid, sent)
+
+    @property
+    def bytes_sent(self) -> int:
+        return self.banked + sum(n for _, n in self.sent.values())
+
     def team_poses(self) -> np.ndarray:
         """(N, 3) the robots' latest own estimates by vertex; NaN where none has spoken yet."""
-        poses = np.full((self.scenario.graph.n, 3), np.nan)
-        for msg in self.latest.values():
+        estimates = {}
+        for r, msg in self.latest.items():
             rows = np.array([self.index.get(int(v), -1) for v in np.asarray(msg.ids).tolist()], np.int64)
-            ok = rows >= 0
-            if ok.any():
-                poses[rows[ok]] = np.asarray(msg.poses, float).reshape(-1, 3)[ok]
-        return poses
+            ok = rows >= 0                                 # vertices this team does not know are ignored
+            estimates[r] = (rows[ok], np.asarray(msg.poses, float).reshape(-1, 3)[ok])
+        return assemble(self.scenario, estimates)
 
     def score(self) -> tuple[float, int, list[int]]:
         """(cost ratio of the complete team's estimate -- inf until every keyframe has one --, bytes, gauge roots)."""
-        return (cost_ratio(self.reference, self.team_poses()), sum(m.bytes_sent for m in self.latest.values()),
+        return (cost_ratio(self.reference, self.team_poses()), self.bytes_sent,
                 [self.latest[r].gauge_root if r in self.latest else -1 for r in range(self.config.robots)])
 
     def found_ratio(self) -> tuple[float, int]:
         """(cost ratio against the centralised optimum *given the closures the team used*, their count):
         the back end's own error, apart from what place recognition missed."""
-        g = self.scenario.inlier_graph()
         used = {tuple(p) for m in self.latest.values() for p in np.asarray(m.accepted).reshape(-1, 2).tolist()}
-        ids = g.ids
-        pairs = [(int(ids[a]), int(ids[b])) for a, b in g.edges]
-        inter = self.scenario.owner[g.edges[:, 0]] != self.scenario.owner[g.edges[:, 1]]
-        keep = ~inter | np.array([p in used for p in pairs], bool)
-        sub = PoseGraph2D(ids=g.ids, poses=g.poses, edges=g.edges[keep], z=g.z[keep], info=g.info[keep], known=g.known)
+        used &= self.scenario.inter_pairs()
         try:
-            best = optimize(sub, initial="odometry")
+            best = centralised(self.scenario, closures=used)
         except GraphError:
-            return math.inf, int(inter[keep].sum())       # the closures used leave the team in pieces
-        poses = self.team_poses()
-        if not np.isfinite(poses).all():
-            return math.inf, int(inter[keep].sum())
-        return chi2(sub, poses) / max(best.chi2, 1e-300), int(inter[keep].sum())
+            return math.inf, len(used)                     # the closures used leave the team in pieces
+        return cost_ratio(best, self.team_poses()), len(used)
 
     def teardown(self) -> None:
         ratio, nbytes, frames = self.score()
@@ -120,3 +128,4 @@ class TeamMonitor(Node):
 
 
 peer_handlers(TeamMonitor, "robot_", "_take", MAX_ROBOTS)
+peer_handlers(TeamMonitor, "stats_", "_stats", MAX_ROBOTS)

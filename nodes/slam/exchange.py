@@ -2,12 +2,11 @@
 msgs.slam), and the closure record every agent keeps."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from nodes.slam.pose_graph import between
+from nodes.slam.pose_graph import adjoint, between
 
 _IU = np.triu_indices(3)
 
@@ -112,7 +111,5 @@ def inverse_info(z: np.ndarray, info: np.ndarray) -> np.ndarray:
 
     The residual of the reversed edge is e' = -Ad(z) e to first order (Ad(z) = [[R, (y, -x)^T], [0, 1]],
     SE(2)'s adjoint), so its information is Ad^-T info Ad^-1."""
-    c, s = math.cos(z[2]), math.sin(z[2])
-    adjoint = np.array([[c, -s, z[1]], [s, c, -z[0]], [0.0, 0.0, 1.0]])
-    inv = np.linalg.inv(adjoint)
+    inv = np.linalg.inv(adjoint(z))
     return inv.T @ info @ inv

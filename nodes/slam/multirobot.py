@@ -45,9 +45,18 @@ class Scenario:
         mine = (self.owner[e[:, 0]] == robot) | (self.owner[e[:, 1]] == robot)
         return np.flatnonzero(mine & ~self.inter), np.flatnonzero(mine & self.inter)
 
-    def inlier_graph(self) -> PoseGraph2D:
-        """The dataset's own graph (injected outliers removed)."""
+    def inter_pairs(self) -> set[tuple[int, int]]:
+        """The dataset's own inter-robot closures as (id_a, id_b), as measured."""
+        e = self.graph.edges[self.inter & ~self.outlier]
+        return {(int(self.graph.ids[a]), int(self.graph.ids[b])) for a, b in e}
+
+    def inlier_graph(self, closures: set[tuple[int, int]] | None = None) -> PoseGraph2D:
+        """The dataset's own graph (injected outliers removed); with ``closures``, only those
+        inter-robot closures (id pairs as measured) are kept."""
         keep = ~self.outlier
+        if closures is not None:
+            pairs = [(int(self.graph.ids[a]), int(self.graph.ids[b])) for a, b in self.graph.edges]
+            keep &= ~self.inter | np.array([p in closures for p in pairs], bool)
         g = self.graph
         return PoseGraph2D(ids=g.ids, poses=g.poses, edges=g.edges[keep], z=g.z[keep], info=g.info[keep],
                            known=g.known, fixed=set(g.fixed))
@@ -111,9 +120,11 @@ class Centralised:
     chi2: float
 
 
-def centralised(scenario: Scenario) -> Centralised:
-    """The same back end on the whole inlier graph, from odometry, the first vertex anchored."""
-    g = scenario.inlier_graph()
+def centralised(scenario: Scenario, *, closures: set[tuple[int, int]] | None = None) -> Centralised:
+    """The same back end on the whole inlier graph (or with only ``closures`` between robots, see
+    :meth:`Scenario.inlier_graph`), from odometry, the first vertex anchored. GraphError when the
+    robots are left in pieces."""
+    g = scenario.inlier_graph(closures)
     result = optimize(g, initial="odometry")
     return Centralised(graph=g, poses=result.poses, chi2=result.chi2)
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nodes.slam.pose_graph import CHI2_3DOF_99, between, compose, wrap
+from nodes.slam.pose_graph import CHI2_3DOF_99, adjoint, between, compose, wrap
 
 
 @dataclass
@@ -61,15 +61,6 @@ def relative(side: Side, k: np.ndarray, l: np.ndarray) -> tuple[np.ndarray, np.n
     return rel, sigma
 
 
-def _adjoint(x: np.ndarray) -> np.ndarray:
-    """(P, 3, 3) SE(2) adjoints: a right perturbation of X moved to the left, Ad(X) = [[R, (y, -x)^T], [0, 1]]."""
-    c, s_ = np.cos(x[:, 2]), np.sin(x[:, 2])
-    out = np.zeros((len(x), 3, 3))
-    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s_, s_, c
-    out[:, 0, 2], out[:, 1, 2], out[:, 2, 2] = x[:, 1], -x[:, 0], 1.0
-    return out
-
-
 def right_perturbation(rel: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Covariance of additive (dx, dy, dtheta) errors of ``rel`` as a right perturbation (its own frame)."""
     c, s_ = np.cos(rel[:, 2]), np.sin(rel[:, 2])
@@ -94,7 +85,7 @@ def consistency(z: np.ndarray, info: np.ndarray, own: Side, peer: Side) -> np.nd
     cycle = compose(compose(compose(a_, b_), c_), d_)
     cycle[:, 2] = wrap(cycle[:, 2])
     cov_z = np.linalg.inv(info)
-    ad_zk = _adjoint(z[k])
+    ad_zk = adjoint(z[k])
     sig_a = ad_zk @ cov_z[k] @ ad_zk.transpose(0, 2, 1)            # (Z E)^-1 = Z^-1 (Z E^-1 Z^-1)
     terms = [(compose(compose(b_, c_), d_), sig_a), (compose(c_, d_), right_perturbation(b_, cov_a)),
              (d_, cov_z[l]), (None, right_perturbation(d_, cov_b))]
@@ -103,7 +94,7 @@ def consistency(z: np.ndarray, info: np.ndarray, own: Side, peer: Side) -> np.nd
         if after is None:
             sigma += cov
             continue
-        ad = _adjoint(between(after, zero))
+        ad = adjoint(between(after, zero))
         sigma += ad @ cov @ ad.transpose(0, 2, 1)
     d2 = np.einsum("pi,pij,pj->p", cycle, np.linalg.inv(sigma), cycle)
     out = np.zeros((m, m))

@@ -12,7 +12,7 @@ never on the evaluation graph.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
@@ -58,14 +58,15 @@ def keeper_of(descriptor: np.ndarray, centres: np.ndarray) -> int:
     return int(np.argmin(((centres - d) ** 2).sum(axis=1)))
 
 
-@dataclass
 class PlaceIndex:
-    """What a cluster's keeper stores: every descriptor it was sent, by (robot, vertex)."""
+    """What a cluster's keeper stores: every descriptor it was sent, shelved by robot (each shelf a
+    buffer that doubles when full, so storing is amortised O(1) and a query reads arrays, not lists)."""
 
-    threshold: float = 0.5
-    _keys: list[tuple[int, int]] = field(default_factory=list)
-    _rows: list[np.ndarray] = field(default_factory=list)
-    _seen: set[tuple[int, int]] = field(default_factory=set)
+    def __init__(self, threshold: float = 0.5) -> None:
+        self.threshold = threshold
+        self._vertices: dict[int, list[int]] = {}
+        self._rows: dict[int, np.ndarray] = {}
+        self._seen: set[tuple[int, int]] = set()
 
     def query(self, robot: int, vertex: int, descriptor: np.ndarray) -> list[tuple[int, int, float]]:
         """Store the descriptor; return, for each *other* robot, its nearest stored keyframe within the
@@ -74,22 +75,28 @@ class PlaceIndex:
         A keyframe sent twice is stored once."""
         d = np.asarray(descriptor, np.float32)
         found: list[tuple[int, int, float]] = []
-        if self._rows:
-            dist = np.linalg.norm(np.stack(self._rows) - d, axis=1)
-            owners = np.array([k[0] for k in self._keys])
-            for other in np.unique(owners[owners != robot]).tolist():
-                mine = np.flatnonzero(owners == other)
-                k = int(mine[np.argmin(dist[mine])])
-                if dist[k] < self.threshold:
-                    found.append((other, self._keys[k][1], float(dist[k])))
+        for other, vertices in self._vertices.items():
+            if other == robot:
+                continue
+            dist = np.linalg.norm(self._rows[other][:len(vertices)] - d, axis=1)
+            k = int(np.argmin(dist))
+            if dist[k] < self.threshold:
+                found.append((other, vertices[k], float(dist[k])))
         if (robot, vertex) not in self._seen:
             self._seen.add((robot, vertex))
-            self._keys.append((robot, vertex))
-            self._rows.append(d)
+            vertices = self._vertices.setdefault(robot, [])
+            rows = self._rows.get(robot)
+            if rows is None or len(rows) == len(vertices):
+                grown = np.zeros((max(16, 2 * len(vertices)), d.size), np.float32)
+                if rows is not None:
+                    grown[:len(vertices)] = rows
+                self._rows[robot] = rows = grown
+            rows[len(vertices)] = d
+            vertices.append(vertex)
         return sorted(found, key=lambda f: f[2])
 
     def __len__(self) -> int:
-        return len(self._keys)
+        return len(self._seen)
 
 
 # -- the exchange: what each robot sends and answers ----------------------------------------------------

@@ -75,6 +75,17 @@ def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap(b[..., 2] - a[..., 2])], axis=-1)
 
 
+def adjoint(x: np.ndarray) -> np.ndarray:
+    """SE(2) adjoint of (..., 3) poses, (..., 3, 3): Ad(X) = [[R, (y, -x)^T], [0, 1]] carries a right
+    perturbation of X (the g2o residual's frame) to the left: X exp(e) = exp(Ad(X) e) X."""
+    x = np.asarray(x, float)
+    c, s = np.cos(x[..., 2]), np.sin(x[..., 2])
+    out = np.zeros(x.shape[:-1] + (3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = c, -s, s, c
+    out[..., 0, 2], out[..., 1, 2], out[..., 2, 2] = x[..., 1], -x[..., 0], 1.0
+    return out
+
+
 @dataclass
 class PoseGraph2D:
     """Vertices (``ids``, ``poses`` (N, 3)) and edges (``edges`` (M, 2) vertex *indices*,

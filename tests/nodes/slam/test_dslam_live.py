@@ -60,7 +60,8 @@ def test_two_machines_build_one_map(tmp_path: Path, env: dict) -> None:
               inputs: {{from_0: robot0/to_2, from_1: robot1/to_2}}}}
           - {{id: monitor, node: nodes.slam.dslam_monitor:TeamMonitor, machine: bravo,
               params: {{robots: 3, graph: {graph}, report_s: 1.0, out_dir: {tmp_path}}},
-              inputs: {{robot_0: robot0/trajectory, robot_1: robot1/trajectory, robot_2: robot2/trajectory}}}}
+              inputs: {{robot_0: robot0/trajectory, robot_1: robot1/trajectory, robot_2: robot2/trajectory,
+                       stats_0: robot0/_stats, stats_1: robot1/_stats, stats_2: robot2/_stats}}}}
         links:
           - {{between: [alpha, bravo], drop: 0.1, bandwidth_bps: 2000000, seed: 3}}
     """))
