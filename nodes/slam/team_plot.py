@@ -11,7 +11,7 @@ COLOURS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:
 def draw_team(path: Path, trajectories: dict[int, tuple[np.ndarray, np.ndarray]], *, accepted: np.ndarray,
               rejected: np.ndarray, reference: dict[int, np.ndarray] | None = None, title: str = "") -> Path:
     """Write a PNG: ``trajectories`` robot -> (ids (N,), poses (N, 3)); closures (C, 2) vertex-id pairs,
-    accepted in grey, rejected in red dashes; ``reference`` id -> (x, y) drawn thin black (the centralised optimum)."""
+    accepted in grey, rejected in red dashes; ``reference`` id -> (x, y) dotted black (the centralised optimum)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -20,7 +20,7 @@ def draw_team(path: Path, trajectories: dict[int, tuple[np.ndarray, np.ndarray]]
     fig, ax = plt.subplots(figsize=(7.5, 7.5))
     if reference:
         ref = np.array([reference[v] for v in sorted(reference)])
-        ax.plot(ref[:, 0], ref[:, 1], "-", color="k", lw=0.4, alpha=0.5, label="centralised optimum")
+        ax.plot(ref[:, 0], ref[:, 1], ":", color="k", lw=0.8, label="centralised optimum")
     for kind, pairs, style in (("accepted", accepted, dict(color="0.6", lw=0.4)),
                                ("rejected", rejected, dict(color="red", lw=0.8, ls="--"))):
         drawn = False
