@@ -1,0 +1,1 @@
+"""Swarm robotics: task partitioning in foraging swarms (seed 09)."""

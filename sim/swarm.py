@@ -1,0 +1,360 @@
+"""Swarm foraging with task partitioning (seed 09): robots carry food from a source to a nest
+in a 4 m x 1 m arena and may hand it over at exchange zones.
+
+Vectorised over robots *and* over independent worlds: every state array is (B, N) -- B
+seeded worlds of N robots advanced together -- so a bench runs its 30 seeds in one call and
+no Python loop runs over robots in a step (the only loops are over exchange zones)::
+
+    from sim.swarm import SwarmScene, SwarmWorld, seed_scene
+    world = SwarmWorld(seed_scene(zones=1), n_robots=20, seeds=range(30))
+    world.run(200.0)                 # t_max = 200 s in 0.1 s ticks, as in the seed
+    world.food                       # (B,) items delivered to the nest
+    world.food / world.n             # individual efficiency I_eff = F / N, per world
+    world.contact_s, world.wait_s    # (B, N) seconds each robot spent in contact / waiting
+
+The seed's model (section 3): robots are discs of radius 0.07 m with unicycle dynamics,
+speed v in [0, 0.1] m/s following a P law, heading following a PD law toward 0 (carrying:
+right, to the nest) or pi (not carrying: left, to the source). They have no obstacle
+sensing: robots that touch bounce, each turning away from the other, and the walls reflect
+them. With exchange zones the corridor is cut into segments; a robot works one segment,
+and at the zone ending it waits for a partner (``transfer="direct"``: a carrier and a
+receiver in the same zone hand over) or uses a cache there (``"cache"``: drop if not full,
+pick if not empty). After waiting longer than ``theta_s`` (the threshold Theta) it gives up
+and is reassigned to the neighbouring segment, carrying on as in the seed's FSM (figure 2).
+``transfer="p2p"`` is the seed's section 4.4: no zones, a carrier that meets a robot without
+food (ahead of it, toward the nest) gives it the food and both turn round.
+
+``policy="adaptive"`` is the perspective of the seed's conclusion, after Pini et al. (2011,
+"Task partitioning in swarms of robots: an adaptive method for strategy selection", Swarm
+Intelligence 5): on reaching a zone a robot compares two costs it experienced itself -- a
+running mean of its waits there and of the time it takes to cross a segment -- and waits
+(partitions) with probability sigmoid(beta (travel - wait) / travel), otherwise carries on
+at once. It is our reading of their idea, not their exact rule.
+
+An optional wall with a gate stands on each exchange zone's centre line
+(``gate_width_m``): non-partitioning robots must steer through the opening, the setting in
+which Pini et al. found partitioning to pay. A gate narrower than a robot lets nobody through.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Iterable
+
+import numpy as np
+
+TRANSFERS = ("direct", "cache", "p2p")
+POLICIES = ("fixed", "adaptive")
+
+
+@dataclass(frozen=True)
+class SwarmScene:
+    """Arena, robots and task partitioning (SI units; defaults are the seed's)."""
+
+    length_m: float = 4.0
+    width_m: float = 1.0
+    radius_m: float = 0.07
+    v_max_mps: float = 0.1
+    source_m: float = 0.5              # the source is x < source_m
+    nest_m: float = 0.5                # the nest is x > length_m - nest_m
+    zones_m: tuple[float, ...] = ()    # exchange-zone centres along x, increasing
+    zone_width_m: float = 0.3
+    transfer: str = "direct"
+    cache_capacity: int = 10
+    theta_s: float = 30.0              # waiting threshold Theta (inf: wait forever; 0: never wait)
+    policy: str = "fixed"
+    adaptive_beta: float = 4.0
+    adaptive_memory: float = 0.3       # weight of the newest experience in the running means
+    gate_width_m: float | None = None  # a wall with a gate of this width at each zone centre
+    gate_y_m: float = 0.5
+    kp_heading: float = 4.0            # 1/s^2
+    kd_heading: float = 4.0            # 1/s: critically damped with kp = 4
+    kp_speed: float = 2.0              # 1/s
+
+    def __post_init__(self) -> None:
+        if self.transfer not in TRANSFERS:
+            raise ValueError(f"transfer {self.transfer!r} must be one of {TRANSFERS}")
+        if self.policy not in POLICIES:
+            raise ValueError(f"policy {self.policy!r} must be one of {POLICIES}")
+        zones = np.asarray(self.zones_m, float)
+        if self.transfer == "p2p" and len(zones):
+            raise ValueError("transfer 'p2p' hands food over anywhere: give no exchange zones")
+        half = self.zone_width_m / 2
+        if len(zones) and (np.any(np.diff(zones) <= self.zone_width_m) or zones[0] - half < self.source_m
+                           or zones[-1] + half > self.length_m - self.nest_m):
+            raise ValueError(f"exchange zones {self.zones_m} must be increasing, {self.zone_width_m} m apart "
+                             f"and between the source and the nest")
+        if not (self.theta_s >= 0):
+            raise ValueError(f"theta_s must be >= 0 (inf: wait forever), got {self.theta_s}")
+        if self.radius_m <= 0 or 2 * self.radius_m >= self.width_m:
+            raise ValueError(f"robot radius {self.radius_m} m must be positive and fit the arena's width")
+
+
+def seed_scene(zones: int = 0, **changes: object) -> SwarmScene:
+    """The seed's arena with 0, 1 or 2 exchange zones, deliberately off the middle (section 3.3)."""
+    centres = {0: (), 1: (1.8,), 2: (1.4, 2.6)}
+    if zones not in centres:
+        raise ValueError(f"the seed studies 0, 1 or 2 exchange zones, not {zones}")
+    return replace(SwarmScene(zones_m=centres[zones]), **changes)
+
+
+def wrap(angle: np.ndarray) -> np.ndarray:
+    """Angles to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - angle, 2 * np.pi)
+
+
+class SwarmWorld:
+    """B independent worlds of N robots, stepped together (see the module docstring)."""
+
+    def __init__(self, scene: SwarmScene, n_robots: int, seeds: Iterable[int] = (0,)) -> None:
+        seeds = list(seeds)
+        if n_robots < 0 or not seeds:
+            raise ValueError("need n_robots >= 0 and at least one seed")
+        self.scene, self.n, self.b = scene, int(n_robots), len(seeds)
+        self.rngs = [np.random.default_rng(s) for s in seeds]
+        shape = (self.b, self.n)
+        r, s = scene.radius_m, scene
+        draw = np.stack([np.stack([g.uniform(r, s.length_m - r, self.n), g.uniform(r, s.width_m - r, self.n),
+                                   g.uniform(0, 2 * np.pi, self.n), g.random(self.n)]) for g in self.rngs]) \
+            if self.n else np.zeros((self.b, 4, 0))
+        self.x, self.y, self.th = draw[:, 0].copy(), draw[:, 1].copy(), draw[:, 2].copy()
+        self.carrying = draw[:, 3] < 0.5
+        self.om = np.zeros(shape)
+        self.v = np.zeros(shape)
+        self.zc = np.asarray(s.zones_m, float)
+        self.seg = np.searchsorted(self.zc, self.x)            # the segment a robot works: 0 .. Z
+        self.t_w = np.zeros(shape)                             # current wait
+        self.waiting = np.zeros(shape, bool)
+        self.decided = np.zeros(shape, bool)                   # adaptive: chose to wait at this arrival
+        self.leg_t0 = np.zeros(shape)                          # adaptive: when the current crossing began
+        self.mean_wait = np.zeros(shape)
+        self.mean_travel = np.full(shape, (s.length_m - s.source_m - s.nest_m) / (len(self.zc) + 1) / s.v_max_mps)
+        self.cache = np.zeros((self.b, len(self.zc)), int)
+        self.food = np.zeros(self.b, int)
+        self.handovers = np.zeros(self.b, int)
+        self.contact_s = np.zeros(shape)
+        self.wait_s = np.zeros(shape)
+        self.t_s = 0.0
+        self._eye = np.eye(self.n, dtype=bool)[None]
+
+    # -- one tick -----------------------------------------------------------------------
+    def step(self, dt_s: float = 0.1) -> None:
+        """Advance every world by ``dt_s``: control, motion, walls, contacts, then the task."""
+        if not (0 < dt_s <= 1.0):
+            raise ValueError(f"dt_s must be in (0, 1] s, got {dt_s}")
+        self.t_s += dt_s
+        if self.n == 0:
+            return
+        s = self.scene
+        theta0, v0 = self._targets()
+        err = wrap(theta0 - self.th)
+        # The seed writes theta' = Kp (theta0 - theta) + Kd dtheta/dt, which is implicit in
+        # theta'. The PD it means acts on a heading rate: omega' = Kp e - Kd omega.
+        self.om += dt_s * (s.kp_heading * err - s.kd_heading * self.om)
+        self.th = wrap(self.th + dt_s * self.om)
+        self.v = np.clip(self.v + dt_s * s.kp_speed * (v0 - self.v), 0.0, s.v_max_mps)
+        x_before = self.x.copy()
+        self.x = self.x + dt_s * self.v * np.cos(self.th)
+        self.y = self.y + dt_s * self.v * np.sin(self.th)
+        self._walls(x_before)
+        touching = self._contacts(dt_s)
+        if s.transfer == "p2p":
+            self._p2p(touching)
+        else:
+            self._zones(dt_s)
+
+    def run(self, duration_s: float, dt_s: float = 0.1, progress: object = None) -> None:
+        """Step until ``t_s`` reaches ``duration_s`` (``progress(t_s)`` after each second if given)."""
+        steps = int(round((duration_s - self.t_s) / dt_s))
+        every = max(1, int(round(1.0 / dt_s)))
+        for k in range(steps):
+            self.step(dt_s)
+            if progress is not None and (k + 1) % every == 0:
+                progress(self.t_s)
+
+    # -- control ------------------------------------------------------------------------
+    def _targets(self) -> tuple[np.ndarray, np.ndarray]:
+        s = self.scene
+        right = self.carrying
+        theta0 = np.where(right, 0.0, np.pi)
+        v0 = np.full(self.x.shape, s.v_max_mps)
+        if len(self.zc):
+            # a waiting robot drives on to the zone's centre line and parks there
+            near = self.zc[np.clip(np.where(right, self.seg, self.seg - 1), 0, len(self.zc) - 1)]
+            parked = self.waiting & np.where(right, self.x >= near - s.radius_m - 0.01,
+                                             self.x <= near + s.radius_m + 0.01)
+            v0 = np.where(parked, 0.0, v0)
+            if s.gate_width_m is not None:
+                # steer through the gate of the next wall ahead, when there is one within 0.6 m
+                ahead = np.where(right, np.searchsorted(self.zc, self.x), np.searchsorted(self.zc, self.x) - 1)
+                valid = (ahead >= 0) & (ahead < len(self.zc)) & ~self.waiting
+                wall = self.zc[np.clip(ahead, 0, len(self.zc) - 1)]
+                gap = np.abs(wall - self.x)
+                steer = valid & (gap < 0.6)
+                aim = np.arctan2(s.gate_y_m - self.y, np.where(right, 1.0, -1.0) * np.maximum(gap, 0.15))
+                theta0 = np.where(steer, aim, theta0)
+        return theta0, v0
+
+    # -- physics ------------------------------------------------------------------------
+    def _walls(self, x_before: np.ndarray) -> None:
+        s, r = self.scene, self.scene.radius_m
+        out_x = (self.x < r) | (self.x > s.length_m - r)
+        out_y = (self.y < r) | (self.y > s.width_m - r)
+        self.x = np.clip(self.x, r, s.length_m - r)
+        self.y = np.clip(self.y, r, s.width_m - r)
+        if s.gate_width_m is not None and len(self.zc):
+            opening = s.gate_width_m / 2 - r                  # < 0: nobody fits through
+            blocked = np.abs(self.y - s.gate_y_m) > opening
+            for wall in self.zc:
+                side = np.sign(x_before - wall)
+                hit = blocked & (np.abs(self.x - wall) < r) | blocked & (np.sign(self.x - wall) != side)
+                hit &= side != 0
+                self.x = np.where(hit, wall + side * r, self.x)
+                out_x |= hit
+        self.th = np.where(out_x, np.pi - self.th, self.th)
+        self.th = wrap(np.where(out_y, -self.th, self.th))
+        self.om = np.where(out_x | out_y, 0.0, self.om)
+
+    def _contacts(self, dt_s: float) -> np.ndarray:
+        """Separate overlapping robots, turn each away from the others; (B, N, N) who touched whom."""
+        r = self.scene.radius_m
+        dx = self.x[:, :, None] - self.x[:, None, :]
+        dy = self.y[:, :, None] - self.y[:, None, :]
+        d = np.hypot(dx, dy)
+        touching = (d < 2 * r) & ~self._eye
+        if not touching.any():
+            return touching
+        # coincident centres have no normal: a seeded random direction per robot breaks the tie
+        zero = touching & (d < 1e-9)
+        if zero.any():
+            angle = np.stack([g.uniform(0, 2 * np.pi, self.n) for g in self.rngs])
+            dx = np.where(zero, np.cos(angle)[:, :, None] - np.cos(angle)[:, None, :] + 1e-9, dx)
+            dy = np.where(zero, np.sin(angle)[:, :, None] - np.sin(angle)[:, None, :], dy)
+            d = np.maximum(np.hypot(dx, dy), 1e-12)
+        push = np.where(touching, (2 * r - d) / 2 / np.maximum(d, 1e-12), 0.0)
+        px, py = (push * dx).sum(axis=2), (push * dy).sum(axis=2)
+        hit = touching.any(axis=2)
+        self.x = np.clip(self.x + px, r, self.scene.length_m - r)
+        self.y = np.clip(self.y + py, r, self.scene.width_m - r)
+        nx, ny = np.where(touching, dx, 0.0).sum(axis=2), np.where(touching, dy, 0.0).sum(axis=2)
+        self.th = np.where(hit, np.arctan2(ny, nx), self.th)   # bounce: away from whoever it touched
+        self.om = np.where(hit, 0.0, self.om)
+        self.contact_s += np.where(hit, dt_s, 0.0)
+        return touching
+
+    # -- the task -----------------------------------------------------------------------
+    def _zones(self, dt_s: float) -> None:
+        s = self.scene
+        src = ~self.carrying & (self.seg == 0) & (self.x <= s.source_m)
+        nest = self.carrying & (self.seg == len(self.zc)) & (self.x >= s.length_m - s.nest_m)
+        self.food += nest.sum(axis=1)
+        self._end_leg(src | nest)
+        self.carrying = (self.carrying | src) & ~nest
+        if not len(self.zc):
+            return
+        half = s.zone_width_m / 2
+        zone_ahead = np.where(self.carrying, self.seg, self.seg - 1)      # zone at the end of the leg
+        inside = (zone_ahead >= 0) & (zone_ahead < len(self.zc))
+        centre = self.zc[np.clip(zone_ahead, 0, len(self.zc) - 1)]
+        arrived = inside & np.where(self.carrying, self.x >= centre - half, self.x <= centre + half)
+        new = arrived & ~self.waiting
+        if new.any():
+            self._end_leg(new)
+            wait = np.ones_like(new)
+            if s.policy == "adaptive":
+                travel = np.maximum(self.mean_travel, 1e-6)
+                p = 1.0 / (1.0 + np.exp(-s.adaptive_beta * (travel - self.mean_wait) / travel))
+                wait = np.stack([g.random(self.n) for g in self.rngs]) < p
+            self.waiting |= new & wait
+            self._give_up(new & ~wait)
+        if s.transfer == "direct":
+            self._hand_over(zone_ahead)
+        else:
+            self._use_cache(zone_ahead)
+        self.t_w = np.where(self.waiting, self.t_w + dt_s, 0.0)
+        self.wait_s += np.where(self.waiting, dt_s, 0.0)
+        self._give_up(self.waiting & (self.t_w > s.theta_s))
+
+    def _hand_over(self, zone: np.ndarray) -> None:
+        """Mutually nearest carrier/receiver pairs waiting at the same zone swap the food."""
+        giver = self.waiting & self.carrying
+        taker = self.waiting & ~self.carrying
+        pair = giver[:, :, None] & taker[:, None, :] & (zone[:, :, None] == zone[:, None, :])
+        if not pair.any():
+            return
+        d = np.where(pair, np.hypot(self.x[:, :, None] - self.x[:, None, :], self.y[:, :, None] - self.y[:, None, :]),
+                     np.inf)
+        to = d.argmin(axis=2)                     # each giver's nearest taker
+        back = d.argmin(axis=1)                   # each taker's nearest giver
+        rows = np.arange(self.n)[None]
+        mutual = np.isfinite(d.min(axis=2)) & (np.take_along_axis(back, to, axis=1) == rows)
+        took = np.zeros_like(mutual)
+        np.put_along_axis(took, np.where(mutual, to, rows), mutual, axis=1)
+        took &= taker
+        self.handovers += mutual.sum(axis=1)
+        self._done_waiting(mutual | took)
+        self.carrying = (self.carrying & ~mutual) | took
+
+    def _use_cache(self, zone: np.ndarray) -> None:
+        cap = self.scene.cache_capacity
+        for z in range(len(self.zc)):
+            drop = self.waiting & self.carrying & (zone == z)
+            rank = np.cumsum(drop, axis=1) - 1
+            drop &= rank < (cap - self.cache[:, z])[:, None]
+            self.cache[:, z] += drop.sum(axis=1)
+            pick = self.waiting & ~self.carrying & (zone == z)
+            rank = np.cumsum(pick, axis=1) - 1
+            pick &= rank < self.cache[:, z][:, None]
+            self.cache[:, z] -= pick.sum(axis=1)
+            self.handovers += pick.sum(axis=1)
+            self._done_waiting(drop | pick)
+            self.carrying = (self.carrying & ~drop) | pick
+
+    def _done_waiting(self, who: np.ndarray) -> None:
+        a = self.scene.adaptive_memory
+        self.mean_wait = np.where(who, (1 - a) * self.mean_wait + a * self.t_w, self.mean_wait)
+        self.waiting &= ~who
+        self.t_w = np.where(who, 0.0, self.t_w)
+        self.leg_t0 = np.where(who, self.t_s, self.leg_t0)
+
+    def _give_up(self, who: np.ndarray) -> None:
+        """Reassigned to the neighbouring segment, carrying on (the FSM's t_w > Theta edge)."""
+        a = self.scene.adaptive_memory
+        waited = self.waiting & who
+        self.mean_wait = np.where(waited, (1 - a) * self.mean_wait + a * self.t_w, self.mean_wait)
+        self.seg = np.where(who, np.where(self.carrying, self.seg + 1, self.seg - 1), self.seg)
+        self.waiting &= ~who
+        self.t_w = np.where(who, 0.0, self.t_w)
+        self.leg_t0 = np.where(who, self.t_s, self.leg_t0)
+
+    def _end_leg(self, who: np.ndarray) -> None:
+        """A crossing of a segment ended: its duration feeds the adaptive travel estimate."""
+        a = self.scene.adaptive_memory
+        self.mean_travel = np.where(who, (1 - a) * self.mean_travel + a * (self.t_s - self.leg_t0), self.mean_travel)
+        self.leg_t0 = np.where(who, self.t_s, self.leg_t0)
+
+    def _p2p(self, touching: np.ndarray) -> None:
+        s = self.scene
+        src = ~self.carrying & (self.x <= s.source_m)
+        nest = self.carrying & (self.x >= s.length_m - s.nest_m)
+        self.food += nest.sum(axis=1)
+        self.carrying = (self.carrying | src) & ~nest
+        # a carrier passes its food to a robot without food that it touches ahead of it
+        ahead = self.x[:, None, :] > self.x[:, :, None]
+        pair = touching & self.carrying[:, :, None] & ~self.carrying[:, None, :] & ahead
+        if not pair.any():
+            return
+        d = np.where(pair, np.hypot(self.x[:, :, None] - self.x[:, None, :], self.y[:, :, None] - self.y[:, None, :]),
+                     np.inf)
+        to, back = d.argmin(axis=2), d.argmin(axis=1)
+        rows = np.arange(self.n)[None]
+        mutual = np.isfinite(d.min(axis=2)) & (np.take_along_axis(back, to, axis=1) == rows)
+        took = np.zeros_like(mutual)
+        np.put_along_axis(took, np.where(mutual, to, rows), mutual, axis=1)
+        took &= ~self.carrying
+        self.handovers += mutual.sum(axis=1)
+        self.carrying = (self.carrying & ~mutual) | took
+
+    # -- summaries ----------------------------------------------------------------------
+    def efficiency(self) -> np.ndarray:
+        """(B,) individual efficiency F / N (0 for N = 0)."""
+        return self.food / max(self.n, 1)
