@@ -26,10 +26,13 @@ food (ahead of it, toward the nest) gives it the food and both turn round.
 
 ``policy="adaptive"`` is the perspective of the seed's conclusion, after Pini et al. (2011,
 "Task partitioning in swarms of robots: an adaptive method for strategy selection", Swarm
-Intelligence 5): on reaching a zone a robot compares two costs it experienced itself -- a
-running mean of its waits there and of the time it takes to cross a segment -- and waits
-(partitions) with probability sigmoid(beta (travel - wait) / travel), otherwise carries on
-at once. It is our reading of their idea, not their exact rule.
+Intelligence 5): each robot decides from costs it experienced itself. Partitioning costs
+its waits at zones (running mean ``mean_wait``); not partitioning costs the extra time a
+leg takes when it goes on through a zone, over what its legs inside one segment take
+(``mean_cross_excess - mean_own_excess``, excess = duration - distance / v_max). Since
+going on means passing the zone twice (there and back), a robot reaching a zone waits
+with probability sigmoid(beta (2 benefit - wait) / scale). It is our reading of their
+idea, not their exact rule; both estimates start at 0, so robots first try both ways.
 
 An optional wall with a gate stands on each exchange zone's centre line
 (``gate_width_m``): non-partitioning robots must steer through the opening, the setting in
@@ -102,6 +105,19 @@ def wrap(angle: np.ndarray) -> np.ndarray:
     return np.pi - np.mod(np.pi - angle, 2 * np.pi)
 
 
+def mutual_nearest(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (i, j) with j the nearest column of row i and i the nearest row of column j.
+
+    ``d`` (B, N, N) distances, inf where i may not pair with j. Returns (B, N) masks of the
+    rows and of the columns that paired; each paired row has exactly one paired column.
+    """
+    to, back = d.argmin(axis=2), d.argmin(axis=1)
+    rows = np.arange(d.shape[1])[None]
+    mutual = np.isfinite(d.min(axis=2)) & (np.take_along_axis(back, to, axis=1) == rows)
+    took = (mutual[:, :, None] & (to[:, :, None] == rows[:, None, :])).any(axis=1)
+    return mutual, took
+
+
 class SwarmWorld:
     """B independent worlds of N robots, stepped together (see the module docstring)."""
 
@@ -125,11 +141,15 @@ class SwarmWorld:
         self.t_w = np.zeros(shape)                             # current wait
         self.waiting = np.zeros(shape, bool)
         self.decided = np.zeros(shape, bool)                   # adaptive: chose to wait at this arrival
-        self.leg_t0 = np.zeros(shape)                          # adaptive: when the current crossing began
+        self.leg_t0 = np.zeros(shape)                          # adaptive: when and where the current leg began
+        self.leg_x0 = self.x.copy()
+        self.leg_crossed = np.zeros(shape, bool)               # ... and whether it went on through a zone
         self.mean_wait = np.zeros(shape)
-        self.mean_travel = np.full(shape, (s.length_m - s.source_m - s.nest_m) / (len(self.zc) + 1) / s.v_max_mps)
+        self.mean_cross_excess = np.zeros(shape)
+        self.mean_own_excess = np.zeros(shape)
         self.cache = np.zeros((self.b, len(self.zc)), int)
         self.food = np.zeros(self.b, int)
+        self.picked = np.zeros(self.b, int)                    # items taken at the source
         self.handovers = np.zeros(self.b, int)
         self.contact_s = np.zeros(shape)
         self.wait_s = np.zeros(shape)
@@ -226,7 +246,7 @@ class SwarmWorld:
         # coincident centres have no normal: a seeded random direction per robot breaks the tie
         zero = touching & (d < 1e-9)
         if zero.any():
-            angle = np.stack([g.uniform(0, 2 * np.pi, self.n) for g in self.rngs])
+            angle = self._draw(zero.any(axis=(1, 2))) * 2 * np.pi
             dx = np.where(zero, np.cos(angle)[:, :, None] - np.cos(angle)[:, None, :] + 1e-9, dx)
             dy = np.where(zero, np.sin(angle)[:, :, None] - np.sin(angle)[:, None, :], dy)
             d = np.maximum(np.hypot(dx, dy), 1e-12)
@@ -247,6 +267,7 @@ class SwarmWorld:
         src = ~self.carrying & (self.seg == 0) & (self.x <= s.source_m)
         nest = self.carrying & (self.seg == len(self.zc)) & (self.x >= s.length_m - s.nest_m)
         self.food += nest.sum(axis=1)
+        self.picked += src.sum(axis=1)
         self._end_leg(src | nest)
         self.carrying = (self.carrying | src) & ~nest
         if not len(self.zc):
@@ -261,9 +282,10 @@ class SwarmWorld:
             self._end_leg(new)
             wait = np.ones_like(new)
             if s.policy == "adaptive":
-                travel = np.maximum(self.mean_travel, 1e-6)
-                p = 1.0 / (1.0 + np.exp(-s.adaptive_beta * (travel - self.mean_wait) / travel))
-                wait = np.stack([g.random(self.n) for g in self.rngs]) < p
+                benefit = 2 * (self.mean_cross_excess - self.mean_own_excess)
+                scale = np.maximum(np.maximum(np.abs(benefit), self.mean_wait), 1.0)
+                p = 1.0 / (1.0 + np.exp(-s.adaptive_beta * (benefit - self.mean_wait) / scale))
+                wait = self._draw(new.any(axis=1)) < p
             self.waiting |= new & wait
             self._give_up(new & ~wait)
         if s.transfer == "direct":
@@ -283,13 +305,7 @@ class SwarmWorld:
             return
         d = np.where(pair, np.hypot(self.x[:, :, None] - self.x[:, None, :], self.y[:, :, None] - self.y[:, None, :]),
                      np.inf)
-        to = d.argmin(axis=2)                     # each giver's nearest taker
-        back = d.argmin(axis=1)                   # each taker's nearest giver
-        rows = np.arange(self.n)[None]
-        mutual = np.isfinite(d.min(axis=2)) & (np.take_along_axis(back, to, axis=1) == rows)
-        took = np.zeros_like(mutual)
-        np.put_along_axis(took, np.where(mutual, to, rows), mutual, axis=1)
-        took &= taker
+        mutual, took = mutual_nearest(d)
         self.handovers += mutual.sum(axis=1)
         self._done_waiting(mutual | took)
         self.carrying = (self.carrying & ~mutual) | took
@@ -314,7 +330,7 @@ class SwarmWorld:
         self.mean_wait = np.where(who, (1 - a) * self.mean_wait + a * self.t_w, self.mean_wait)
         self.waiting &= ~who
         self.t_w = np.where(who, 0.0, self.t_w)
-        self.leg_t0 = np.where(who, self.t_s, self.leg_t0)
+        self._start_leg(who, crossed=False)
 
     def _give_up(self, who: np.ndarray) -> None:
         """Reassigned to the neighbouring segment, carrying on (the FSM's t_w > Theta edge)."""
@@ -324,19 +340,28 @@ class SwarmWorld:
         self.seg = np.where(who, np.where(self.carrying, self.seg + 1, self.seg - 1), self.seg)
         self.waiting &= ~who
         self.t_w = np.where(who, 0.0, self.t_w)
+        self._start_leg(who, crossed=True)
+
+    def _start_leg(self, who: np.ndarray, *, crossed: bool) -> None:
         self.leg_t0 = np.where(who, self.t_s, self.leg_t0)
+        self.leg_x0 = np.where(who, self.x, self.leg_x0)
+        self.leg_crossed = np.where(who, crossed, self.leg_crossed)
 
     def _end_leg(self, who: np.ndarray) -> None:
-        """A crossing of a segment ended: its duration feeds the adaptive travel estimate."""
+        """A leg ended: its delay over free flow feeds the adaptive estimates (crossing a zone or not)."""
         a = self.scene.adaptive_memory
-        self.mean_travel = np.where(who, (1 - a) * self.mean_travel + a * (self.t_s - self.leg_t0), self.mean_travel)
-        self.leg_t0 = np.where(who, self.t_s, self.leg_t0)
+        excess = (self.t_s - self.leg_t0) - np.abs(self.x - self.leg_x0) / self.scene.v_max_mps
+        cross, own = who & self.leg_crossed, who & ~self.leg_crossed
+        self.mean_cross_excess = np.where(cross, (1 - a) * self.mean_cross_excess + a * excess, self.mean_cross_excess)
+        self.mean_own_excess = np.where(own, (1 - a) * self.mean_own_excess + a * excess, self.mean_own_excess)
+        self._start_leg(who, crossed=False)
 
     def _p2p(self, touching: np.ndarray) -> None:
         s = self.scene
         src = ~self.carrying & (self.x <= s.source_m)
         nest = self.carrying & (self.x >= s.length_m - s.nest_m)
         self.food += nest.sum(axis=1)
+        self.picked += src.sum(axis=1)
         self.carrying = (self.carrying | src) & ~nest
         # a carrier passes its food to a robot without food that it touches ahead of it
         ahead = self.x[:, None, :] > self.x[:, :, None]
@@ -345,14 +370,14 @@ class SwarmWorld:
             return
         d = np.where(pair, np.hypot(self.x[:, :, None] - self.x[:, None, :], self.y[:, :, None] - self.y[:, None, :]),
                      np.inf)
-        to, back = d.argmin(axis=2), d.argmin(axis=1)
-        rows = np.arange(self.n)[None]
-        mutual = np.isfinite(d.min(axis=2)) & (np.take_along_axis(back, to, axis=1) == rows)
-        took = np.zeros_like(mutual)
-        np.put_along_axis(took, np.where(mutual, to, rows), mutual, axis=1)
-        took &= ~self.carrying
+        mutual, took = mutual_nearest(d)
         self.handovers += mutual.sum(axis=1)
         self.carrying = (self.carrying & ~mutual) | took
+
+    def _draw(self, worlds: np.ndarray) -> np.ndarray:
+        """(B, N) uniform numbers; a world's generator is used only when that world needs one,
+        so a world's path does not depend on which other worlds share the batch."""
+        return np.stack([g.random(self.n) if need else np.zeros(self.n) for g, need in zip(self.rngs, worlds)])
 
     # -- summaries ----------------------------------------------------------------------
     def efficiency(self) -> np.ndarray:

@@ -37,6 +37,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
             raise ValueError(f"n_robots must be in [0, 1000], got {self.n_robots}")
         if self.transfer not in TRANSFERS or self.policy not in POLICIES:
             raise ValueError(f"transfer must be one of {TRANSFERS}, policy one of {POLICIES}")
+        if self.zones not in (0, 1, 2) or (self.transfer == "p2p" and self.zones):
+            raise ValueError(f"zones must be 0, 1 or 2 (0 with transfer p2p), got {self.zones}")
         if not 0 < self.dt_s <= 1 or self.duration_s <= 0:
             raise ValueError("dt_s must be in (0, 1] s and duration_s positive")
 
