@@ -10,7 +10,7 @@ no Python loop runs over robots in a step (the only loops are over exchange zone
     world.run(200.0)                 # t_max = 200 s in 0.1 s ticks, as in the seed
     world.food                       # (B,) items delivered to the nest
     world.food / world.n             # individual efficiency I_eff = F / N, per world
-    world.contact_s, world.wait_s    # (B, N) seconds each robot spent in contact / waiting
+    world.contact_s, world.wait_s    # (B, N) seconds each robot spent bouncing off others / waiting
 
 The seed's model (section 3): robots are discs of radius 0.07 m with unicycle dynamics,
 speed v in [0, 0.1] m/s following a P law, heading following a PD law toward 0 (carrying:
@@ -66,6 +66,7 @@ class SwarmScene:
     zone_width_m: float = 0.3
     transfer: str = "direct"
     cache_capacity: int = 10
+    bounce_s: float = 1.0              # after a contact a robot drives away along the bounce heading this long
     handover_s: float = 2.0            # both partners stand still this long after a hand-over (direct, p2p)
     theta_s: float = 30.0              # waiting threshold Theta (inf: wait forever; 0: never wait)
     policy: str = "fixed"
@@ -152,6 +153,8 @@ class SwarmWorld:
         self.mean_cross_excess = np.zeros(shape)
         self.mean_own_excess = np.zeros(shape)
         self.cache = np.zeros((self.b, len(self.zc)), int)
+        self.bounce_until = np.zeros(shape)                    # end of the current bounce
+        self.bounce_th = np.zeros(shape)
         self.busy_until = np.zeros(shape)                      # end of the robot's last hand-over
         self.food = np.zeros(self.b, int)
         self.picked = np.zeros(self.b, int)                    # items taken at the source
@@ -160,6 +163,7 @@ class SwarmWorld:
         self.wait_s = np.zeros(shape)
         self.t_s = 0.0
         self._eye = np.eye(self.n, dtype=bool)[None]
+        self._touching = np.zeros((self.b, self.n, self.n), bool)
 
     # -- one tick -----------------------------------------------------------------------
     def step(self, dt_s: float = 0.1) -> None:
@@ -171,6 +175,7 @@ class SwarmWorld:
             return
         s = self.scene
         theta0, v0 = self._targets()
+        self.contact_s += np.where(self.bounce_until > self.t_s - dt_s, dt_s, 0.0)   # interference: time bouncing
         err = wrap(theta0 - self.th)
         # The seed writes theta' = Kp (theta0 - theta) + Kd dtheta/dt, which is implicit in
         # theta'. The PD it means acts on a heading rate: omega' = Kp e - Kd omega.
@@ -217,7 +222,8 @@ class SwarmWorld:
                 steer = valid & (gap < 0.6)
                 aim = np.arctan2(s.gate_y_m - self.y, np.where(right, 1.0, -1.0) * np.maximum(gap, 0.15))
                 theta0 = np.where(steer, aim, theta0)
-        return theta0, v0
+        bouncing = self.bounce_until > self.t_s
+        return np.where(bouncing, self.bounce_th, theta0), v0
 
     # -- physics ------------------------------------------------------------------------
     def _walls(self, x_before: np.ndarray) -> None:
@@ -246,6 +252,7 @@ class SwarmWorld:
         dy = self.y[:, :, None] - self.y[:, None, :]
         d = np.hypot(dx, dy)
         touching = (d < 2 * r) & ~self._eye
+        before, self._touching = self._touching, touching
         if not touching.any():
             return touching
         # coincident centres have no normal: a seeded random direction per robot breaks the tie
@@ -257,13 +264,18 @@ class SwarmWorld:
             d = np.maximum(np.hypot(dx, dy), 1e-12)
         push = np.where(touching, (2 * r - d) / 2 / np.maximum(d, 1e-12), 0.0)
         px, py = (push * dx).sum(axis=2), (push * dy).sum(axis=2)
-        hit = touching.any(axis=2)
         self.x = np.clip(self.x + px, r, self.scene.length_m - r)
         self.y = np.clip(self.y + py, r, self.scene.width_m - r)
-        nx, ny = np.where(touching, dx, 0.0).sum(axis=2), np.where(touching, dy, 0.0).sum(axis=2)
-        self.th = np.where(hit, np.arctan2(ny, nx), self.th)   # bounce: away from whoever it touched
-        self.om = np.where(hit, 0.0, self.om)
-        self.contact_s += np.where(hit, dt_s, 0.0)
+        # the bounce happens once per contact, at its onset: turning away at every tick of a
+        # contact made the outcome depend on the tick (a jam lasts more ticks at a smaller dt)
+        onset = touching & ~before
+        new = onset.any(axis=2)
+        nx, ny = np.where(onset, dx, 0.0).sum(axis=2), np.where(onset, dy, 0.0).sum(axis=2)
+        away = np.arctan2(ny, nx)
+        self.th = np.where(new, away, self.th)                 # bounce: away from whoever it met ...
+        self.om = np.where(new, 0.0, self.om)
+        self.bounce_th = np.where(new, away, self.bounce_th)   # ... and keep going that way for bounce_s,
+        self.bounce_until = np.where(new, self.t_s + self.scene.bounce_s, self.bounce_until)   # whatever dt
         return touching
 
     # -- the task -----------------------------------------------------------------------

@@ -118,13 +118,15 @@ def test_theta_zero_never_waits_and_infinite_theta_never_gives_up():
 
 
 def test_time_step_does_not_change_the_average():
-    a = SwarmWorld(seed_scene(1), 10, seeds=range(16))
+    # at N = 30, where robots jam: turning away at every tick of a contact made F/N fall 18 %
+    # from dt 0.1 to 0.05 s; a bounce of fixed duration does not depend on the tick
+    a = SwarmWorld(seed_scene(1), 30, seeds=range(16))
     a.run(200.0, 0.1)
-    b = SwarmWorld(seed_scene(1), 10, seeds=range(100, 116))
+    b = SwarmWorld(seed_scene(1), 30, seeds=range(100, 116))
     b.run(200.0, 0.05)
     ea, eb = a.efficiency(), b.efficiency()
     noise = math.hypot(ea.std(ddof=1), eb.std(ddof=1)) / 4
-    assert abs(ea.mean() - eb.mean()) < 3 * noise + 0.05
+    assert abs(ea.mean() - eb.mean()) < 3 * noise
 
 
 def test_scene_errors_say_what_is_wrong():
