@@ -30,6 +30,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -92,7 +93,6 @@ def tune_theta(scene: SwarmScene, ns: tuple[int, ...], seeds: range) -> float:
 
 
 def _with(scene: SwarmScene, theta_s: float) -> SwarmScene:
-    from dataclasses import replace
     return replace(scene, theta_s=theta_s)
 
 

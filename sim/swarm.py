@@ -304,14 +304,14 @@ class SwarmWorld:
                 p = 1.0 / (1.0 + np.exp(-s.adaptive_beta * (benefit - self.mean_wait) / scale))
                 wait = self._draw(new.any(axis=1)) < p
             self.waiting |= new & wait
-            self._give_up(new & ~wait)
+            self._stop_waiting(new & ~wait, give_up=True)
         if s.transfer == "direct":
             self._hand_over(zone_ahead)
         else:
             self._use_cache(zone_ahead)
         self.t_w = np.where(self.waiting, self.t_w + dt_s, 0.0)
         self.wait_s += np.where(self.waiting, dt_s, 0.0)
-        self._give_up(self.waiting & (self.t_w > s.theta_s))
+        self._stop_waiting(self.waiting & (self.t_w > s.theta_s), give_up=True)
 
     def _hand_over(self, zone: np.ndarray) -> None:
         """Mutually nearest carrier/receiver pairs waiting at the same zone swap the food."""
@@ -320,13 +320,7 @@ class SwarmWorld:
         pair = giver[:, :, None] & taker[:, None, :] & (zone[:, :, None] == zone[:, None, :])
         if not pair.any():
             return
-        d = np.where(pair, np.hypot(self.x[:, :, None] - self.x[:, None, :], self.y[:, :, None] - self.y[:, None, :]),
-                     np.inf)
-        mutual, took = mutual_nearest(d)
-        self.handovers += mutual.sum(axis=1)
-        self._done_waiting(mutual | took)
-        self.carrying = (self.carrying & ~mutual) | took
-        self.busy_until = np.where(mutual | took, self.t_s + self.scene.handover_s, self.busy_until)
+        self._stop_waiting(self._swap(pair), give_up=False)
 
     def _use_cache(self, zone: np.ndarray) -> None:
         cap = self.scene.cache_capacity
@@ -340,25 +334,20 @@ class SwarmWorld:
             pick &= rank < self.cache[:, z][:, None]
             self.cache[:, z] -= pick.sum(axis=1)
             self.handovers += pick.sum(axis=1)
-            self._done_waiting(drop | pick)
+            self._stop_waiting(drop | pick, give_up=False)
             self.carrying = (self.carrying & ~drop) | pick
 
-    def _done_waiting(self, who: np.ndarray) -> None:
-        a = self.scene.adaptive_memory
-        self.mean_wait = np.where(who, (1 - a) * self.mean_wait + a * self.t_w, self.mean_wait)
-        self.waiting &= ~who
-        self.t_w = np.where(who, 0.0, self.t_w)
-        self._start_leg(who, crossed=False)
-
-    def _give_up(self, who: np.ndarray) -> None:
-        """Reassigned to the neighbouring segment, carrying on (the FSM's t_w > Theta edge)."""
+    def _stop_waiting(self, who: np.ndarray, *, give_up: bool) -> None:
+        """``who`` leave the zone: served (hand-over, cache) or, with ``give_up``, reassigned to the
+        neighbouring segment, carrying on (the FSM's t_w > Theta edge, or the adaptive choice not to wait)."""
         a = self.scene.adaptive_memory
         waited = self.waiting & who
         self.mean_wait = np.where(waited, (1 - a) * self.mean_wait + a * self.t_w, self.mean_wait)
-        self.seg = np.where(who, np.where(self.carrying, self.seg + 1, self.seg - 1), self.seg)
+        if give_up:
+            self.seg = np.where(who, np.where(self.carrying, self.seg + 1, self.seg - 1), self.seg)
         self.waiting &= ~who
         self.t_w = np.where(who, 0.0, self.t_w)
-        self._start_leg(who, crossed=True)
+        self._start_leg(who, crossed=give_up)
 
     def _start_leg(self, who: np.ndarray, *, crossed: bool) -> None:
         self.leg_t0 = np.where(who, self.t_s, self.leg_t0)
@@ -387,12 +376,18 @@ class SwarmWorld:
         pair = touching & (self.carrying & free)[:, :, None] & (~self.carrying & free)[:, None, :] & ahead
         if not pair.any():
             return
+        self._swap(pair)
+
+    def _swap(self, pair: np.ndarray) -> np.ndarray:
+        """Mutually nearest (giver, taker) pairs of ``pair`` (B, N, N) hand the food over and stand
+        still ``handover_s``; returns who took part."""
         d = np.where(pair, np.hypot(self.x[:, :, None] - self.x[:, None, :], self.y[:, :, None] - self.y[:, None, :]),
                      np.inf)
-        mutual, took = mutual_nearest(d)
-        self.handovers += mutual.sum(axis=1)
-        self.carrying = (self.carrying & ~mutual) | took
-        self.busy_until = np.where(mutual | took, self.t_s + self.scene.handover_s, self.busy_until)
+        gave, took = mutual_nearest(d)
+        self.handovers += gave.sum(axis=1)
+        self.carrying = (self.carrying & ~gave) | took
+        self.busy_until = np.where(gave | took, self.t_s + self.scene.handover_s, self.busy_until)
+        return gave | took
 
     def _draw(self, worlds: np.ndarray) -> np.ndarray:
         """(B, N) uniform numbers; a world's generator is used only when that world needs one,

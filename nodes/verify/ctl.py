@@ -127,17 +127,17 @@ class _Parser:
         return f
 
     def disj(self) -> F:
-        f = self.conj()
-        while self.peek() in (("sym", "|"), ("word", "or")):
-            self.take()
-            f = F("or", (f, self.conj()))
-        return f
+        return self._left("or", "|", self.conj)
 
     def conj(self) -> F:
-        f = self.unary()
-        while self.peek() in (("sym", "&"), ("word", "and")):
+        return self._left("and", "&", self.unary)
+
+    def _left(self, op: str, sym: str, operand) -> F:
+        """``operand (sym|op operand)*``, grouped to the left."""
+        f = operand()
+        while self.peek() in (("sym", sym), ("word", op)):
             self.take()
-            f = F("and", (f, self.unary()))
+            f = F(op, (f, operand()))
         return f
 
     def unary(self) -> F:
@@ -318,9 +318,14 @@ class Checker:
 
     def _eg(self, p: np.ndarray) -> np.ndarray:
         """EG p under fairness: reach, within p, a non-trivial SCC of the p-subgraph meeting every F_i."""
-        idx = np.flatnonzero(p)
-        if not len(idx):
+        if not p.any():
             return np.zeros(self.k.n_states, bool)
+        return _spread(self.k.pred, self._fair_core(p)[0], p)
+
+    def _fair_core(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """States of the p-subgraph's fair SCCs (non-trivial, meeting every F_i), the p states
+        ``idx`` and each one's SCC number ``comp``."""
+        idx = np.flatnonzero(p)
         sub = self.k.succ[idx][:, idx]
         ncomp, comp = csgraph.connected_components(sub, directed=True, connection="strong")
         size = np.bincount(comp, minlength=ncomp)
@@ -331,7 +336,7 @@ class Checker:
             good &= np.bincount(comp[fs[idx]], minlength=ncomp) > 0
         core = np.zeros(self.k.n_states, bool)
         core[idx[good[comp]]] = True
-        return _spread(self.k.pred, core, p)
+        return core, idx, comp
 
     def reachable(self) -> np.ndarray:
         if self._reach is None:
@@ -404,17 +409,7 @@ class Checker:
 
     def _lasso(self, s: int, p: np.ndarray) -> tuple[list[int], int]:
         """A path from ``s`` through ``p`` into a fair cycle inside ``p`` (EG p's witness)."""
-        idx = np.flatnonzero(p)
-        sub = self.k.succ[idx][:, idx]
-        ncomp, comp = csgraph.connected_components(sub, directed=True, connection="strong")
-        size = np.bincount(comp, minlength=ncomp)
-        loops = np.zeros(ncomp, bool)
-        loops[comp[sub.diagonal() > 0]] = True
-        good = (size > 1) | loops
-        for fs in self._fair_sets:
-            good &= np.bincount(comp[fs[idx]], minlength=ncomp) > 0
-        core = np.zeros(self.k.n_states, bool)
-        core[idx[good[comp]]] = True
+        core, idx, comp = self._fair_core(p)
         prefix = _path(self.k.succ, s, core, p)
         entry = prefix[-1]
         inside = np.zeros(self.k.n_states, bool)

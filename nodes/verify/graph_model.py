@@ -152,7 +152,7 @@ def _set(t: tuple, i: int, v: object) -> tuple:
 def _justice(k: Kripke, spec: GraphSpec, sub: list[int], pub: int | None, budget: list[int]) -> list[np.ndarray]:
     """Buchi sets: states where no enabled duty is being postponed."""
     out = []
-    states = k.names if isinstance(k.names, list) else k.names.states
+    states = k.names                       # the raw states: called before they are given readable names
     for j, node in enumerate(sub):
         out.append(np.fromiter((not (s[4][j] == QUEUED and s[0][node]) for s in states), bool, len(states)))
     if pub is not None:
