@@ -184,7 +184,7 @@ def plot(path: Path, curves: dict[str, list[dict]], dt_sweep: list[dict]) -> Non
               ("Fig. 8 and beyond: transfer variants", ["no zone", "one zone, cache", "one zone, adaptive",
                                                         "peer to peer"], "eff"),
               ("wall with a 0.3 m gate at the zone", ["gate, no partition", "gate, one zone", "gate, adaptive"], "eff"),
-              ("interference: time in contact", list(curves), "contact_frac")]
+              ("interference: time spent bouncing off others", list(curves), "contact_frac")]
     for ax, (title, names, key) in zip(axes.flat, panels):
         for name in names:
             rows = curves[name]
@@ -195,7 +195,7 @@ def plot(path: Path, curves: dict[str, list[dict]], dt_sweep: list[dict]) -> Non
         ax.set_title(title)
         ax.set_xlabel("N robots")
         ax.set_ylabel({"eff": "F / N (items per robot, 200 s)", "food": "F (items, 200 s)",
-                       "contact_frac": "fraction of robot-time in contact"}[key])
+                       "contact_frac": "fraction of robot-time bouncing"}[key])
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     ax = axes.flat[5]
