@@ -167,13 +167,13 @@ def main() -> None:
           f"gated arena N* {result['nstar_gated']}, gain at N=30 {100 * result['eff_gain_gated_at_n30']:+.1f} %; "
           f"cache N* {result['nstar_cache']}", flush=True)
     if args.png:
-        plot(Path(args.png), curves, dt_sweep)
+        plot(Path(args.png), curves, dt_sweep, len(seeds))
         print(f"figure: {args.png}")
     if args.json:
         print(json.dumps(result))
 
 
-def plot(path: Path, curves: dict[str, list[dict]], dt_sweep: list[dict]) -> None:
+def plot(path: Path, curves: dict[str, list[dict]], dt_sweep: list[dict], n_seeds: int) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -210,7 +210,7 @@ def plot(path: Path, curves: dict[str, list[dict]], dt_sweep: list[dict]) -> Non
         ax.grid(alpha=0.3)
     else:
         ax.axis("off")
-    fig.suptitle("Swarm task partitioning (seed 09): 30 seeds per point, 95 % intervals")
+    fig.suptitle(f"Swarm task partitioning (seed 09): {n_seeds} seeds per point, 95 % intervals")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
