@@ -109,8 +109,8 @@ def contract_halfplane(b: Boxes, a: np.ndarray, c: np.ndarray) -> Boxes:
             with np.errstate(divide="ignore"):
                 q = u / np.where(a[:, k] == 0, 1.0, a[:, k])
         pos, neg = a[:, k] > 0, a[:, k] < 0
-        hi[:, k] = np.where(pos, np.minimum(hi[:, k], np.nextafter(q, np.inf)), hi[:, k])
-        lo[:, k] = np.where(neg, np.maximum(lo[:, k], np.nextafter(q, -np.inf)), lo[:, k])
+        hi[:, k] = np.where(pos, np.minimum(hi[:, k], iv.up(q)), hi[:, k])
+        lo[:, k] = np.where(neg, np.maximum(lo[:, k], iv.down(q)), lo[:, k])
         dead = (a[:, k] == 0) & (u < 0)
         lo[dead], hi[dead] = np.inf, -np.inf
     dead = box_empty((lo, hi))

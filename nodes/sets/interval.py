@@ -57,10 +57,24 @@ def empty_like(a: Interval) -> Interval:
     return np.full_like(a[0], INF), np.full_like(a[1], -INF)
 
 
+def down(x: np.ndarray) -> np.ndarray:
+    """One ulp toward -inf; infinities stay (nextafter(+inf, -inf) would be a finite 1.8e308)."""
+    x = np.asarray(x, np.float64)
+    with np.errstate(over="ignore"):
+        return np.where(np.isinf(x), x, np.nextafter(x, -INF))
+
+
+def up(x: np.ndarray) -> np.ndarray:
+    """One ulp toward +inf; infinities stay."""
+    x = np.asarray(x, np.float64)
+    with np.errstate(over="ignore"):
+        return np.where(np.isinf(x), x, np.nextafter(x, INF))
+
+
 def outward(lo: np.ndarray, hi: np.ndarray, empty: np.ndarray | None = None) -> Interval:
     """Bounds moved one ulp outward (the enclosure of a correctly rounded operation);
     ``empty`` marks results that must stay empty."""
-    lo, hi = np.nextafter(lo, -INF), np.nextafter(hi, INF)
+    lo, hi = down(lo), up(hi)
     if empty is not None and empty.any():
         lo, hi = np.where(empty, INF, lo), np.where(empty, -INF, hi)
     return lo, hi

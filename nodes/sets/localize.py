@@ -185,6 +185,6 @@ def _bounded(box: np.ndarray, observations: list[Observation]) -> np.ndarray:
     lo, hi = box[0].copy(), box[1].copy()
     for o in observations:
         m, r = np.asarray(o.marker, np.float64), o.range_m[1]
-        lo = np.maximum(lo, np.nextafter(m - r, -np.inf))
-        hi = np.minimum(hi, np.nextafter(m + r, np.inf))
+        lo = np.maximum(lo, iv.down(m - r))
+        hi = np.minimum(hi, iv.up(m + r))
     return np.stack([lo, hi])

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nodes.sets.contract import contract_sq_distance_boxes, range_sq_bounds
+from nodes.sets.interval import down, up
 
 U = 2.0 ** -53
 
@@ -81,24 +82,30 @@ def contract_edges(lo: np.ndarray, hi: np.ndarray, i: np.ndarray, j: np.ndarray,
     lo, hi = lo.astype(np.float64).copy(), hi.astype(np.float64).copy()
     for sweep in range(1, max_iter + 1):
         with np.errstate(invalid="ignore"):
-            fj_lo, fj_hi = np.nextafter(lo[i] + dlo, -np.inf), np.nextafter(hi[i] + dhi, np.inf)
-            fi_lo, fi_hi = np.nextafter(lo[j] - dhi, -np.inf), np.nextafter(hi[j] - dlo, np.inf)
+            fj_lo, fj_hi = down(lo[i] + dlo), up(hi[i] + dhi)
+            fi_lo, fi_hi = down(lo[j] - dhi), up(hi[j] - dlo)
         new_lo, new_hi = lo.copy(), hi.copy()
         np.maximum.at(new_lo, j, np.nan_to_num(fj_lo, nan=-np.inf))
         np.minimum.at(new_hi, j, np.nan_to_num(fj_hi, nan=np.inf))
         np.maximum.at(new_lo, i, np.nan_to_num(fi_lo, nan=-np.inf))
         np.minimum.at(new_hi, i, np.nan_to_num(fi_hi, nan=np.inf))
-        moved = np.nanmax(np.abs(np.where(np.isfinite(new_lo - lo), new_lo - lo, 0.0)), initial=0.0)
-        moved = max(moved, np.nanmax(np.abs(np.where(np.isfinite(new_hi - hi), new_hi - hi, 0.0)), initial=0.0))
-        changed_inf = np.any(np.isinf(lo) != np.isinf(new_lo)) or np.any(np.isinf(hi) != np.isinf(new_hi))
+        settled = _settled(np.concatenate([lo, hi]), np.concatenate([new_lo, new_hi]), tol)
         lo, hi = new_lo, new_hi
         if np.any(lo > hi):
             bad = np.any(lo > hi, axis=1)
             lo[bad], hi[bad] = np.inf, -np.inf
             return lo, hi, sweep
-        if moved <= tol and not changed_inf:
+        if settled:
             return lo, hi, sweep
     return lo, hi, max_iter
+
+
+def _settled(before: np.ndarray, after: np.ndarray, tol: float) -> bool:
+    """No bound became finite and no finite bound moved by more than ``tol``."""
+    finite = np.isfinite(before) & np.isfinite(after)
+    if not np.array_equal(np.isfinite(before), np.isfinite(after)):
+        return False
+    return not finite.any() or float(np.abs(after[finite] - before[finite]).max()) <= tol
 
 
 @dataclass
@@ -139,7 +146,9 @@ class SetSlam:
 
     def contract(self, *, max_iter: int = 50, tol: float = 1e-6) -> int:
         """Chain and ranges to a fixpoint; returns the sweeps used. Empty boxes mean the bounds
-        failed somewhere (check :attr:`consistent`)."""
+        failed somewhere (check :attr:`consistent`); an empty tube stays empty."""
+        if not self.consistent:
+            return 0
         dlo, dhi = np.array(self.d_lo).reshape(-1, 2), np.array(self.d_hi).reshape(-1, 2)
         ob = np.array(self.obs, dtype=np.float64).reshape(-1, 4)
         steps, markers = ob[:, 0].astype(int), ob[:, 1].astype(int)
@@ -153,11 +162,7 @@ class SetSlam:
             self.x_lo, self.x_hi, self.m_lo, self.m_hi = x[0], x[1], m[0], m[1]
             if not self.consistent:
                 return sweep
-            with np.errstate(invalid="ignore"):
-                moved = np.abs(after - before)
-            moved = moved[np.isfinite(moved)]
-            same_inf = np.array_equal(np.isinf(before), np.isinf(after))
-            if same_inf and (moved.size == 0 or moved.max() <= tol):
+            if _settled(before, after, tol):
                 return sweep
         return max_iter
 
