@@ -23,6 +23,7 @@ import numpy as np
 
 from nodes.sets import contract
 from nodes.sets import interval as iv
+from nodes.sets.codac_env import codac_calls
 from nodes.sets.paving import Paving, sep_inter, sivia
 
 ENGINES = ("codac", "numpy")
@@ -68,11 +69,10 @@ def numpy_separator(observations: list[Observation]):
     return sep_inter(seps)
 
 
-def codac_separator(observations: list[Observation], *, outliers: int = 0):
+def codac_separator(codac, observations: list[Observation], *, outliers: int = 0):
     """The same constraints as codac separators (q-relaxed intersection when ``outliers`` > 0:
-    a point is kept when it satisfies all but ``outliers`` of the observations)."""
-    import codac
-
+    a point is kept when it satisfies all but ``outliers`` of the observations). Call it
+    inside :func:`nodes.sets.codac_env.codac_calls`, which gives the ``codac`` module."""
     x = codac.VectorVar(2)
     per_obs = []
     for o in observations:
@@ -115,15 +115,16 @@ def pave(box: np.ndarray, observations: list[Observation], eps: float, *, engine
         if outliers:
             raise ValueError("the numpy engine has no q-relaxed intersection; use engine='codac'")
         return sivia(box, numpy_separator(observations), eps, max_boxes=max_boxes)
-    import codac
+    with codac_calls() as codac:
+        x0 = codac.IntervalVector([[float(box[0, 0]), float(box[1, 0])], [float(box[0, 1]), float(box[1, 1])]])
+        p = codac.pave(x0, codac_separator(codac, observations, outliers=outliers), eps)
+        inner, bound = p.boxes(codac.PavingInOut.inner), p.boxes(codac.PavingInOut.bound)
+        lists = [[[list(b.lb()), list(b.ub())] for b in boxes] for boxes in (inner, bound)]
+    return Paving(_as_boxes(lists[0]), _as_boxes(lists[1]))
 
-    x0 = codac.IntervalVector([[float(box[0, 0]), float(box[1, 0])], [float(box[0, 1]), float(box[1, 1])]])
-    p = codac.pave(x0, codac_separator(observations, outliers=outliers), eps)
-    return Paving(_codac_boxes(p.boxes(codac.PavingInOut.inner)), _codac_boxes(p.boxes(codac.PavingInOut.bound)))
 
-
-def _codac_boxes(boxes) -> np.ndarray:
-    out = np.array([[list(b.lb()), list(b.ub())] for b in boxes], dtype=np.float64).reshape(-1, 2, 2)
+def _as_boxes(boxes: list) -> np.ndarray:
+    out = np.array(boxes, dtype=np.float64).reshape(-1, 2, 2)
     return out[np.all(out[:, 0] <= out[:, 1], axis=1)]          # codac gives the empty set as NaN boxes
 
 

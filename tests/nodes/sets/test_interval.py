@@ -9,7 +9,9 @@ import pytest
 
 from nodes.sets import interval as iv
 
-codac = pytest.importorskip("codac")
+from nodes.sets.codac_env import available, codac_calls, rounding_mode
+
+pytestmark = pytest.mark.skipif(not available(), reason="codac is not installed")
 
 
 def _random_intervals(rng, n, scale=10.0):
@@ -38,11 +40,13 @@ def test_unary_ops_enclose_and_match_codac(op, fn):
     z = op(a)
     vals = fn(_samples(a, rng))
     assert np.all((z[0] <= vals) & (vals <= z[1]))
-    cfn = {iv.sin: codac.sin, iv.cos: codac.cos, iv.sqr: codac.sqr}[op]
-    for k in range(0, 300, 7):
-        ref = cfn(codac.Interval(float(a[0][k]), float(a[1][k])))
-        assert z[0][k] <= ref.lb() + 1e-14 and z[1][k] >= ref.ub() - 1e-14     # ours encloses codac's
-        assert (z[1][k] - z[0][k]) <= ref.diam() + 1e-13                       # and is as tight
+    with codac_calls() as codac:
+        cfn = {iv.sin: codac.sin, iv.cos: codac.cos, iv.sqr: codac.sqr}[op]
+        refs = [cfn(codac.Interval(float(a[0][k]), float(a[1][k]))) for k in range(0, 300, 7)]
+        refs = [(r.lb(), r.ub(), r.diam()) for r in refs]
+    for k, (ref_lo, ref_hi, ref_w) in zip(range(0, 300, 7), refs):
+        assert z[0][k] <= ref_lo + 1e-14 and z[1][k] >= ref_hi - 1e-14         # ours encloses codac's
+        assert (z[1][k] - z[0][k]) <= ref_w + 1e-13                            # and is as tight
 
 
 def test_sin_cos_at_their_extrema_reach_plus_minus_one():
@@ -81,9 +85,18 @@ def test_division_by_an_interval_with_zero_gives_two_pieces_or_their_hull():
     lo, hi = iv.div(iv.interval(-1.0, 2.0), iv.interval(-1.0, 4.0))          # both hold 0: everything
     assert (lo, hi) == (-np.inf, np.inf)
     assert iv.is_empty(iv.div(iv.interval(1.0), iv.interval(0.0)))           # x / [0, 0]: no real number
-    # codac returns the hull too
-    ref = codac.Interval(1, 2) / codac.Interval(-1, 4)
-    assert ref.lb() == -np.inf and ref.ub() == np.inf
+    with codac_calls() as codac:                                              # codac returns the hull too
+        ref = codac.Interval(1, 2) / codac.Interval(-1, 4)
+        assert ref.lb() == -np.inf and ref.ub() == np.inf
+
+
+def test_codac_leaves_the_process_rounding_to_nearest():
+    before = rounding_mode()
+    with codac_calls() as codac:
+        codac.Interval(0.1) + codac.Interval(0.2)
+    assert rounding_mode() == before
+    a = np.array([1.0])
+    assert (a + 1e-17)[0] == 1.0                     # upward rounding would give 1.0000000000000002
 
 
 def test_decimal_constants_become_intervals_that_hold_them():
