@@ -69,16 +69,24 @@ def numpy_separator(observations: list[Observation]):
     return sep_inter(seps)
 
 
-def codac_separator(codac, observations: list[Observation], *, outliers: int = 0):
+def codac_separator(codac, observations: list[Observation], *, outliers: int = 0, functions: dict | None = None):
     """The same constraints as codac separators (q-relaxed intersection when ``outliers`` > 0:
     a point is kept when it satisfies all but ``outliers`` of the observations). Call it
-    inside :func:`nodes.sets.codac_env.codac_calls`, which gives the ``codac`` module."""
-    x = codac.VectorVar(2)
+    inside :func:`nodes.sets.codac_env.codac_calls`, which gives the ``codac`` module.
+    ``functions``: a dict kept by the caller where the squared-distance function of each
+    marker is built once (building one costs about as much as a separator call)."""
+    functions = {} if functions is None else functions
+    x = functions.get("x")
+    if x is None:
+        x = functions["x"] = codac.VectorVar(2)
     per_obs = []
     for o in observations:
         mx, my = float(o.marker[0]), float(o.marker[1])
         r = codac.Interval(max(0.0, o.range_m[0]), o.range_m[1])
-        sep = codac.SepInverse(codac.AnalyticFunction([x], codac.sqr(x[0] - mx) + codac.sqr(x[1] - my)), codac.sqr(r))
+        f = functions.get((mx, my))
+        if f is None:
+            f = functions[(mx, my)] = codac.AnalyticFunction([x], codac.sqr(x[0] - mx) + codac.sqr(x[1] - my))
+        sep = codac.SepInverse(f, codac.sqr(r))
         if o.bearing_rad is not None:
             # the wedge as two half-planes through the marker (no branch cut; see contract._side)
             for a, c in _wedge(np.array([[mx, my]]), *o.bearing_rad):
@@ -93,17 +101,25 @@ def codac_separator(codac, observations: list[Observation], *, outliers: int = 0
     return out
 
 
-def _wedge(m: np.ndarray, lo: float, hi: float):
+def _wedge(m: np.ndarray, lo: float, hi: float) -> list[tuple[tuple[float, float], float]]:
+    """The wedge's two half-planes ``a . p <= c`` as Python floats (see contract._side; the
+    constant is bounded outward by the rounding-error bound of two products and a difference)."""
     if hi - lo >= math.pi - 2 * contract.BEARING_PAD:
         raise ValueError("a bearing interval of width >= pi is not a wedge; drop the bearing")
-    a1, c1 = contract._side(np.array([lo - contract.BEARING_PAD]), m, ccw=True)
-    a2, c2 = contract._side(np.array([hi + contract.BEARING_PAD]), m, ccw=False)
-    return [(a1[0], c1[0]), (a2[0], c2[0])]
+    mx, my = float(m[0][0]), float(m[0][1])
+    out = []
+    for theta, ccw in ((lo - contract.BEARING_PAD, True), (hi + contract.BEARING_PAD, False)):
+        ux, uy = math.cos(theta), math.sin(theta)
+        k = ux * my - uy * mx
+        err = 3 * 2.0 ** -53 * (abs(ux * my) + abs(uy * mx)) + 5e-324
+        out.append(((-uy, ux), k + err) if ccw else ((uy, -ux), -k + err))
+    return out
 
 
 def pave(box: np.ndarray, observations: list[Observation], eps: float, *, engine: str = "codac",
-         outliers: int = 0, max_boxes: int = 200_000) -> Paving:
-    """Pave ``box`` (2, 2) intersected with every observation's set to width ``eps``."""
+         outliers: int = 0, max_boxes: int = 200_000, functions: dict | None = None) -> Paving:
+    """Pave ``box`` (2, 2) intersected with every observation's set to width ``eps``
+    (``functions``: see :func:`codac_separator`)."""
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
     box = np.asarray(box, np.float64)
@@ -117,9 +133,9 @@ def pave(box: np.ndarray, observations: list[Observation], eps: float, *, engine
         return sivia(box, numpy_separator(observations), eps, max_boxes=max_boxes)
     with codac_calls() as codac:
         x0 = codac.IntervalVector([[float(box[0, 0]), float(box[1, 0])], [float(box[0, 1]), float(box[1, 1])]])
-        p = codac.pave(x0, codac_separator(codac, observations, outliers=outliers), eps)
+        p = codac.pave(x0, codac_separator(codac, observations, outliers=outliers, functions=functions), eps)
         inner, bound = p.boxes(codac.PavingInOut.inner), p.boxes(codac.PavingInOut.bound)
-        lists = [[[list(b.lb()), list(b.ub())] for b in boxes] for boxes in (inner, bound)]
+        lists = [[(b[0].lb(), b[1].lb(), b[0].ub(), b[1].ub()) for b in boxes] for boxes in (inner, bound)]
     return Paving(_as_boxes(lists[0]), _as_boxes(lists[1]))
 
 
@@ -154,17 +170,17 @@ class SetLocalizer:
     engine: str = "codac"
     max_outliers: int = 0
     inconsistent_steps: int = 0
-    history: list[StepResult] = field(default_factory=list, repr=False)
+    _functions: dict = field(default_factory=dict, repr=False)
 
     def step(self, step_box: np.ndarray | None, observations: list[Observation]) -> StepResult:
         t0 = time.perf_counter()
         predicted = self.box if step_box is None else predict(self.box, step_box)
         start = _bounded(predicted, observations)
-        paving = pave(start, observations, self.eps, engine=self.engine)
+        paving = pave(start, observations, self.eps, engine=self.engine, functions=self._functions)
         result = StepResult(box=paving.hull(), paving=paving, consistent=not paving.empty)
         q = 1
         while result.paving.empty and q <= self.max_outliers and q < len(observations):
-            paving = pave(start, observations, self.eps, engine="codac", outliers=q)
+            paving = pave(start, observations, self.eps, engine="codac", outliers=q, functions=self._functions)
             result = StepResult(box=paving.hull(), paving=paving, consistent=False, outliers_allowed=q)
             if not paving.empty:
                 break
