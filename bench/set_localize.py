@@ -21,13 +21,17 @@ the box's larger side. A step where the set is empty (never, without outliers) i
 A second table runs with 5 % outlier ranges: how many are detected as an empty set, and how
 many steps end with a box that misses the truth without being flagged.
 
+Interval mosaic (seed 08 section VII): the eight sub-images of the mosaicking experiment,
+their centres as boxes from the phase-correlation links (bounds max(1 px, 3 sigma)),
+against the pose graph's 3-sigma marginals on the same links; seeds 0-9.
+
 SLAM: our whole-history tube (nodes.sets.tube.SetSlam, vectorised) against the same
 contractor network written with codac contractors in a Python loop, on the seed's run.
 
     python bench/set_localize.py [--quick] [--json] [--png OUT.png]
 
 ``--json`` keys: truth_outside (ours, over all steps), mean_width_m, mean_width_m_codac,
-ms_per_step, ms_per_step_codac, plus per-method rows, the eps sweep, outliers and slam.
+ms_per_step, ms_per_step_codac, plus per-method rows, the eps sweep, outliers, slam and mosaic.
 """
 from __future__ import annotations
 
@@ -171,26 +175,35 @@ class Ekf:
 
 
 def evaluate(method_factory, runs) -> dict:
-    outside = width = empty = n = 0
-    ms = []
-    widths = []
-    for rows in runs:
-        m = method_factory()
-        for s, disp, obs, _ in rows:
-            t0 = time.perf_counter()
-            box, ok = m.step(disp, obs)
-            ms.append(1e3 * (time.perf_counter() - t0))
-            n += 1
-            if not ok:
-                empty += 1
-                continue
-            inside = np.all(box[0] <= s.truth_xy) and np.all(s.truth_xy <= box[1])
-            outside += not inside
-            widths.append(float(np.max(box[1] - box[0])))
-    width = statistics.fmean(widths) if widths else math.nan
-    return {"steps": n, "truth_outside": int(outside), "empty": int(empty), "mean_width_m": width,
-            "median_width_m": statistics.median(widths) if widths else math.nan,
-            "ms_per_step": statistics.median(ms), "ms_mean": statistics.fmean(ms)}
+    return evaluate_all({"m": method_factory}, runs)["m"]
+
+
+def evaluate_all(factories: dict, runs) -> dict:
+    """Every method on every run; the order of the methods rotates from run to run, so a slow
+    spell of the machine falls on all of them alike."""
+    acc = {name: {"outside": 0, "empty": 0, "n": 0, "ms": [], "widths": []} for name in factories}
+    names = list(factories)
+    for r, rows in enumerate(runs):
+        for name in names[r % len(names):] + names[:r % len(names)]:
+            m, a = factories[name](), acc[name]
+            for s, disp, obs, _ in rows:
+                t0 = time.perf_counter()
+                box, ok = m.step(disp, obs)
+                a["ms"].append(1e3 * (time.perf_counter() - t0))
+                a["n"] += 1
+                if not ok:
+                    a["empty"] += 1
+                    continue
+                a["outside"] += not (np.all(box[0] <= s.truth_xy) and np.all(s.truth_xy <= box[1]))
+                a["widths"].append(float(np.max(box[1] - box[0])))
+    out = {}
+    for name, a in acc.items():
+        w = a["widths"]
+        out[name] = {"steps": a["n"], "truth_outside": int(a["outside"]), "empty": int(a["empty"]),
+                     "mean_width_m": statistics.fmean(w) if w else math.nan,
+                     "median_width_m": statistics.median(w) if w else math.nan,
+                     "ms_per_step": statistics.median(a["ms"]), "ms_mean": statistics.fmean(a["ms"])}
+    return out
 
 
 def outliers_table(eps, runs) -> dict:
@@ -256,6 +269,82 @@ def slam_compare(seed: int, steps: int) -> dict:
             "codac_sweeps": sweeps_c, "ours_holds_truth": ours_in, "codac_holds_truth": codac_in}
 
 
+# ---- seed 08 section VII: interval mosaic registration against the pose graph's 3-sigma -------
+
+def mosaic_compare(seeds, png: str | None) -> dict:
+    from nodes.sets.mosaic_boxes import contract_mosaic, link_bounds
+    from nodes.slam import mosaic
+    from nodes.slam.pose_graph import marginal_covariances
+    from sim.subimages import subimage_scene
+
+    rows = []
+    for seed in seeds:
+        sc = subimage_scene(seed, rotate=False)
+        links = mosaic.register_all(sc.images, prior=sc.nav, known_angles=True)
+        n = len(sc.images)
+        i, j = [lk.i for lk in links.kept], [lk.j for lk in links.kept]
+        z = np.array([lk.z[:2] for lk in links.kept])
+        e = link_bounds(np.array([lk.covariance for lk in links.kept]))
+        boxes = contract_mosaic(n, i, j, z, e, sc.truth[0, :2])
+        seq = np.array([b == a + 1 for a, b in zip(i, j)])
+        chain_boxes = contract_mosaic(n, np.array(i)[seq], np.array(j)[seq], z[seq], e[seq], sc.truth[0, :2])
+        chained = mosaic.chain(links, n, sc.truth[0], prior=sc.nav)
+        res = mosaic.solve(links, n, chained)
+        cov = marginal_covariances(mosaic.graph_of(links, n, res.poses), res.poses, range(n))
+        sigma3 = 3 * np.sqrt(np.maximum(np.stack([cov[:, 0, 0], cov[:, 1, 1]], 1), 0))
+        inside3 = np.all(np.abs(res.poses[:, :2] - sc.truth[:, :2]) <= sigma3 + 1e-9, axis=1)
+        half = (boxes.hi - boxes.lo) / 2
+        rows.append({"seed": seed, "links": len(i), "boxes_hold_truth": int(boxes.contains(sc.truth[:, :2]).sum()),
+                     "images": n, "box_half_px": float(half[1:].mean()),
+                     "chain_box_half_px": float(((chain_boxes.hi - chain_boxes.lo) / 2)[1:].mean()),
+                     "graph_3sigma_px": float(sigma3[1:].mean()), "graph_within_3sigma": int(inside3.sum()),
+                     "graph_err_px": float(np.abs(res.poses[:, :2] - sc.truth[:, :2]).max()),
+                     "box_centre_err_px": float(np.abs((boxes.lo + boxes.hi) / 2 - sc.truth[:, :2]).max())})
+        print("mosaic:", rows[-1], file=sys.stderr)
+        if png and seed == seeds[0]:
+            _plot_mosaic(png, sc.truth, boxes, res.poses, cov)
+    hold = sum(r["boxes_hold_truth"] for r in rows)
+    total = sum(r["images"] for r in rows)
+    return {"rows": rows, "boxes_hold_truth": hold, "centres": total,
+            "mean_box_half_px": statistics.fmean(r["box_half_px"] for r in rows),
+            "mean_chain_box_half_px": statistics.fmean(r["chain_box_half_px"] for r in rows
+                                                       if math.isfinite(r["chain_box_half_px"])),
+            "mean_graph_3sigma_px": statistics.fmean(r["graph_3sigma_px"] for r in rows)}
+
+
+def _plot_mosaic(path, truth, boxes, poses, cov) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Ellipse, Rectangle
+
+    fig, axes = plt.subplots(2, 4, figsize=(14, 7))
+    for k, ax in enumerate(axes.ravel()):
+        t = truth[k, :2]
+        if np.all(np.isfinite(boxes.lo[k])):
+            ax.add_patch(Rectangle(tuple(boxes.lo[k] - t), *(boxes.hi[k] - boxes.lo[k]), fill=False, ec="tab:blue",
+                                   lw=1.5, label="interval box"))
+        vals, vecs = np.linalg.eigh(cov[k, :2, :2])
+        ang = math.degrees(math.atan2(vecs[1, -1], vecs[0, -1]))
+        ax.add_patch(Ellipse(tuple(poses[k, :2] - t), *(2 * 3 * np.sqrt(np.maximum(vals[::-1], 0))), angle=ang,
+                             fill=False, ec="tab:red", lw=1.2, label="pose graph 3-sigma"))
+        ax.plot(0, 0, "k+", ms=10, label="true centre")
+        ext = 3 * np.sqrt(np.maximum(vals.max(), 0)) + 1
+        if np.all(np.isfinite(boxes.lo[k])):
+            ext = max(ext, float(np.abs(np.concatenate([boxes.lo[k] - t, boxes.hi[k] - t])).max()) * 1.1)
+        ax.set_xlim(-ext, ext)
+        ax.set_ylim(-ext, ext)
+        ax.set_aspect("equal")
+        ax.set_title(f"image {k + 1}", fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, loc="lower left")
+    fig.suptitle("seed 08 VII: image centres as boxes (translation links +- max(1 px, 3 sigma)) against the "
+                 "pose graph's 3-sigma ellipses, relative to the truth (px)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="1,000 steps instead of 10,000; a shorter sweep")
@@ -268,12 +357,12 @@ def main() -> None:
     runs = [run_scene(sc, seed, steps_per_run) for sc in SCENES for seed in range(runs_per_scene)]
     methods = {"ours": lambda: Ours(eps), "codac": lambda: CodacScript(eps), "ours-numpy": lambda: Ours(eps, "numpy"),
                "codac-ctc": lambda: CodacScript(eps, paving=False), "ekf": Ekf}
-    rows = {}
     few = [runs[i * runs_per_scene + k] for i in range(len(SCENES)) for k in range(min(2, runs_per_scene))]
-    for name, factory in methods.items():
-        # the numpy engine pays ~20 numpy calls per SIVIA level: 20x slower on these small sets, so
-        # it runs on two runs per scene only (its speed is measured where it wins, in the sweep's large pavings)
-        rows[name] = evaluate(factory, few if name == "ours-numpy" else runs)
+    rows = evaluate_all({k: v for k, v in methods.items() if k != "ours-numpy"}, runs)
+    # the numpy engine pays ~20 numpy calls per SIVIA level: 20x slower on these small sets, so it
+    # runs on two runs per scene only (large pavings, where it wins, are in tests/nodes/sets and the README)
+    rows["ours-numpy"] = evaluate(methods["ours-numpy"], few)
+    for name in methods:
         print(f"{name:11s} steps {rows[name]['steps']:6d}  truth outside {rows[name]['truth_outside']:5d}  "
               f"empty {rows[name]['empty']:3d}  mean width {rows[name]['mean_width_m']:.3f} m  "
               f"median {rows[name]['ms_per_step']:.2f} ms/step", file=sys.stderr, flush=True)
@@ -284,9 +373,9 @@ def main() -> None:
     sweep = []
     seed_runs = runs[:runs_per_scene]
     for e in ((0.2, 0.1, 0.05) if args.quick else (0.4, 0.2, 0.1, 0.05, 0.02, 0.01)):
-        for name, fac in (("ours", lambda e=e: Ours(e)), ("codac", lambda e=e: CodacScript(e)),
-                          ("ours-numpy", lambda e=e: Ours(e, "numpy"))):
-            r = evaluate(fac, seed_runs[:2] if name == "ours-numpy" else seed_runs)
+        both = evaluate_all({"ours": lambda e=e: Ours(e), "codac": lambda e=e: CodacScript(e)}, seed_runs)
+        both["ours-numpy"] = evaluate(lambda e=e: Ours(e, "numpy"), seed_runs[:2])
+        for name, r in both.items():
             sweep.append({"eps": e, "method": name, "mean_width_m": r["mean_width_m"], "ms_per_step": r["ms_per_step"],
                           "truth_outside": r["truth_outside"]})
             print(f"eps {e:5.2f} {name:11s} width {r['mean_width_m']:.3f} m  {r['ms_per_step']:.2f} ms/step  "
@@ -295,6 +384,8 @@ def main() -> None:
                 for seed in range(runs_per_scene)]
     outl = outliers_table(eps, out_runs)
     print("outliers:", outl, file=sys.stderr)
+    mosaic_png = str(Path(args.png).with_name("bench_interval_mosaic.png")) if args.png else None
+    mosaic_rows = mosaic_compare(range(3) if args.quick else range(10), mosaic_png)
     slam = [slam_compare(0, k) for k in ((100, 300) if args.quick else (100, 300, 1000))]
     for row in slam:
         print("slam:", row, file=sys.stderr)
@@ -303,7 +394,8 @@ def main() -> None:
               "ms_per_step_codac": rows["codac"]["ms_per_step"],
               "width_ratio": rows["ours"]["mean_width_m"] / rows["codac"]["mean_width_m"],
               "time_ratio": rows["ours"]["ms_per_step"] / rows["codac"]["ms_per_step"],
-              "eps": eps, "methods": rows, "per_scene": per_scene, "sweep": sweep, "outliers": outl, "slam": slam}
+              "eps": eps, "methods": rows, "per_scene": per_scene, "sweep": sweep, "outliers": outl, "slam": slam,
+              "mosaic": mosaic_rows}
     if args.png:
         plot(sweep, rows, args.png)
     if args.json:
