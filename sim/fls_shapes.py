@@ -286,6 +286,21 @@ class Mesh:
         centre = 0.5 * (self.vertices.min(axis=0) + self.vertices.max(axis=0))
         return centre, float(np.linalg.norm(self.vertices - centre, axis=1).max())
 
+    def inside(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+        """Inside by the generalised winding number (w >= 1/2), which holds for the open,
+        cracked or doubled-up meshes OBJ files often are; with ``margin_m`` the point and its six
+        neighbours at +-margin along the axes must all be inside (an erosion by a cube)."""
+        from nodes.shapes.fast_winding import fast_winding, mesh_tree, winding_mesh
+
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        offsets = np.zeros((1, 3)) if margin_m <= 0 else np.vstack([np.zeros(3), margin_m * np.eye(3), -margin_m * np.eye(3)])
+        probe = (pts[:, None, :] + offsets[None]).reshape(-1, 3)
+        if len(self.faces) * len(probe) <= 2e7:
+            w = winding_mesh(probe, self.vertices, self.faces)
+        else:
+            w = fast_winding(mesh_tree(self.vertices, self.faces), probe, beta=2.0)
+        return np.all(w.reshape(len(pts), len(offsets)) >= 0.5, axis=1)
+
     def sample(self, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
         tri = self.vertices[self.faces]
         e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]

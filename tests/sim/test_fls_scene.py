@@ -131,3 +131,27 @@ def test_bad_scenes_raise_clear_errors():
         load_scene(_scene([{"type": "sphere"}]))
     with pytest.raises(ValueError, match="sonar"):
         load_scene({**_scene(), "sonar": {"beams_per_fish": 3}})
+
+
+def _cube_mesh(size=2.0):
+    v = np.array([[x, y, z] for x in (0, size) for y in (0, size) for z in (0, size)], float)
+    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return v, faces
+
+
+def test_mesh_inside_by_winding_number_matches_a_box_and_survives_a_missing_face():
+    v, f = _cube_mesh()
+    # orient outward whatever the table above says: flip if the signed volume is negative
+    if np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() < 0:
+        f = f[:, ::-1]
+    box = Box(center=np.array([1.0, 1.0, 1.0]), size=np.array([2.0, 2.0, 2.0]), rotation=np.eye(3))
+    pts = np.random.default_rng(0).uniform(-0.5, 2.5, (3000, 3))
+    away = np.min(np.abs(np.concatenate([pts, 2 - pts], axis=1)), axis=1) > 1e-3
+    mesh = Mesh(vertices=v, faces=f)
+    assert np.array_equal(mesh.inside(pts)[away], box.inside(pts)[away])
+    cracked = Mesh(vertices=v, faces=f[:-1])                                   # one triangle missing
+    deep = np.all((pts > 0.5) & (pts < 1.5), axis=1)
+    assert cracked.inside(pts[deep]).all() and not cracked.inside(pts[np.all(pts < -0.1, axis=1)]).any()
+    near = np.array([[1.0, 1.0, 1.99], [1.0, 1.0, 1.0]])
+    assert mesh.inside(near).tolist() == [True, True] and mesh.inside(near, margin_m=0.05).tolist() == [False, True]
