@@ -203,23 +203,27 @@ def fast_winding(tree: DipoleTree, points: np.ndarray, *, beta: float = 2.0, chu
 def _walk(tree: DipoleTree, coef: np.ndarray, q: np.ndarray, beta: float) -> np.ndarray:
     w = np.zeros(len(q))
     sizes = tree.stop - tree.start
+    reach2 = (beta * tree.radius) ** 2
+    leaf_node = tree.child[:, 0] < 0
     qi, node = np.arange(len(q)), np.zeros(len(q), np.int64)
     while len(qi):
         r = tree.centre[node] - q[qi]
-        far = (r * r).sum(axis=1) > (beta * tree.radius[node]) ** 2
+        far = np.einsum("ij,ij->i", r, r) > reach2[node]
         if far.any():
             w += np.bincount(qi[far], _far(r[far], coef[node[far]]), minlength=len(q))
-        near = ~far
-        leaf = near & (tree.child[node, 0] < 0)
+            near = ~far
+            qi, node = qi[near], node[near]
+        leaf = leaf_node[node]
         if leaf.any():
             lq, ln = qi[leaf], node[leaf]
             cnt = sizes[ln]
             pq = np.repeat(lq, cnt)
             pe = np.repeat(tree.start[ln], cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
             w += np.bincount(pq, _exact(q[pq], tree.elems[pe]), minlength=len(q))
-        inner = near & ~leaf
-        qi = np.repeat(qi[inner], 2)
-        node = tree.child[node[inner]].ravel()
+            inner = ~leaf
+            qi, node = qi[inner], node[inner]
+        qi = np.repeat(qi, 2)
+        node = tree.child[node].ravel()
     return w
 
 
