@@ -70,6 +70,7 @@ class Ping360Device:
         self.rng = np.random.default_rng(seed)
         self.master, slave = os.openpty()
         tty.setraw(slave)
+        os.set_blocking(self.master, False)      # a driver that stops reading must not hang the device
         self.port = os.ttyname(slave)
         self._slave = slave                       # kept open so the pty lives while drivers come and go
         self._stop = threading.Event()
@@ -77,6 +78,7 @@ class Ping360Device:
         self._auto_angle, self._auto_dir = 0, 1
         self.beams_sent = 0
         self.requests = 0
+        self.motor_offs = 0
         self.parser = pp.PingParser()
         self._thread = threading.Thread(target=self._run, name="ping360-sim", daemon=True)
 
@@ -105,9 +107,9 @@ class Ping360Device:
             try:
                 n = os.write(self.master, view)
             except BlockingIOError:
-                time.sleep(0.001)
+                select.select([], [self.master], [], 0.05)          # the line is full: wait, then look at stop
                 continue
-            except OSError:
+            except (OSError, ValueError):
                 return
             view = view[n:]
         delay = t_end - time.monotonic()
@@ -117,7 +119,10 @@ class Ping360Device:
     def _run(self) -> None:
         while not self._stop.is_set():
             timeout = 0.0 if self._auto else 0.05
-            ready, _, _ = select.select([self.master], [], [], timeout)
+            try:
+                ready, _, _ = select.select([self.master], [], [], timeout)
+            except (OSError, ValueError):                          # closed under us: the device is gone
+                return
             if ready:
                 try:
                     data = os.read(self.master, 4096)
@@ -151,6 +156,7 @@ class Ping360Device:
                 self._auto_angle, self._auto_dir = start, 1
             elif f.message_id in (pp.MOTOR_OFF, pp.RESET):
                 self._auto = None
+                self.motor_offs += f.message_id == pp.MOTOR_OFF
                 self._write(pp.encode(pp.ACK, struct.pack("<H", f.message_id), src=1))
             else:
                 self._nack(f.message_id, "unknown message")
