@@ -16,8 +16,10 @@ from __future__ import annotations
 import argparse
 import logging
 import re
+import struct
 import threading
 import time
+import zlib
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, TextIO
 
@@ -237,13 +239,45 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
+#: Suffixes read by our ``candump -L`` parser; every other one goes to python-can's ``LogReader``.
+CANDUMP_SUFFIXES = ("", ".log", ".candump", ".txt")
+
+
+def iter_can_log(path: str | Path, *, on_skip: Callable[[int, str], None] | None = None) -> Iterator[CanFrame]:
+    """Frames of any CAN log python-can reads (ASC, BLF, TRC, CSV, MF4, ... by suffix, through
+    ``can.LogReader``), and of ``candump -L`` text through our parser. Ours stays for that one
+    format because python-can's ``CanutilsLogReader`` reads the stamp as a float (the digits
+    below the microsecond of a 2023 epoch stamp are lost), rejects the ``_X`` DLC extension and
+    ``#`` comments, and stops at the first bad line (``tests/drivers/test_candump_io.py``
+    measures both). A reader that fails mid-file (a truncated BLF) ends the import there: what
+    was read is kept and the failure is counted as a skip."""
+    path = Path(path)
+    if path.suffix.lower() in CANDUMP_SUFFIXES:
+        with open(path, encoding="ascii", errors="replace") as f:
+            yield from iter_frames(f, errors="skip", on_skip=on_skip)
+        return
+    from drivers.can_bus import frame_from_message
+
+    count = 0
+    try:
+        with can.LogReader(path) as reader:
+            for msg in reader:
+                count += 1
+                yield frame_from_message(msg, is_rx=bool(getattr(msg, "is_rx", True)))
+    except ValueError as exc:                           # an unknown suffix: say which ones python-can knows
+        if "suffix" in str(exc).lower() or "unknown" in str(exc).lower():
+            raise ValueError(f"{path.name}: python-can has no reader for {path.suffix!r} ({exc})") from None
+        (on_skip or _log_skip)(count + 1, f"the reader stopped: {exc}")
+    except (OSError, EOFError, struct.error, zlib.error) as exc:
+        (on_skip or _log_skip)(count + 1, f"the reader stopped: {exc}")
+
+
 def import_candump(src: str | Path, dst: str | Path, *, topic: str | None = None,
                    max_bytes: int | None = None) -> "ImportResult":
-    """``tether import candump``: ``candump -L`` and python-can ``.log`` files -> ``can/frame``
-    (``max_bytes`` unused: nothing is compressed)."""
+    """``tether import can`` (and its old name ``candump``): every CAN log format python-can
+    reads, and ``candump -L`` text -> ``can/frame`` (``max_bytes`` unused)."""
     from tether.imports import ImportResult, write_messages
 
-    result = ImportResult(unit="line")
-    frames = read_candump(src, errors="skip", on_skip=result.skip)
-    return write_messages(frames, dst, topic or "can/frame", result)
+    result = ImportResult(unit="line" if Path(src).suffix.lower() in CANDUMP_SUFFIXES else "message")
+    return write_messages(iter_can_log(src, on_skip=result.skip), dst, topic or "can/frame", result)
 

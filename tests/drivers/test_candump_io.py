@@ -172,3 +172,54 @@ def test_mutated_real_log_imports_without_a_traceback(tmp_path, shared_data):
         src.write_text("\n".join(mutated) + "\n")
         result = import_candump(src, tmp_path / "m.mcap")
         assert len(lines) - 5 <= result.imported <= len(lines) and result.skipped <= 5
+
+
+# -- tether import can: every format python-can reads, and candump text through our parser ------
+
+def _sample_messages():
+    return [can.Message(timestamp=1700000000.0 + k * 0.01, arbitration_id=0x180 + k, data=bytes([k, 2 * k, 3]),
+                        is_extended_id=False, channel="can0") for k in range(20)]
+
+
+@pytest.mark.parametrize("suffix,writer", [(".asc", can.ASCWriter), (".blf", can.BLFWriter), (".trc", can.TRCWriter),
+                                            (".csv", can.CSVWriter)])
+def test_python_can_formats_import_through_its_readers(tmp_path, suffix, writer):
+    path = tmp_path / f"log{suffix}"
+    with writer(path) as w:
+        for m in _sample_messages():
+            w.on_message_received(m)
+    frames = list(candump.iter_can_log(path))
+    assert [(f.arbitration_id, bytes(f.data)) for f in frames] == [(m.arbitration_id, bytes(m.data)) for m in _sample_messages()]
+
+
+def test_a_truncated_blf_keeps_what_was_read_and_counts_the_failure(tmp_path):
+    path = tmp_path / "log.blf"
+    with can.BLFWriter(path) as w:
+        for _ in range(50):
+            for m in _sample_messages():
+                w.on_message_received(m)
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * 0.6)])
+    skips = []
+    frames = list(candump.iter_can_log(path, on_skip=lambda n, why: skips.append(why)))
+    assert len(frames) < 1000 and (skips or len(frames) > 0)
+
+
+def test_unknown_suffix_says_so(tmp_path):
+    path = tmp_path / "log.xyz"
+    path.write_text("nothing")
+    with pytest.raises(ValueError, match="no reader"):
+        list(candump.iter_can_log(path))
+
+
+def test_our_candump_parser_keeps_what_python_cans_reader_loses(tmp_path):
+    text = "# a comment from the capture tool\n(1699584944.440580123) can0 701#00\n(1699584944.440590000) can0 123#1122334455667788_9\n"
+    ours = list(iter_frames(io.StringIO(text)))
+    assert ours[0].stamp_ns == 1699584944_440580123                       # the nanoseconds survive
+    assert ours[1].data == bytes.fromhex("1122334455667788")                # the _X DLC extension kept out
+    with pytest.raises(ValueError):                                       # python-can: the comment line breaks it
+        list(can.CanutilsLogReader(io.StringIO(text)))
+    with pytest.raises(ValueError):                                       # ... and so does the DLC extension
+        list(can.CanutilsLogReader(io.StringIO(text.split("\n")[2] + "\n")))
+    theirs = list(can.CanutilsLogReader(io.StringIO(text.split("\n", 1)[1].split("\n")[0] + "\n")))
+    assert int(round(theirs[0].timestamp * 1e9)) != 1699584944_440580123  # a float cannot hold them
