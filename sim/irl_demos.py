@@ -25,7 +25,7 @@ import numpy as np
 
 from msgs.geometry import Odometry2D, Pose2D, Twist2D
 from msgs.nav import Goal2D
-from nodes.nav.dijkstra import GridFrame
+from nodes.nav.grid_frame import GridFrame
 from nodes.nav.irl import Demo, cell_costs
 from nodes.nav.irl_learn import (CAMERA_FX_PX, ORACLE_WEIGHTS, PLANNER_PARAMS, DemoSet, FeaturePipeline,
                                  add_learning_arguments, demos_from_poses, learn_main)

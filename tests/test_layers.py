@@ -42,8 +42,8 @@ def test_import_verbs_come_from_entry_points(tmp_path):
 
     from tether.imports import importers
 
-    assert {"oculus", "candump"} <= set(importers())
+    assert {"oculus", "candump", "can", "ping360"} <= set(importers())
     assert importers()["candump"].value == "drivers.candump:import_candump"
     out = subprocess.run([sys.executable, "-m", "tether.cli", "import", "nosuch", str(tmp_path / "x"), "-o",
                           str(tmp_path / "y.mcap")], capture_output=True, text=True, cwd=REPO, timeout=60)
-    assert out.returncode == 2 and "no importer 'nosuch'; registered: candump, oculus" in out.stderr
+    assert out.returncode == 2 and "no importer 'nosuch'; registered: can, candump, oculus, ping360" in out.stderr

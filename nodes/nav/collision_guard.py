@@ -40,7 +40,7 @@ from msgs.geometry import Odometry2D, Twist2D
 from msgs.nav import FlowPoints, PlanStatus
 from msgs.sensor import RgbdFrame
 from nodes.nav.clearance import braking_speed_mps, cleared_by_depth, free_distance_m, unseen_mask
-from nodes.nav.dijkstra import to_robot, to_world
+from nodes.nav.grid_frame import to_robot, to_world
 from nodes.nav.dwa_core import depth_to_robot, thin_points
 from tether import Node
 

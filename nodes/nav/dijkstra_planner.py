@@ -14,7 +14,7 @@ import numpy as np
 from msgs.geometry import Odometry2D, Path2D, Twist2D
 from msgs.nav import CostGrid, FeatureGrid, FlowPoints, Goal2D, PlanStatus
 from msgs.sensor import Grid
-from nodes.nav.dijkstra import GridFrame
+from nodes.nav.grid_frame import GridFrame
 from nodes.nav.social_planner import PlannerParams, SocialPlanner, predict_conflicts
 from tether import Node
 

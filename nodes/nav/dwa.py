@@ -17,7 +17,8 @@ import numpy as np
 from msgs.geometry import Odometry2D, Path2D, Twist2D
 from msgs.nav import FlowPoints, Goal2D, PlanStatus
 from msgs.sensor import Grid, RgbdFrame
-from nodes.nav.dijkstra import GridFrame, GridGraph, extract_waypoint, inflate, plan_on_map, to_world
+from nodes.nav.dijkstra import GridGraph
+from nodes.nav.grid_frame import GridFrame, extract_waypoint, inflate, plan_on_map, to_world
 from nodes.nav.dwa_core import DwaParams, depth_to_robot, plan_dwa, thin_points
 from tether import Node
 

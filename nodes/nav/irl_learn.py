@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nodes.nav.dijkstra import GridFrame, line_cells, to_robot
+from nodes.nav.dijkstra import line_cells
+from nodes.nav.grid_frame import GridFrame, to_robot
 from nodes.nav.irl import CostWeights, Demo, action_agreement, expected_value_difference, learn
 from nodes.nav.social_planner import on_rim
 

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import grey_dilation
 
-from nodes.nav.dijkstra import (GridFrame, GridGraph, backtrack, cost_from, densify, extract_waypoint, inflate, smooth_path,
-                                plan_on_map, steer, to_robot, to_world)
+from nodes.nav.dijkstra import GridGraph, backtrack, cost_from, smooth_path
+from nodes.nav.grid_frame import GridFrame, densify, extract_waypoint, inflate, plan_on_map, steer, to_robot, to_world
 
 
 @dataclass(frozen=True)

@@ -6,9 +6,8 @@ import heapq
 import numpy as np
 import pytest
 
-from nodes.nav.dijkstra import (MOVES, GridFrame, GridGraph, cost_to_go, extract_waypoint, inflate, line_cells,
-                                path_cost, pick_subgoal, plan_dijkstra, plan_on_map, smooth_path, steer, to_robot,
-                                to_world)
+from nodes.nav.dijkstra import MOVES, GridGraph, cost_to_go, line_cells, path_cost, plan_dijkstra, smooth_path
+from nodes.nav.grid_frame import GridFrame, extract_waypoint, inflate, pick_subgoal, plan_on_map, steer, to_robot, to_world
 
 
 def reference_cost(cost: np.ndarray, s: tuple[int, int], g: tuple[int, int]) -> float:

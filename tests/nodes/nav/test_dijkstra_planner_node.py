@@ -8,7 +8,7 @@ from msgs.nav import CostGrid, FeatureGrid, Goal2D
 from msgs.sensor import Grid
 from nodes.nav.dijkstra_planner import DijkstraPlanner
 from nodes.nav.social_planner import PlannerParams, SocialPlanner
-from nodes.nav.dijkstra import GridFrame
+from nodes.nav.grid_frame import GridFrame
 from tether.testing import Harness
 
 RES, ROWS, COLS = 0.25, 21, 21
@@ -170,7 +170,7 @@ def test_a_planner_with_nothing_to_plan_to_turns_in_place_toward_the_global_path
 
 def test_walls_of_the_map_are_grown_by_the_robot_radius_once():
     """A 4 m corridor (walls at y = +-2) leaves the robot centre ~3.1 m: a plan may run 1.3 m off the axis."""
-    from nodes.nav.dijkstra import GridFrame as F
+    from nodes.nav.grid_frame import GridFrame as F
     occ = np.zeros((41, 121), np.uint8)
     occ[0, :] = occ[-1, :] = 1                                   # walls at y = -2 and +2 (0.1 m cells)
     planner = SocialPlanner(PlannerParams(memory_s=0.0))

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nodes.nav.dijkstra import GridFrame
+from nodes.nav.grid_frame import GridFrame
 from nodes.nav.irl import Demo
 from nodes.nav.irl_learn import DemoSet, demo_path, demos_from_poses, load_demos, save_demos, widen_demo
 
