@@ -42,7 +42,7 @@ from nodes.nav.dijkstra import GridGraph, plan_dijkstra  # noqa: E402
 from nodes.nav.dijkstra_planner import DijkstraPlanner  # noqa: E402
 from nodes.nav.dwa import Dwa  # noqa: E402
 from nodes.nav.irl_cost import IrlCost  # noqa: E402
-from nodes.nav.irl_learn import PLANNER_PARAMS, FeaturePipeline  # noqa: E402
+from nodes.nav.demos import PLANNER_PARAMS, FeaturePipeline  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
 from sim.crowd import CrowdWorld  # noqa: E402
 from sim.crowd_scenes import PedestrianSpec, load_scene  # noqa: E402

@@ -27,8 +27,8 @@ from msgs.geometry import Odometry2D, Pose2D, Twist2D
 from msgs.nav import Goal2D
 from nodes.nav.grid_frame import GridFrame
 from nodes.nav.irl import Demo, cell_costs
-from nodes.nav.irl_learn import (CAMERA_FX_PX, ORACLE_WEIGHTS, PLANNER_PARAMS, DemoSet, FeaturePipeline,
-                                 add_learning_arguments, demos_from_poses, learn_main)
+from nodes.nav.demos import CAMERA_FX_PX, PLANNER_PARAMS, DemoSet, FeaturePipeline, demos_from_poses
+from nodes.nav.irl_learn import ORACLE_WEIGHTS, add_learning_arguments, learn_main
 from nodes.nav.irl_learn import collect_demos as collect_logs
 from nodes.nav.social_planner import PlannerParams, SocialPlanner, predict_conflicts
 from sim.crowd import CrowdWorld

@@ -5,7 +5,7 @@ import numpy as np
 
 from nodes.nav.grid_frame import GridFrame
 from nodes.nav.irl import Demo
-from nodes.nav.irl_learn import DemoSet, demo_path, demos_from_poses, load_demos, save_demos, widen_demo
+from nodes.nav.demos import DemoSet, demo_path, demos_from_poses, load_demos, save_demos, widen_demo
 
 FRAME = GridFrame((24, 24), 0.25, origin_x_m=-0.375, origin_y_m=-2.875)
 
