@@ -13,7 +13,6 @@ from typing import Any
 
 import msgspec
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from msgs.geometry import Pose3D
 from sim.fls_scene import load_scene, sonar_frame
@@ -61,10 +60,7 @@ class Ping360Sim(Node):
         self.log.info("Ping360 simulator on %s (-> %s), %d baud", link, self.device.port, c.baudrate)
 
     def on_tick(self, tick: Any) -> dict[str, Pose3D]:
-        q = Rotation.from_matrix(self.pose[:3, :3]).as_quat()              # x, y, z, w
-        p = self.pose[:3, 3]
-        return {"pose": Pose3D(stamp_ns=self.now_ns(), frame_id="world", x_m=float(p[0]), y_m=float(p[1]),
-                               z_m=float(p[2]), qw=float(q[3]), qx=float(q[0]), qy=float(q[1]), qz=float(q[2]))}
+        return {"pose": Pose3D.from_matrix(self.pose, stamp_ns=self.now_ns(), frame_id="world")}
 
     def teardown(self) -> None:
         self.device.close()

@@ -207,3 +207,21 @@ def test_importer_reads_beams_from_a_raw_byte_stream(tmp_path):
     pings = list(iter_ping360_stream(path, on_skip=lambda off, why: skipped.append(why)))
     assert [round(p.bearings_rad[0] / (2 * math.pi) * 400) for p in pings] == [0, 1, 2, 3, 4, 9]
     assert len(skipped) == 1 and pings[1].stamp_ns > pings[0].stamp_ns
+
+
+def test_simulator_node_renders_the_scene_behind_its_link(tmp_path, driver):
+    from sim.ping360_sim import Ping360Sim
+
+    link = tmp_path / "ping360.pty"
+    sim = Harness(Ping360Sim, params=dict(link=str(link), baudrate=4_000_000))
+    try:
+        assert link.is_symlink()
+        h = driver(port=str(link), number_of_samples=300, range_m=20.0)
+        wait_for(lambda: h.node.counters["beams"] >= 60, 20)
+        ahead = [p for p in h.of("ping") if round(p.bearings_rad[0] / (2 * math.pi) * 400) % 400 < 30]
+        assert ahead and max(int(p.intensities.max()) for p in ahead) > 100      # the tripod's echoes ahead
+        sim.advance_to(1.5)
+        assert sim.of("pose") and sim.of("pose")[0].qw != 0
+    finally:
+        sim.close()
+    assert not link.exists()
