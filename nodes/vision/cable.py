@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -63,15 +64,20 @@ def colour_distance(bgr: np.ndarray, reference_bgr: tuple[float, float, float], 
     if blur_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur_px)
     hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
-    ref = cv2.cvtColor(np.uint8([[reference_bgr]]), cv2.COLOR_BGR2HSV)[0, 0]
-    s = hsv[..., 1].astype(np.float32) * (1 / 255)
-    h = hsv[..., 0]
-    rs = ref[1] / 255
-    dx = s * _COS[h] - rs * _COS[ref[0]]
-    dy = s * _SIN[h] - rs * _SIN[ref[0]]
-    d = np.sqrt(dx * dx + dy * dy)
+    d = _distance_lut(tuple(int(round(v)) for v in reference_bgr))[hsv[..., 0], hsv[..., 1]]
     d[hsv[..., 2] < min_value] = 2.0
     return d
+
+
+@lru_cache(maxsize=16)
+def _distance_lut(reference_bgr: tuple[int, int, int]) -> np.ndarray:
+    """(180, 256) float32: chroma-disc distance from every (hue, saturation) to the reference."""
+    ref = cv2.cvtColor(np.uint8([[reference_bgr]]), cv2.COLOR_BGR2HSV)[0, 0]
+    s = np.arange(256, dtype=np.float32)[None, :] / 255
+    rs = ref[1] / 255
+    dx = s * _COS[:, None] - rs * _COS[ref[0]]
+    dy = s * _SIN[:, None] - rs * _SIN[ref[0]]
+    return np.sqrt(dx * dx + dy * dy).astype(np.float32)
 
 
 def _sample(P: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -101,7 +107,8 @@ class Track:
 
 @dataclass(frozen=True)
 class FollowParams:
-    step_px: float = 3.0
+    step_px: float = 6.0             # of the sequential follower; the output is refined at spacing_px
+    spacing_px: float = 3.0
     max_turn_deg: float = 35.0
     turn_weight: float = 0.15        # potential units for a turn of max_turn (the seed's change of direction)
     valley_max: float = 0.45         # potential above this is not cable
@@ -272,6 +279,7 @@ def track_cable(P: np.ndarray, prm: FollowParams = FollowParams(), *, min_length
         if visited[y, x]:
             continue
         t = follow_valley(P, start, inward, prm)
+        t.points_px = refine_polyline(P, t.points_px, prm)
         _visited(visited, t.points_px, 8)
         if _length(t.points_px) >= min_length_px:
             tracks.append(t)
@@ -293,11 +301,44 @@ def track_cable(P: np.ndarray, prm: FollowParams = FollowParams(), *, min_length
         theta = math.atan2(gx[cy, cx], -gy[cy, cx])          # along the valley: normal to the gradient
         a = follow_valley(P, np.array([x, y], float), theta + math.pi, prm, first_turn_deg=20)
         b = follow_valley(P, np.array([x, y], float), theta, prm, first_turn_deg=20)
-        pts = np.vstack([a.points_px[::-1], b.points_px[1:]])
+        pts = refine_polyline(P, np.vstack([a.points_px[::-1], b.points_px[1:]]), prm)
         _visited(visited, pts, 8)
         if _length(pts) >= min_length_px:
             tracks.append(Track(pts, b.end))
     return tracks
+
+
+def refine_polyline(P: np.ndarray, pts: np.ndarray, prm: FollowParams) -> np.ndarray:
+    """Resample a followed track every ``spacing_px`` and centre every sample across the valley
+    in one vectorised pass (the sequential follower only has to make the decisions). Jumps
+    longer than 1.5 steps (bridged occlusions) stay jumps: nothing is invented behind them.
+    Where the section is much wider than the cable (a crossing) the sample is not moved."""
+    if len(pts) < 2:
+        return pts
+    jumps = np.flatnonzero(np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1.5 * prm.step_px) + 1
+    pieces = []
+    for piece in np.split(pts, jumps):
+        if len(piece) < 2:
+            pieces.append(piece)
+            continue
+        arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(piece, axis=0), axis=1))])
+        s = np.arange(0, arc[-1] + 1e-9, prm.spacing_px)
+        q = np.stack([np.interp(s, arc, piece[:, 0]), np.interp(s, arc, piece[:, 1])], axis=1)
+        if len(q) >= 3:
+            g = np.gradient(q, axis=0)
+            g /= np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
+            n = np.stack([-g[:, 1], g[:, 0]], axis=1)
+            off = _OFFSETS * 8.0
+            vals = _sample(P, (q[:, None, :] + off[None, :, None] * n[:, None, :]).reshape(-1, 2)).reshape(len(q), -1)
+            wgt = np.maximum(prm.valley_max - vals, 0.0)
+            tot = wgt.sum(axis=1)
+            shift = np.clip((wgt * off).sum(axis=1) / np.maximum(tot, 1e-9), -2.0, 2.0)
+            width = (wgt > 0).sum(axis=1) * (off[1] - off[0])
+            typical = np.median(width[tot > 0]) if (tot > 0).any() else 0.0
+            move = (tot > 0) & (width <= 1.3 * typical)
+            q = q + np.where(move, shift, 0.0)[:, None] * n
+        pieces.append(q)
+    return np.vstack(pieces)
 
 
 def _length(pts: np.ndarray) -> float:

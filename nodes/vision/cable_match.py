@@ -78,25 +78,21 @@ def _align(left: np.ndarray, right: np.ndarray, d_range: tuple[float, float], *,
     ramp = skip_cost * idx
     back = np.zeros((K, J), np.intp)
     D = c[0].copy()
-    inf = np.full(3, np.inf)
+    S = len(_STEP_COST)
+    M = np.full((S + 1, J), np.inf)              # rows: advance by 0..3, or a jump
+    step_cost = _STEP_COST[:, None]
+    jump_src = np.zeros(J, np.intp)
     for i in range(1, K):
-        best = D + _STEP_COST[0]
-        arg = idx.copy()
-        for s_, sc in enumerate(_STEP_COST[1:], start=1):
-            cand = np.concatenate([inf[:s_], D[:-s_] + sc]) if s_ < J else np.full(J, np.inf)
-            better = cand < best
-            best = np.where(better, cand, best)
-            arg = np.where(better, idx - s_, arg)
-        v = D - ramp
-        acc = np.minimum.accumulate(v)
-        acc_arg = np.maximum.accumulate(np.where(v <= acc, idx, 0))
-        if J > 4:
-            jump = np.concatenate([np.full(4, np.inf), acc[:-4] + ramp[4:] + jump_cost])
-            jarg = np.concatenate([np.zeros(4, np.intp), acc_arg[:-4]])
-            better = jump < best
-            best = np.where(better, jump, best)
-            arg = np.where(better, jarg, arg)
-        back[i] = arg
+        for s_ in range(S):
+            M[s_, s_:] = D[:J - s_] + step_cost[s_]
+        if J > S:
+            v = D - ramp
+            acc = np.minimum.accumulate(v)
+            M[S, S:] = acc[:-S] + ramp[S:] + jump_cost
+            jump_src[S:] = np.maximum.accumulate(np.where(v <= acc, idx, 0))[:-S]
+        k = M.argmin(axis=0)
+        best = M[k, idx]
+        back[i] = np.where(k < S, idx - k, jump_src)
         D = c[i] + best
     j = np.empty(K, np.intp)
     j[-1] = int(np.argmin(D))
@@ -162,8 +158,10 @@ def match_in_order(left: np.ndarray, rights: list[np.ndarray], d_range: tuple[fl
             continue
         for flip in (False, True):
             r = right[::-1] if flip else right
-            cost, j = _align(left, r, d_range)
-            ok, disp, sd = _refine(left, r, j, d_range, sigma_px, min_sin)
+            # the alignment on every second point (it is the costly part), refined on all of them
+            cost, j2 = _align(left[::2], r[::2], d_range)
+            j = np.minimum(2 * np.repeat(j2, 2)[:len(left)], len(r) - 1)
+            ok, disp, sd = _refine(left, r, j, d_range, sigma_px, min_sin, window=6)
             results.append((cost, r_index, ok, disp, sd))
     if not results:
         n = len(left)
