@@ -7,7 +7,9 @@ from tether.message import Message, const
 
 
 class CameraInfo(Message, tag="sensor.CameraInfo"):
-    """Pinhole intrinsics in pixels."""
+    """Pinhole intrinsics in pixels. An estimate (self-calibration) adds one-sigma uncertainties
+    (0: known exactly, inf: not determined), the method, and ``degenerate`` with a ``reason``
+    when the data cannot determine the intrinsics (the numbers are then a placeholder)."""
 
     width_px: int = 0
     height_px: int = 0
@@ -15,6 +17,13 @@ class CameraInfo(Message, tag="sensor.CameraInfo"):
     fy_px: float = 0.0
     cx_px: float = 0.0
     cy_px: float = 0.0
+    fx_sigma_px: float = 0.0
+    fy_sigma_px: float = 0.0
+    cx_sigma_px: float = 0.0
+    cy_sigma_px: float = 0.0
+    method: str = ""
+    degenerate: bool = False
+    reason: str = ""
 
 
 class Image(Message, tag="sensor.Image"):

@@ -461,6 +461,38 @@ def cmd_slam_optimize(args: argparse.Namespace) -> int:
     return 0 if result.converged else 1
 
 
+def cmd_selfcal(args: argparse.Namespace) -> int:
+    """A camera's intrinsics from its images alone (Kruppa / rotation / planar self-calibration)."""
+    import json
+
+    import numpy as np
+
+    from nodes.vision.selfcal_images import calibrate_chessboard, calibrate_images, read_images
+
+    images = read_images(sorted(args.images))
+    if args.chessboard:
+        cols, rows = (int(v) for v in args.chessboard.lower().split("x"))
+        cal, extra = calibrate_chessboard(images, (cols, rows), distortion=not args.no_distortion)
+    else:
+        pp = tuple(args.principal_point) if args.principal_point else None
+        cal, pairs = calibrate_images(images, features=args.features, gap=args.gap, principal_point=pp)
+        extra = {"pairs": pairs}
+    K, s = cal.K, cal.sigma_px
+    out = {"fx_px": K[0, 0], "fy_px": K[1, 1], "cx_px": K[0, 2], "cy_px": K[1, 2], "fx_sigma_px": s[0],
+           "fy_sigma_px": s[1], "cx_sigma_px": s[2], "cy_sigma_px": s[3], "method": cal.method,
+           "degenerate": cal.degenerate, "reasons": cal.reasons, "images": len(images), **extra}
+    if args.json:
+        print(json.dumps({k: (float(v) if isinstance(v, np.floating) else v) for k, v in out.items()}, default=str))
+    else:
+        print(f"{len(images)} images, {cal.method}: fx {K[0, 0]:.1f} +- {s[0]:.1f}, fy {K[1, 1]:.1f} +- {s[1]:.1f}, "
+              f"cx {K[0, 2]:.1f} +- {s[2]:.1f}, cy {K[1, 2]:.1f} +- {s[3]:.1f} px")
+        for r in cal.reasons:
+            print(f"  {r}")
+        if cal.degenerate:
+            print("DEGENERATE: these numbers are not determined by the images")
+    return 2 if cal.degenerate else 0
+
+
 def cmd_doctor(args: argparse.Namespace) -> int:
     """Check the runtime directory and keystores; clean what crashed runs left (stale registry
     entries, ipc sockets nobody listens on, seq-state files of graphs no longer running)."""
@@ -548,6 +580,7 @@ EXAMPLES = {
     "export": "tether export foxglove run.mcap -o run-foxglove.mcap",
     "doctor": "tether doctor",
     "slam": "tether slam optimize graph.g2o --initial chordal --robust gnc -o optimised.g2o",
+    "selfcal": "tether selfcal ../shared/data/camera/opencv-chessboard-stereo/left*.jpg --chessboard 9x6",
 }
 
 
@@ -692,6 +725,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-states", type=int, default=1_000_000, help="stop exploring past this many states")
     p.add_argument("-v", "--verbose", action="store_true", help="print every property, not only the failing ones")
     p.set_defaults(func=cmd_verify)
+
+    p = sub.add_parser("selfcal", help="a camera's intrinsics from its images alone (no calibration target)")
+    p.add_argument("images", nargs="+", help="images from one camera (sorted by name: the sequence order)")
+    p.add_argument("--features", choices=("orb", "sift"), default="sift",
+                   help="feature detector (default sift: about 10x more accurate than orb here; SURF is not in pip OpenCV)")
+    p.add_argument("--gap", type=int, default=2, help="match each image with the next N (default 2)")
+    p.add_argument("--principal-point", type=float, nargs=2, metavar=("CX", "CY"), help="fix the principal point")
+    p.add_argument("--chessboard", metavar="COLSxROWS", help="use a plane's corners (inner corners, e.g. 9x6) "
+                   "as correspondences; its square size is not needed")
+    p.add_argument("--no-distortion", action="store_true", help="with --chessboard: do not estimate lens distortion")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_selfcal)
 
     p = sub.add_parser("slam", help="pose-graph tools")
     slam = p.add_subparsers(dest="slam_cmd", required=True)

@@ -254,7 +254,10 @@ def self_calibrate(pairs: list[PairGeometry], image_size: tuple[int, int], *,
     dropped = len(pairs) - len(usable)
     if dropped:
         reasons.append(f"{dropped} of {len(pairs)} pairs dropped: fewer than {min_inliers} inlier matches")
-    f_pairs = [p for p in usable if p.model == "F"]
+    rank1 = [p for p in usable if p.model == "F" and _rank_one(p.F)]
+    if rank1:
+        reasons.append(f"{len(rank1)} fundamental matrices of rank 1 dropped (no epipolar geometry)")
+    f_pairs = [p for p in usable if p.model == "F" and not _rank_one(p.F)]
     h_pairs = [p for p in usable if p.model == "H"]
     pp0 = principal_point or ((w - 1) / 2, (h - 1) / 2)
     nan_K = _prior_K(image_size, pp0)
@@ -301,6 +304,9 @@ def self_calibrate(pairs: list[PairGeometry], image_size: tuple[int, int], *,
         if len(set(pick.tolist())) >= 2:
             boots.append(_solve(stack[pick], theta, fix_pp, _essential_residuals))
     sig_n = np.std(np.array(boots), axis=0) if len(boots) >= 5 else np.full(4, math.inf)
+    # pairs share views, so resampling them understates the spread when the cost is flat (small
+    # rotations); the linearised covariance of the refinement is the other bound: keep the larger
+    sig_n = np.maximum(sig_n, _linear_sigma(theta, stack))
     Kn = _K(theta)
     K = np.linalg.inv(T) @ Kn
     sigma = sig_n * s
@@ -315,8 +321,13 @@ def self_calibrate(pairs: list[PairGeometry], image_size: tuple[int, int], *,
     if ok and max(sigma[0], sigma[1]) > max_rel_sigma * K[0, 0]:
         reasons.append(f"focal length not determined: bootstrap sigma {max(sigma[0], sigma[1]):.0f} px is more than "
                        f"{100 * max_rel_sigma:.0f} % of fx (small or single-axis rotations, or noise)")
-    degenerate = bool(reasons and any(not r.endswith("inlier matches") for r in reasons))
+    degenerate = bool(reasons and any(not (r.endswith("inlier matches") or "rank 1" in r) for r in reasons))
     return Calibration(K, sigma, "kruppa", degenerate, reasons, len(Fn), f_boug, details)
+
+
+def _rank_one(F: np.ndarray) -> bool:
+    s = np.linalg.svd(F, compute_uv=False)
+    return bool(s[1] <= 1e-6 * s[0])
 
 
 def _prior_K(image_size: tuple[int, int], pp: tuple[float, float] | None = None) -> np.ndarray:
@@ -329,6 +340,20 @@ def _prior_K(image_size: tuple[int, int], pp: tuple[float, float] | None = None)
 
 def _skew_ratio(F: np.ndarray) -> float:
     return float(np.linalg.norm(F + F.T) / np.linalg.norm(F))
+
+
+def _linear_sigma(theta: np.ndarray, Fs: np.ndarray) -> np.ndarray:
+    """One-sigma of (fx, fy, cx, cy) from the essential residuals' Jacobian and their spread."""
+    e = _essential_residuals(theta, Fs)
+    if len(e) <= 4:
+        return np.full(4, math.inf)
+    J = np.empty((len(e), 4))
+    for k in range(4):
+        d = np.zeros(4)
+        d[k] = 1e-6 * max(1.0, abs(theta[k]))
+        J[:, k] = (_essential_residuals(theta + d, Fs) - _essential_residuals(theta - d, Fs)) / (2 * d[k])
+    s2 = float(e @ e) / (len(e) - 4)
+    return np.sqrt(np.abs(np.diag(s2 * np.linalg.pinv(J.T @ J))))
 
 
 def _conditioning(theta: np.ndarray, Fn: list[np.ndarray]) -> float:
