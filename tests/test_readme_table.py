@@ -33,3 +33,15 @@ def test_every_readme_row_names_its_bench():
     start, end = readme._table_span(lines)
     names = [readme._bench_of(r) for r in lines[start:end]]
     assert all(names) and all((REPO / "bench" / f"{n}.py").exists() for n in names)
+
+
+def test_every_readme_row_has_a_formatter():
+    lines = (REPO / "README.md").read_text().split("\n")
+    start, end = readme._table_span(lines)
+    missing = {readme._bench_of(r) for r in lines[start:end]} - set(readme.FORMATTERS)
+    assert not missing, f"rows typed by hand: {sorted(missing)}"
+
+
+def test_last_json_skips_a_table_printed_before_it():
+    text = 'ring 21 {not json}\n  more table\n{"a": 1, "b": {"c": 2}}\n'
+    assert readme.last_json(text) == {"a": 1, "b": {"c": 2}}
