@@ -80,8 +80,34 @@ def _distance_lut(reference_bgr: tuple[int, int, int]) -> np.ndarray:
     return np.sqrt(dx * dx + dy * dy).astype(np.float32)
 
 
-def _sample(P: np.ndarray, xy: np.ndarray) -> np.ndarray:
+class Field:
+    """The potential padded with "no cable" (2.0) all round, so sampling near or past the image
+    border needs no clipping: the follower's inner loop is mostly this gather."""
+
+    PAD = 24
+
+    def __init__(self, P: np.ndarray) -> None:
+        self.shape = P.shape
+        self.padded = np.pad(P.astype(np.float32, copy=False), self.PAD, constant_values=2.0)
+        self.flat = self.padded.ravel()
+        self.stride = self.padded.shape[1]
+        self.limit = np.array([self.padded.shape[1] - 1.001, self.padded.shape[0] - 1.001])
+
+    def sample(self, xy: np.ndarray) -> np.ndarray:
+        q = np.minimum(np.maximum(xy + self.PAD, 0.0), self.limit)
+        i0 = q.astype(np.intp)
+        f = q - i0
+        i = i0[:, 1] * self.stride + i0[:, 0]
+        flat, fx = self.flat, f[:, 0]
+        top = flat[i] + (flat[i + 1] - flat[i]) * fx
+        bot = flat[i + self.stride] + (flat[i + self.stride + 1] - flat[i + self.stride]) * fx
+        return top + (bot - top) * f[:, 1]
+
+
+def _sample(P: np.ndarray | Field, xy: np.ndarray) -> np.ndarray:
     """Bilinear samples of P at (N, 2) points; outside the image: 2 (no cable)."""
+    if isinstance(P, Field):
+        return P.sample(xy)
     h, w = P.shape
     x, y = xy[:, 0], xy[:, 1]
     inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
@@ -94,6 +120,14 @@ def _sample(P: np.ndarray, xy: np.ndarray) -> np.ndarray:
     top = flat[i] + (flat[i + 1] - flat[i]) * fx
     bot = flat[i + w] + (flat[i + w + 1] - flat[i + w]) * fx
     return np.where(inside, top + (bot - top) * fy, 2.0)
+
+
+def _local_grid(offsets_rad: np.ndarray, step_px: float, section_px: np.ndarray) -> np.ndarray:
+    """(C * S, 2) candidate points with their normal sections, for a heading of zero."""
+    c, s = np.cos(offsets_rad), np.sin(offsets_rad)
+    cand = step_px * np.stack([c, s], axis=1)
+    normal = np.stack([-s, c], axis=1)
+    return (cand[:, None, :] + section_px[None, :, None] * normal[:, None, :]).reshape(-1, 2)
 
 
 @dataclass
@@ -147,11 +181,13 @@ def _border_starts(P: np.ndarray, prm: FollowParams) -> list[tuple[np.ndarray, f
 
 def _centroid(values: np.ndarray, offsets: np.ndarray, valley_max: float) -> tuple[float, float]:
     """(centroid offset, width) of the valley in one normal section of samples."""
-    wgt = np.maximum(valley_max - values, 0.0)
-    s = wgt.sum()
+    wgt = valley_max - values
+    wgt[wgt < 0] = 0.0
+    s = float(wgt.sum())
     if s <= 1e-9:
         return 0.0, 0.0
-    return float(np.clip((wgt * offsets).sum() / s, -2.0, 2.0)), float((wgt > 0).sum() * (offsets[1] - offsets[0]))
+    c = float(wgt @ offsets) / s
+    return max(-2.0, min(2.0, c)), float(np.count_nonzero(wgt)) * float(offsets[1] - offsets[0])
 
 
 def _section(P: np.ndarray, p: np.ndarray, theta: float, valley_max: float,
@@ -167,7 +203,7 @@ def _section(P: np.ndarray, p: np.ndarray, theta: float, valley_max: float,
     return _centroid(_sample(P, p[None, :] + off[:, None] * n[None, :]), off, valley_max)
 
 
-_OFFSETS = np.linspace(-1.0, 1.0, 33)
+_OFFSETS = np.linspace(-1.0, 1.0, 17)        # a section every pixel over +-8 px
 
 
 def _normal(theta: float) -> np.ndarray:
@@ -187,16 +223,20 @@ def follow_valley(P: np.ndarray, start: np.ndarray, theta: float, prm: FollowPar
     the valley up again only where it is clearly there; bridged points are not kept. A track
     that comes back onto itself going the same way has closed a loop and stops.
     """
-    h, w = P.shape
-    turns = np.radians(np.linspace(-prm.max_turn_deg, prm.max_turn_deg, 15))
+    field = P if isinstance(P, Field) else Field(P)
+    P = field
+    h, w = field.shape
+    turns = np.radians(np.linspace(-prm.max_turn_deg, prm.max_turn_deg, 11))
     wide = np.radians(np.linspace(-first_turn_deg, first_turn_deg, 33))
+    sec_off = _OFFSETS * 8.0
+    grids = {False: _local_grid(turns, prm.step_px, sec_off), True: _local_grid(wide, prm.step_px, sec_off)}
     penalty_t = prm.turn_weight * (turns / turns[-1]) ** 2
     penalty_w = prm.turn_weight * (wide / turns[-1]) ** 2 * 0.25
     off, _ = _section(P, np.asarray(start, float), theta, prm.valley_max)
     p = np.asarray(start, float) + off * _normal(theta)
     pts, heads = [p], [theta]
     typical, seen = math.inf, 0                   # running cable width in the image
-    own = np.full(P.shape, -1, np.int32)         # index of the last point that passed each pixel
+    own = np.full((h, w), -1, np.int32)          # index of the last point that passed each pixel
     gap = coast = 0.0
     inside = lambda q: 0 <= q[0] <= w - 1 and 0 <= q[1] <= h - 1      # noqa: E731
     for k in range(int(6 * (w + h) / prm.step_px)):
@@ -215,13 +255,12 @@ def follow_valley(P: np.ndarray, start: np.ndarray, theta: float, prm: FollowPar
             continue
         offs, pen = (wide, penalty_w) if k == 0 else (turns, penalty_t)
         ang = theta + offs
-        cos_a, sin_a = np.cos(ang), np.sin(ang)
-        cand = p + prm.step_px * np.stack([cos_a, sin_a], axis=1)
         # every candidate with its normal section in one sampling call (the loop's cost is calls)
-        sec_off = _OFFSETS * 8.0
-        grid = cand[:, None, :] + sec_off[None, :, None] * np.stack([-sin_a, cos_a], axis=1)[:, None, :]
-        vals = _sample(P, grid.reshape(-1, 2)).reshape(len(ang), len(sec_off))
+        ct, st = math.cos(theta), math.sin(theta)
+        grid = p + grids[k == 0] @ np.array([[ct, st], [-st, ct]])
+        vals = field.sample(grid).reshape(len(offs), len(sec_off))
         v = vals[:, len(sec_off) // 2]
+        cand = grid.reshape(len(offs), len(sec_off), 2)[:, len(sec_off) // 2]
         j = int(np.argmin(v + pen))
         q = cand[j]
         if not inside(q):
@@ -274,12 +313,13 @@ def track_cable(P: np.ndarray, prm: FollowParams = FollowParams(), *, min_length
     touches no border, from the deepest point of the valley in both directions."""
     visited = np.zeros(P.shape, np.uint8)
     tracks: list[Track] = []
+    field = Field(P)
     for start, inward in _border_starts(P, prm):
         x, y = int(round(start[0])), int(round(start[1]))
         if visited[y, x]:
             continue
-        t = follow_valley(P, start, inward, prm)
-        t.points_px = refine_polyline(P, t.points_px, prm)
+        t = follow_valley(field, start, inward, prm)
+        t.points_px = refine_polyline(field, t.points_px, prm)
         _visited(visited, t.points_px, 8)
         if _length(t.points_px) >= min_length_px:
             tracks.append(t)
@@ -299,9 +339,9 @@ def track_cable(P: np.ndarray, prm: FollowParams = FollowParams(), *, min_length
         gy, gx = np.gradient(cv2.GaussianBlur(P[max(y - 8, 0):y + 9, max(x - 8, 0):x + 9], (0, 0), 2.0))
         cy, cx = min(y, 8), min(x, 8)
         theta = math.atan2(gx[cy, cx], -gy[cy, cx])          # along the valley: normal to the gradient
-        a = follow_valley(P, np.array([x, y], float), theta + math.pi, prm, first_turn_deg=20)
-        b = follow_valley(P, np.array([x, y], float), theta, prm, first_turn_deg=20)
-        pts = refine_polyline(P, np.vstack([a.points_px[::-1], b.points_px[1:]]), prm)
+        a = follow_valley(field, np.array([x, y], float), theta + math.pi, prm, first_turn_deg=20)
+        b = follow_valley(field, np.array([x, y], float), theta, prm, first_turn_deg=20)
+        pts = refine_polyline(field, np.vstack([a.points_px[::-1], b.points_px[1:]]), prm)
         _visited(visited, pts, 8)
         if _length(pts) >= min_length_px:
             tracks.append(Track(pts, b.end))

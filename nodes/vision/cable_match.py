@@ -106,16 +106,20 @@ def _refine(left: np.ndarray, right: np.ndarray, j: np.ndarray, d_range: tuple[f
             min_sin: float, window: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact row crossing of each left point's row on right segments j-window..j+window."""
     K = len(left)
-    xs, ts, valid = row_crossings(right, left[:, 1])
-    seg = np.arange(len(right) - 1)[None, :]
-    near = np.abs(seg - np.minimum(j, len(right) - 2)[:, None]) <= window
-    valid &= near
-    xs = np.where(valid, xs, np.nan)
+    nseg = len(right) - 1
+    seg = np.clip(np.minimum(j, nseg - 1)[:, None] + np.arange(-window, window + 1)[None, :], 0, nseg - 1)
+    y0, y1 = right[seg, 1], right[seg + 1, 1]
+    dy = y1 - y0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ts = (left[:, 1:2] - y0) / np.where(np.abs(dy) > 1e-9, dy, np.nan)
+    valid = (ts >= 0) & (ts <= 1)
+    xs = right[seg, 0] + ts * (right[seg + 1, 0] - right[seg, 0])
     # of several crossings in the window, the one closest in arc to the aligned point
     dist = np.where(valid, np.abs(seg + np.nan_to_num(ts) - j[:, None]), np.inf)
-    k = np.argmin(dist, axis=1)
-    has = np.isfinite(dist[np.arange(K), k])
-    xr = xs[np.arange(K), k]
+    col = np.argmin(dist, axis=1)
+    has = np.isfinite(dist[np.arange(K), col])
+    xr = xs[np.arange(K), col]
+    k = seg[np.arange(K), col]
     disp = left[:, 0] - xr
     sin_l = _sin_to_rows(left)
     sin_r_seg = _sin_to_rows(right)
