@@ -303,6 +303,19 @@ def follow_valley(P: np.ndarray, start: np.ndarray, theta: float, prm: FollowPar
     return Track(np.array(pts), "steps")
 
 
+_RAYS = np.linspace(0, math.pi, 16, endpoint=False)
+_RAY_STEPS = np.arange(-12.0, 12.5, 1.0)
+
+
+def _valley_direction(field: Field, p: np.ndarray) -> float:
+    """The direction along the valley at p: of 16 lines through p (24 px), the one whose mean
+    potential is lowest. (The gradient is useless here: p is a minimum, where it vanishes.)"""
+    d = np.stack([np.cos(_RAYS), np.sin(_RAYS)], axis=1)
+    pts = p + _RAY_STEPS[None, :, None] * d[:, None, :]
+    means = field.sample(pts.reshape(-1, 2)).reshape(len(_RAYS), -1).mean(axis=1)
+    return float(_RAYS[int(np.argmin(means))])
+
+
 def _visited(mask: np.ndarray, pts: np.ndarray, radius: int) -> None:
     cv2.polylines(mask, [np.round(pts).astype(np.int32)], False, 1, 2 * radius + 1)
 
@@ -325,7 +338,10 @@ def track_cable(P: np.ndarray, prm: FollowParams = FollowParams(), *, min_length
             tracks.append(t)
     # stretches with both ends inside the image (or missed from the border): start at the deepest
     # unvisited valley point and follow it both ways, until no deep valley is left
-    deep = ((P < prm.valley_max * 0.6) & (visited == 0)).astype(np.uint8)
+    # "deep": well inside the valley; a thin far cable (blurred into its background) never gets
+    # as deep as a near one, so the bar follows the deepest point when that is shallow
+    bar = min(0.9 * prm.valley_max, max(0.6 * prm.valley_max, float(P.min()) + 0.08))
+    deep = ((P < bar) & (visited == 0)).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(deep, connectivity=8)
     order = np.argsort(-stats[1:, cv2.CC_STAT_AREA]) + 1
     for lab in order[:8]:
@@ -336,9 +352,7 @@ def track_cable(P: np.ndarray, prm: FollowParams = FollowParams(), *, min_length
             continue
         flat = np.where(comp & (visited == 0), P, np.inf)
         y, x = np.unravel_index(int(np.argmin(flat)), P.shape)
-        gy, gx = np.gradient(cv2.GaussianBlur(P[max(y - 8, 0):y + 9, max(x - 8, 0):x + 9], (0, 0), 2.0))
-        cy, cx = min(y, 8), min(x, 8)
-        theta = math.atan2(gx[cy, cx], -gy[cy, cx])          # along the valley: normal to the gradient
+        theta = _valley_direction(field, np.array([x, y], float))
         a = follow_valley(field, np.array([x, y], float), theta + math.pi, prm, first_turn_deg=20)
         b = follow_valley(field, np.array([x, y], float), theta, prm, first_turn_deg=20)
         pts = refine_polyline(field, np.vstack([a.points_px[::-1], b.points_px[1:]]), prm)
@@ -422,6 +436,15 @@ def triangulate(left_px: np.ndarray, disparity_px: np.ndarray, sigma_d_px: np.nd
     return pts, np.stack([sx, sy, sz], axis=1)
 
 
+def _depth_jumps(pts: np.ndarray, sig: np.ndarray, seg: np.ndarray) -> int:
+    """Depth steps between consecutive points of a stretch larger than 5 sigma and 0.15 m: a
+    cable is continuous, so a stretch matched on the wrong branch starts and ends with one."""
+    same = seg[1:] == seg[:-1]
+    dz = np.abs(np.diff(pts[:, 2]))
+    lim = np.maximum(5 * np.hypot(sig[1:, 2], sig[:-1, 2]), 0.15)
+    return int(np.count_nonzero(same & (dz > lim)))
+
+
 def reconstruct(left_bgr: np.ndarray, right_bgr: np.ndarray, rect: Rectified, *,
                 reference_bgr: tuple[float, float, float], prm: FollowParams = FollowParams(),
                 depth_range_m: tuple[float, float] = (0.5, 10.0), sigma_px: float = 0.3,
@@ -468,9 +491,11 @@ def reconstruct(left_bgr: np.ndarray, right_bgr: np.ndarray, rect: Rectified, *,
     seg = np.concatenate([np.full(int(m.ok.sum()), m.segment, np.int32) for m in keep])
     pts, sig = triangulate(left, disp, sd, rect, sigma_px=sigma_px)
     ambiguous = [m for m in keep if m.ambiguous]
+    jumps = _depth_jumps(pts, sig, seg)
     status, reason = "tracked", ""
-    if ambiguous or usable < 0.3 * total:
+    if ambiguous or usable < 0.3 * total or jumps >= 2:
         status = "ambiguous"
         reason = ("another right curve fits as well" if ambiguous else
-                  f"{usable} of {total} points usable (cable along the epipolar lines)")
+                  f"{usable} of {total} points usable (cable along the epipolar lines)" if usable < 0.3 * total else
+                  f"the 3-D curve jumps in depth {jumps} times (the two images were followed differently)")
     return CableResult(pts, sig, seg, left, status, reason, tl, tr, usable / total)
