@@ -293,10 +293,12 @@ def ackermann_can(d: dict) -> list[Row]:
 
 def stereo_cable(d: dict) -> list[Row]:
     worst = max(d["theory_ratio"].values())
+    where = max(d["theory_ratio"], key=d["theory_ratio"].get).replace("@", " at ") + " m"
     real = d.get("real_rectification") or {}
     rows = [("`stereo_cable.py` 640x480 pairs, cable 1.5-4 m, seeds not tuned on",
              f"in tracked order: self-crossing cable {d['rms_mm_crossing']:.1f} mm RMS at 1.5-2.5 m, catenary "
-             f"{d['rms_mm_catenary']:.1f} mm; error / theory z^2 sd/(b f) at most {worst:.2f}; {d['ms_per_frame']:.0f} ms "
+             f"{d['rms_mm_catenary']:.1f} mm; error / theory z^2 sd/(b f) at most {worst:.2f} ({where}); "
+             f"{d['ms_per_frame']:.0f} ms "
              f"per frame ({d['fps']:.1f} frames/s)",
              f"nearest point per row {d['rms_mm_row_crossing']:.0f} mm; SGBM on the masked cable (block "
              f"{d['sgbm_block']}, its best) {d['rms_mm_sgbm']:.1f} mm, {d['ms_per_frame_sgbm']:.0f} ms",
