@@ -1,5 +1,6 @@
-"""Registration of a UAV's nadir frame to a geo-referenced map image (seed 11): features (SIFT or
-ORB; SURF, the seed's choice, is patented and absent from pip OpenCV), Lowe's ratio test, a
+"""Registration of a UAV's nadir frame to a geo-referenced map image (seed 11): features (SIFT,
+ORB or AKAZE; SURF, the seed's choice, is patented: pip's opencv-contrib has
+``xfeatures2d.SURF_create`` but it raises "not implemented" without the non-free build), Lowe's ratio test, a
 RANSAC similarity (``cv2.estimateAffinePartial2D``), the seed's eq. (2.1)-(2.4) parameters
 alpha, theta, b, and the checks that turn a bad match into no fix rather than a wrong one.
 
@@ -32,8 +33,9 @@ def _detector(method: str, n: int):
         return cv2.SIFT_create(nfeatures=n), cv2.NORM_L2
     if method == "orb":
         return cv2.ORB_create(nfeatures=n, fastThreshold=10), cv2.NORM_HAMMING
-    if method == "akaze":
-        return cv2.AKAZE_create(), cv2.NORM_HAMMING
+    if method == "akaze":           # OpenCV 5 moved it to xfeatures2d; 4.x has it at the top level
+        make = getattr(cv2, "AKAZE_create", None) or cv2.xfeatures2d.AKAZE_create
+        return make(), cv2.NORM_HAMMING
     raise ValueError(f"method must be one of {METHODS} (SURF is not in pip OpenCV), got {method!r}")
 
 
