@@ -1,7 +1,8 @@
 """Feature matches between two images (ORB or SIFT, ratio test, mutual best), for geometry.
 
-SURF, the seed's third detector, is patented and absent from the pip OpenCV builds; ORB and
-SIFT (free since 2020) are what is available."""
+SURF, the seed's third detector, is patented: pip's opencv-contrib build has
+``cv2.xfeatures2d.SURF_create`` but it raises "not implemented" (non-free); ORB and SIFT (free
+since 2020) are what is available."""
 from __future__ import annotations
 
 import cv2
