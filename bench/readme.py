@@ -335,6 +335,32 @@ def selfcal(d: dict) -> list[Row]:
     return rows
 
 
+def uav_register(d: dict) -> list[Row]:
+    bm, sw = d["by_method"], d["sweeps"]
+    runs = d["homing"]
+    others = "; ".join(f"{m.upper()} {100 * v['success_frac']:.0f} %, {v['pos_err_px']:.2f} px, {v['ms']:.0f} ms"
+                       for m, v in bm.items() if m != "sift")
+    ratio = sw["sift"]["ratio"]
+    rows = [("`uav_register.py` 640x480 views of a map, localisation mode, scale ratio 0.5-2x, any rotation",
+             f"SIFT: {100 * d['success_frac']:.1f} % fixed ({100 * bm['sift']['wrong_frac']:.1f} % wrong), "
+             f"{d['pos_err_px']:.2f} px, {d['ms_per_frame']:.0f} ms per frame; at 0.25x {100 * ratio['0.25']['success_frac']:.0f} %, "
+             f"at 4x {100 * ratio['4.0']['success_frac']:.0f} %; homing from outside the map: "
+             f"{sum(r['success'] for r in runs)}/{len(runs)} within 1 m",
+             others, f">= 95 %: {_met(d['success_frac'] >= 0.95)}; <= 1 px: {_met(d['pos_err_px'] <= 1)}; <= 50 ms: "
+             f"{_met(d['ms_per_frame'] <= 50)}; homing 9/10: {_met(d['homing_success_frac'] >= 0.9)}")]
+    real = d.get("real") or {}
+    if real.get("sift"):
+        r = real["sift"]
+        rows.append(("`uav_register.py` 18 real frames to their ortho render, search mode",
+                     f"SIFT: {r['registered']}/{r['frames']} registered; held-out position against its GPS "
+                     f"{r['pos_err_m_median']:.2f} m median ({r['pos_err_m_max']:.2f} max), heading against the gimbal "
+                     f"{r['heading_err_deg_median']:.1f} deg; {r['ms_per_frame']:.0f} ms per 1000x562 frame",
+                     "; ".join(f"{m.upper()} {v['registered']}/{v['frames']}, {v['pos_err_m_median']:.2f} m"
+                               for m, v in real.items() if m != "sift" and v.get("pos_err_m_median") is not None),
+                     "— (GPS is the truth to within its own metres)"))
+    return rows
+
+
 #: bench name -> (arguments for --run, formatter)
 FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "set_localize": ([], set_localize),
@@ -360,6 +386,7 @@ FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "ackermann_can": ([], ackermann_can),
     "stereo_cable": ([], stereo_cable),
     "selfcal": ([], selfcal),
+    "uav_register": ([], uav_register),
 }
 
 
