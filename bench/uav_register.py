@@ -33,7 +33,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from nodes.control.uav_servo import Gains, servo  # noqa: E402
+from nodes.control.uav_homing import Homing  # noqa: E402
 from nodes.vision.geolocate import GeoLocator  # noqa: E402
 from nodes.vision.geomap import DATA, georeference, procedural_map, register_brighton  # noqa: E402
 from nodes.vision.georegister import MapFeatures  # noqa: E402
@@ -103,34 +103,24 @@ def real(log, methods) -> dict:
 
 
 def homing(gm, mf, seed: int, *, duration_s: float = 150.0) -> dict:
-    """In-process closed loop: the same locator and servo law as the launch file's nodes."""
+    """In-process closed loop: the locator and homing law the launch file's nodes run."""
     rng = np.random.default_rng(seed)
     b = gm.world_bounds()
     ang = rng.uniform(0, 2 * math.pi)
     r = (b[1, 0] - b[0, 0]) / 2 * 1.3                      # outside the footprint
     uav = Uav(UavState(r * math.cos(ang), r * math.sin(ang), rng.uniform(-math.pi, math.pi), 45.0))
     target = (float(rng.uniform(-40, 40)), float(rng.uniform(-40, 40)), float(rng.uniform(-3, 3)), 40.0)
-    loc, g = GeoLocator(gm, mf), Gains()
-    drift, prev = np.zeros(2), np.zeros(4)
-    fix_en = fix_ins = None
+    loc, home = GeoLocator(gm, mf), Homing(target)
+    drift = np.zeros(2)
     dt, t, reached = 0.1, 0.0, None
     while t < duration_s:
         s = uav.state
         drift += rng.normal(0, 0.5 * math.sqrt(dt), 2)
         ins = np.array([s.e, s.n]) + drift
         if round(t / dt) % 2 == 0:                          # camera at 5 Hz
-            pred = tuple(fix_en + (ins - fix_ins)) if fix_en is not None else None
-            f = loc.locate(render_nadir(gm, s, rng=rng), alt_m=s.alt + float(rng.normal(0, 0.5)), predicted_en=pred)
-            if f.ok:
-                fix_en, fix_ins = np.array([f.e_m, f.n_m]), ins
-        if fix_en is not None:
-            est = fix_en + (ins - fix_ins)
-            cmd = servo((est[0], est[1], s.yaw, s.alt), target, g)
-        else:
-            cmd = servo((ins[0], ins[1], s.yaw, s.alt), target, g, speed=g.search_speed_mps)
-        step = g.accel_mps2 * dt
-        cmd[:2] = prev[:2] + np.clip(cmd[:2] - prev[:2], -step, step)
-        prev = cmd
+            f = loc.locate(render_nadir(gm, s, rng=rng), alt_m=s.alt + float(rng.normal(0, 0.5)), ins_en=ins)
+            home.on_fix(f.ok, t, (f.e_m, f.n_m), tuple(ins))
+        cmd = home.command(t, (ins[0], ins[1], s.yaw, s.alt), dt)
         uav.step(Command(*cmd), dt)
         t += dt
         d = math.hypot(uav.state.e - target[0], uav.state.n - target[1])

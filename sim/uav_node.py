@@ -16,7 +16,7 @@ import numpy as np
 
 from msgs.sensor import Image
 from msgs.uav import UavCommand, UavState as UavStateMsg
-from nodes.vision.geomap import GeoMap, brighton_map, procedural_map
+from nodes.vision.geomap import MAPS, load_map
 from sim.aerial import Camera, Command, Limits, Look, Uav, UavState, render_nadir
 from tether import Input, Node
 
@@ -42,14 +42,10 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.map not in ("procedural", "brighton"):
-            raise ValueError(f"map must be 'procedural' or 'brighton', got {self.map!r}")
+        if self.map not in MAPS:
+            raise ValueError(f"map must be one of {MAPS}, got {self.map!r}")
         if self.rate_hz <= 0 or self.image_every < 1 or self.start_alt_m <= 0:
             raise ValueError("rate_hz, image_every and start_alt_m must be positive")
-
-
-def load_map(name: str, seed: int) -> GeoMap:
-    return brighton_map() if name == "brighton" else procedural_map(rng=np.random.default_rng(seed))
 
 
 class UavSim(Node):

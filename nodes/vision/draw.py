@@ -2,6 +2,7 @@
 against the truth (seen from above and from the side, with one-sigma depth bars)."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import cv2
@@ -58,4 +59,50 @@ def draw_cable(path: str | Path, *, left: np.ndarray, right: np.ndarray, points_
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def draw_homing(path: str | Path, gm, *, truth: np.ndarray, ins: np.ndarray, fixes: np.ndarray,
+                target: tuple[float, float]) -> None:
+    """Write a PNG of a UAV homing run: the path over the map (truth, INS, accepted fixes,
+    start, target) and the distance to the target and the fix error over time. ``truth`` and
+    ``ins`` (K, 3) rows of (stamp_ns, e, n); ``fixes`` (M, 4) rows of (stamp_ns, ok, e, n)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    T = truth
+    t0 = T[0, 0]
+    F = fixes[fixes[:, 1] > 0]
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(14, 6))
+    h, w = gm.image.shape[:2]
+    corners = gm.to_world(np.array([[0, 0], [w, h]], float))
+    ax.imshow(gm.image[..., ::-1], extent=(corners[0, 0], corners[1, 0], corners[1, 1], corners[0, 1]))
+    ax.plot(T[:, 1], T[:, 2], "w-", lw=2, label="truth")
+    if len(ins):
+        ax.plot(ins[:, 1], ins[:, 2], "y--", lw=1, label="INS (drifts)")
+    if len(F):
+        ax.plot(F[:, 2], F[:, 3], "g.", ms=4, label="geo fixes")
+    ax.plot([T[0, 1]], [T[0, 2]], "bo", label="start")
+    ax.plot([target[0]], [target[1]], "r*", ms=15, label="target")
+    ax.set_xlim(min(corners[:, 0].min(), T[:, 1].min()) - 10, max(corners[:, 0].max(), T[:, 1].max()) + 10)
+    ax.set_ylim(min(corners[:, 1].min(), T[:, 2].min()) - 10, max(corners[:, 1].max(), T[:, 2].max()) + 10)
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.legend(loc="best", fontsize=8)
+    dist = np.hypot(T[:, 1] - target[0], T[:, 2] - target[1])
+    bx.semilogy((T[:, 0] - t0) / 1e9, np.maximum(dist, 1e-3), label="distance to target (truth)")
+    tr = {s: (e, n) for s, e, n in zip(T[:, 0], T[:, 1], T[:, 2])}
+    err = [(s, math.hypot(e - tr[s][0], n - tr[s][1])) for s, _, e, n in F if s in tr]
+    if err:
+        E = np.array(err)
+        bx.semilogy((E[:, 0] - t0) / 1e9, np.maximum(E[:, 1], 1e-3), "g.", label="fix error")
+    bx.set_xlabel("time (s)")
+    bx.set_ylabel("m")
+    bx.grid(alpha=0.3, which="both")
+    bx.legend()
+    fig.suptitle(f"UAV homing: {len(F)} of {len(fixes)} frames fixed; final distance {dist[-1]:.2f} m")
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=70)
     plt.close(fig)

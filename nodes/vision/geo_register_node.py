@@ -11,7 +11,7 @@ import numpy as np
 from msgs.sensor import Image
 from msgs.uav import GeoFix, UavState
 from nodes.vision.geolocate import GeoLocator
-from nodes.vision.geomap import brighton_map, procedural_map
+from nodes.vision.geomap import MAPS, load_map
 from nodes.vision.georegister import METHODS, MapFeatures
 from tether import Input, Node
 
@@ -29,8 +29,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     def __post_init__(self) -> None:
         if self.features not in METHODS:
             raise ValueError(f"features must be one of {METHODS}, got {self.features!r}")
-        if self.map not in ("procedural", "brighton"):
-            raise ValueError(f"map must be 'procedural' or 'brighton', got {self.map!r}")
+        if self.map not in MAPS:
+            raise ValueError(f"map must be one of {MAPS}, got {self.map!r}")
 
 
 class GeoRegisterNode(Node):
@@ -42,13 +42,11 @@ class GeoRegisterNode(Node):
 
     def setup(self) -> None:
         c = self.config
-        gm = brighton_map() if c.map == "brighton" else procedural_map(rng=np.random.default_rng(c.map_seed))
+        gm = load_map(c.map, c.map_seed)
         self.loc = GeoLocator(gm, MapFeatures.of(gm.image, method=c.features), width_px=c.width_px,
                               hfov_deg=c.hfov_deg, window_m=c.window_m, fail_limit=c.fail_limit,
                               min_inliers=c.min_inliers)
         self.ins: UavState | None = None
-        self.last_fix_en: np.ndarray | None = None
-        self.ins_at_fix: np.ndarray | None = None
         self.counts = {"fix": 0, "no_fix": 0}
 
     def on_ins(self, msg: UavState) -> None:
@@ -58,17 +56,11 @@ class GeoRegisterNode(Node):
         if self.ins is None:
             return None
         ins_en = np.array([self.ins.e_m, self.ins.n_m])
-        predicted = None
-        if self.last_fix_en is not None:
-            predicted = tuple(self.last_fix_en + (ins_en - self.ins_at_fix))   # last fix + what the INS moved since
+        predicted = self.loc.predict(ins_en)
         t0 = time.perf_counter()
-        f = self.loc.locate(np.asarray(msg.data), alt_m=max(self.ins.alt_m, 1.0), predicted_en=predicted)
+        f = self.loc.locate(np.asarray(msg.data), alt_m=max(self.ins.alt_m, 1.0), ins_en=ins_en)
         ms = 1000 * (time.perf_counter() - t0)
-        if f.ok:
-            self.last_fix_en, self.ins_at_fix = np.array([f.e_m, f.n_m]), ins_en
-            self.counts["fix"] += 1
-        else:
-            self.counts["no_fix"] += 1
+        self.counts["fix" if f.ok else "no_fix"] += 1
         r = f.reg
         pe = predicted if predicted is not None else tuple(ins_en)          # no fix: the prediction, or the INS
         return {"fix": GeoFix(stamp_ns=msg.stamp_ns, frame_id="world", ok=f.ok, reason=f.reason,

@@ -45,12 +45,25 @@ class GeoLocator:
     min_inliers: int = 12
     mode: str = "search"
     failures: int = 0
+    last_fix_en: np.ndarray | None = None      # the last fix, and where the INS was then
+    ins_at_fix: np.ndarray | None = None
+
+    def predict(self, ins_en: np.ndarray | None) -> tuple[float, float] | None:
+        """The last fix moved by what the INS measured since (the INS alone drifts)."""
+        if ins_en is None or self.last_fix_en is None:
+            return None
+        p = self.last_fix_en + (np.asarray(ins_en, float) - self.ins_at_fix)
+        return float(p[0]), float(p[1])
 
     def frame_m_per_px(self, alt_m: float) -> float:
         return 2 * alt_m * math.tan(math.radians(self.hfov_deg) / 2) / self.width_px
 
-    def locate(self, frame: np.ndarray, *, alt_m: float, predicted_en: tuple[float, float] | None = None) -> Fix:
-        """One frame -> a fix in east-north metres (or no fix, with the reason)."""
+    def locate(self, frame: np.ndarray, *, alt_m: float, ins_en: np.ndarray | None = None,
+               predicted_en: tuple[float, float] | None = None) -> Fix:
+        """One frame -> a fix in east-north metres (or no fix, with the reason). The window of
+        localisation mode is centred on ``predicted_en``, else on :meth:`predict` from ``ins_en``."""
+        if predicted_en is None:
+            predicted_en = self.predict(ins_en)
         if not (alt_m > 0 and math.isfinite(alt_m)):
             raise ValueError(f"altitude must be positive and finite, got {alt_m}")
         prescale = self.frame_m_per_px(alt_m) / self.gm.m_per_px
@@ -72,6 +85,8 @@ class GeoLocator:
         self.failures = 0
         self.mode = "localise"
         en = self.gm.to_world(reg.centre_px)[0]
+        if ins_en is not None:
+            self.last_fix_en, self.ins_at_fix = en.copy(), np.asarray(ins_en, float).copy()
         up = self.gm.G[:, :2] @ (reg.T[:, :2] @ np.array([0.0, -1.0]))
         yaw = math.atan2(up[1], up[0])
         scale = math.sqrt(abs(np.linalg.det(reg.T[:, :2])))            # map px per frame px

@@ -4,6 +4,8 @@ its own frames' GPS (../shared/data/uav; BSD-2-Clause, (c) 2017 Piero Toffanin).
 from __future__ import annotations
 
 import csv
+import json
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,6 +14,9 @@ import cv2
 import numpy as np
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "uav" / "brighton_beach"
+CACHE = Path(__file__).resolve().parents[2] / "out" / "cache" / "brighton_georeference.json"
+MAPS = ("procedural", "brighton")
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -118,12 +123,39 @@ def register_brighton(method: str = "sift") -> tuple[np.ndarray, list, list[dict
     return ortho, fixes, rows, enu
 
 
+def _data_key() -> list:
+    """What the georeference depends on: the data files' names, sizes and times."""
+    files = [DATA / "ortho_render_brighton_beach.jpg", DATA / "frames_gps.csv", *sorted((DATA / "frames_1000px").glob("*"))]
+    return [[f.name, f.stat().st_size, int(f.stat().st_mtime)] for f in files]
+
+
 def brighton_map() -> GeoMap:
     """The real ortho render, georeferenced by its own frames' GPS (registration of each frame
-    gives its centre in the image; a similarity fits those to the GPS positions)."""
+    gives its centre in the image; a similarity fits those to the GPS positions).
+
+    Registering the 18 frames takes seconds and every node of a launch that flies over this
+    map needs the result, so G is kept in out/cache, keyed by the data files it came from."""
+    key = _data_key()
+    if CACHE.exists():
+        cached = json.loads(CACHE.read_text())
+        if cached.get("key") == key:
+            return GeoMap(cv2.imread(str(DATA / "ortho_render_brighton_beach.jpg")), np.array(cached["G"]))
+    log.info("georeferencing the Brighton ortho render from its 18 frames' GPS (once; cached in %s)", CACHE)
     ortho, fixes, _, enu = register_brighton()
     ok = [k for k, f in enumerate(fixes) if f.ok]
     if len(ok) < 3:
         raise ValueError(f"only {len(ok)} real frames registered to the ortho image: cannot georeference it")
     G = georeference(np.array([fixes[k].centre_px for k in ok]), enu[ok])
+    try:
+        CACHE.parent.mkdir(parents=True, exist_ok=True)
+        CACHE.write_text(json.dumps({"key": key, "G": G.tolist()}))
+    except OSError as exc:                       # a read-only checkout still works, only slower
+        log.warning("could not cache the georeference: %s", exc)
     return GeoMap(ortho, G)
+
+
+def load_map(name: str, seed: int = 0) -> GeoMap:
+    """A map by name: "procedural" (seeded) or "brighton" (the real one)."""
+    if name not in MAPS:
+        raise ValueError(f"map must be one of {MAPS}, got {name!r}")
+    return brighton_map() if name == "brighton" else procedural_map(rng=np.random.default_rng(seed))

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from msgs.uav import GeoFix, UavCommand, UavState
-from nodes.control.uav_servo import Gains, UavServo, servo
+from nodes.control.uav_homing import Gains, servo
+from nodes.control.uav_servo import UavServo
 from sim.aerial import Command, Limits, Uav, UavState as S
 from sim.uav_node import UavSim
 from tether.errors import ConfigError
