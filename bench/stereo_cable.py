@@ -188,16 +188,16 @@ def rms(chunks: list[np.ndarray]) -> float:
 
 def choose_block(seeds: list[int]) -> tuple[int, dict]:
     """SGBM's block size by its RMS on tuning seeds (crossing and catenary, 2 m)."""
+    cases = []                                   # the pairs and our tracks, the same for every block size
+    for s in seeds:
+        for shape in ("crossing", "catenary"):
+            pair = scene_pair(shape, depth_m=2.0, seed=s)
+            ref = reference(2.0, shape)
+            cases.append((pair, ref, reconstruct(pair.left, pair.right, RECT, reference_bgr=ref).left_px))
     scores = {}
     for block in (3, 5, 7, 9, 11):
-        errs = []
-        for s in seeds:
-            for shape in ("crossing", "catenary"):
-                pair = scene_pair(shape, depth_m=2.0, seed=s)
-                ref = reference(2.0, shape)
-                r = reconstruct(pair.left, pair.right, RECT, reference_bgr=ref)
-                disp, _ = sgbm(pair, ref, block, RECT.baseline_m * RECT.f_px)
-                errs.append(dist_mm(sgbm_points(disp, r.left_px)[0], pair))
+        errs = [dist_mm(sgbm_points(sgbm(pair, ref, block, RECT.baseline_m * RECT.f_px)[0], left_px)[0], pair)
+                for pair, ref, left_px in cases]
         scores[block] = rms(errs)
     return min(scores, key=scores.get), scores
 

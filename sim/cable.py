@@ -146,8 +146,9 @@ def occluders_for(shape: str, depth_m: float) -> list[tuple[np.ndarray, float]]:
     return [(np.array([[x0, -1.5 * s, z], [x0 + w, -1.5 * s, z], [x0 + w, 1.5 * s, z], [x0, 1.5 * s, z]]), z)]
 
 
-def _background(rig: StereoRig, rng: np.random.Generator, *, right: bool, depth_m: float) -> np.ndarray:
-    """A seabed-like texture on a fronto-parallel plane behind the cable (so it has disparity)."""
+def _background(rig: StereoRig, rng: np.random.Generator, *, depth_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A seabed-like texture on a fronto-parallel plane behind the cable (so it has disparity),
+    as the left and the right camera see it."""
     h, w = rig.height_px, rig.width_px
     z = depth_m + 1.5
     shift = rig.f_px * rig.baseline_m / z
@@ -160,8 +161,8 @@ def _background(rig: StereoRig, rng: np.random.Generator, *, right: bool, depth_
     tex = cv2.resize(base, ((w + pad) // 8 * 8 + 16, h // 8 * 8 + 16), interpolation=cv2.INTER_CUBIC)
     tex += rng.normal(0, 6, tex.shape[:2]).astype(np.float32)[..., None]
     tex = cv2.GaussianBlur(tex, (0, 0), 1.2)
-    M = np.float32([[1, 0, shift if right else 0.0], [0, 1, 0]])
-    return cv2.warpAffine(tex, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return tuple(cv2.warpAffine(tex, np.float32([[1, 0, dx], [0, 1, 0]]), (w, h), flags=cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_REFLECT) for dx in (0.0, shift))
 
 
 def _draw_cable(img: np.ndarray, rig: StereoRig, cable_m: np.ndarray, look: Look, colour: np.ndarray,
@@ -208,15 +209,14 @@ def render_pair(rig: StereoRig, cable_m: np.ndarray, *, look: Look = Look(),
     """Both images of the scene and the ground truth. ``rng`` None: no noise, fixed texture."""
     rng = rng or np.random.default_rng(0)
     depth = float(np.median(cable_m[:, 2]))
-    n = len(cable_m)
     arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(cable_m, axis=0), axis=1))])
     shade = 1 - look.shading * 0.5 * (1 + np.sin(arc * 2.1 + rng.uniform(0, 6.28)))
     colour = np.array(look.colour_bgr, np.float32)
     occ = occluders or []
     out, zbufs = [], []
-    bg_seed = int(rng.integers(1 << 31))              # one texture, seen by both cameras
+    backgrounds = _background(rig, np.random.default_rng(int(rng.integers(1 << 31))), depth_m=depth)  # one texture, both cameras
     for right in (False, True):
-        img = _background(rig, np.random.default_rng(bg_seed), right=right, depth_m=depth)
+        img = backgrounds[right].copy()
         zbuf = np.full(img.shape[:2], np.inf, np.float32)
         _draw_cable(img, rig, cable_m, look, colour, shade, right=right, zbuf=zbuf)
         for other in extra_cables:

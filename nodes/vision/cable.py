@@ -106,20 +106,7 @@ class Field:
 
 def _sample(P: np.ndarray | Field, xy: np.ndarray) -> np.ndarray:
     """Bilinear samples of P at (N, 2) points; outside the image: 2 (no cable)."""
-    if isinstance(P, Field):
-        return P.sample(xy)
-    h, w = P.shape
-    x, y = xy[:, 0], xy[:, 1]
-    inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
-    xc = np.minimum(np.maximum(x, 0.0), w - 1.001)
-    yc = np.minimum(np.maximum(y, 0.0), h - 1.001)
-    x0, y0 = xc.astype(np.intp), yc.astype(np.intp)
-    fx, fy = xc - x0, yc - y0
-    flat = P.ravel()
-    i = y0 * w + x0
-    top = flat[i] + (flat[i + 1] - flat[i]) * fx
-    bot = flat[i + w] + (flat[i + w + 1] - flat[i + w]) * fx
-    return np.where(inside, top + (bot - top) * fy, 2.0)
+    return (P if isinstance(P, Field) else Field(P)).sample(xy)
 
 
 def _local_grid(offsets_rad: np.ndarray, step_px: float, section_px: np.ndarray) -> np.ndarray:
@@ -190,7 +177,7 @@ def _centroid(values: np.ndarray, offsets: np.ndarray, valley_max: float) -> tup
     return max(-2.0, min(2.0, c)), float(np.count_nonzero(wgt)) * float(offsets[1] - offsets[0])
 
 
-def _section(P: np.ndarray, p: np.ndarray, theta: float, valley_max: float,
+def _section(P: np.ndarray | Field, p: np.ndarray, theta: float, valley_max: float,
              half_width_px: float = 8.0) -> tuple[float, float]:
     """The valley across the track at p: (offset of its centroid along the normal, its width).
 
@@ -362,7 +349,7 @@ def track_cable(P: np.ndarray, prm: FollowParams = FollowParams(), *, min_length
     return tracks
 
 
-def refine_polyline(P: np.ndarray, pts: np.ndarray, prm: FollowParams) -> np.ndarray:
+def refine_polyline(P: np.ndarray | Field, pts: np.ndarray, prm: FollowParams) -> np.ndarray:
     """Resample a followed track every ``spacing_px`` and centre every sample across the valley
     in one vectorised pass (the sequential follower only has to make the decisions). Jumps
     longer than 1.5 steps (bridged occlusions) stay jumps: nothing is invented behind them.

@@ -195,10 +195,6 @@ class Calibration:
     f_bougnoux: float = math.nan
     details: dict = field(default_factory=dict)
 
-    @property
-    def fx(self) -> float:
-        return float(self.K[0, 0])
-
 
 def _solve(Fs: list[np.ndarray], init: np.ndarray, fix_pp: bool, fn) -> np.ndarray:
     """Least squares on residuals ``fn`` over (fx, fy, cx, cy) in normalised units."""

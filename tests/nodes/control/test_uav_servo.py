@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 
 from msgs.uav import GeoFix, UavCommand, UavState

@@ -2,7 +2,6 @@
 accuracy in order against the per-row baseline, and the issue's hard cases."""
 from __future__ import annotations
 
-import math
 
 import cv2
 import numpy as np
