@@ -55,6 +55,8 @@ class Snapshots:
     games: list[int] = field(default_factory=list)
     lineage: list[int] = field(default_factory=list)
     params: list[np.ndarray] = field(default_factory=list)
+    cpu_s: list[float] = field(default_factory=list)      # training CPU seconds spent so far
+    steps: list[int] = field(default_factory=list)        # game steps simulated so far
 
 
 class TournamentGA:
@@ -138,6 +140,8 @@ class TournamentGA:
                 self.snapshots.games.append(self.games)
                 self.snapshots.lineage.append(int(self.lineage[i]))
                 self.snapshots.params.append(params)
+                self.snapshots.cpu_s.append(self.cpu_s)
+                self.snapshots.steps.append(self.steps)
             if self.games - last_report >= progress_every:
                 info = {"games": self.games, "champion_lineage": int(self.lineage.max()),
                         "games_per_s": (self.games - games0) / max(time.perf_counter() - wall0, 1e-9),
@@ -167,7 +171,8 @@ class TournamentGA:
         tmp = path.with_name(path.name + ".tmp.npz")
         np.savez(tmp, population=self.population, lineage=self.lineage, meta=np.array(json.dumps(meta)),
                  snap_games=np.array(self.snapshots.games, np.int64),
-                 snap_lineage=np.array(self.snapshots.lineage, np.int64), snap_params=snaps)
+                 snap_lineage=np.array(self.snapshots.lineage, np.int64), snap_params=snaps,
+                 snap_cpu_s=np.array(self.snapshots.cpu_s, np.float64), snap_steps=np.array(self.snapshots.steps, np.int64))
         tmp.replace(path)
 
     @classmethod
@@ -183,7 +188,8 @@ class TournamentGA:
                                  f"{ga.population.shape}: the checkpoint is corrupt")
             ga.population = f["population"].copy()
             ga.lineage = f["lineage"].copy()
-            ga.snapshots = Snapshots(f["snap_games"].tolist(), f["snap_lineage"].tolist(), list(f["snap_params"]))
+            ga.snapshots = Snapshots(f["snap_games"].tolist(), f["snap_lineage"].tolist(), list(f["snap_params"]),
+                                     f["snap_cpu_s"].tolist(), f["snap_steps"].tolist())
         ga.games, ga.steps, ga.cpu_s = meta["games"], meta["steps"], meta["cpu_s"]
         ga.rng.bit_generator.state = meta["rng"]
         return ga
