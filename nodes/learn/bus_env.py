@@ -286,7 +286,11 @@ class BusVecEnv(VectorEnv):
         self._step += 1
         msgs = [EnvAction(epoch=self._epoch, step=self._step, actions=actions[a:b])
                 for a, b in zip(self.bounds[:-1], self.bounds[1:])]
-        reply = self._exchange(msgs)
+        try:
+            reply = self._exchange(msgs)
+        except ValueError:
+            self._step -= 1           # refused: nothing moved, the next action takes this step's place
+            raise
         done = reply.terminated | reply.truncated
         return reply.obs, reply.rewards, reply.terminated, reply.truncated, self._infos(reply, done)
 

@@ -18,6 +18,7 @@ Everything random is seeded (the env through ``reset(seed=...)``, the policy thr
 """
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import asdict, dataclass, replace
@@ -155,6 +156,63 @@ def _logp_entropy(kind: str, out: jnp.ndarray, log_std: jnp.ndarray, a: jnp.ndar
     return logp, -(jnp.exp(lp1) * lp1 + jnp.exp(lp0) * lp0).sum(-1)
 
 
+def _networks(cfg: PPOConfig, act_dim: int) -> tuple[_MLP, _MLP]:
+    return _MLP(tuple(cfg.hidden), act_dim, 0.01), _MLP(tuple(cfg.hidden), 1, 1.0)
+
+
+def _optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
+                       optax.inject_hyperparams(optax.adam)(learning_rate=cfg.lr, eps=1e-5))
+
+
+@functools.lru_cache(maxsize=16)
+def _compiled_update(kind: str, act_dim: int, cfg: PPOConfig) -> Callable[..., Any]:
+    """The jitted PPO update for a policy shape and hyper-parameters: compiled once per process,
+    shared by every agent of that shape (compiling costs seconds; agents are made by the dozen
+    in self-play and tests)."""
+    actor, critic = _networks(cfg, act_dim)
+    tx = _optimizer(cfg)
+
+    def loss(params: Any, b: dict[str, jnp.ndarray]) -> tuple[jnp.ndarray, dict[str, jnp.ndarray]]:
+        out = actor.apply(params["actor"], b["obs"])
+        logp, ent = _logp_entropy(kind, out, params["log_std"], b["act"])
+        ratio = jnp.exp(logp - b["logp"])
+        adv = (b["adv"] - b["adv"].mean()) / (b["adv"].std() + 1e-8)
+        pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv).mean()
+        v = critic.apply(params["critic"], b["obs"])[:, 0]
+        if cfg.clip_value:
+            v_clip = b["val"] + jnp.clip(v - b["val"], -cfg.clip, cfg.clip)
+            vl = 0.5 * jnp.maximum((v - b["ret"]) ** 2, (v_clip - b["ret"]) ** 2).mean()
+        else:
+            vl = 0.5 * ((v - b["ret"]) ** 2).mean()
+        total = pg + cfg.vf_coef * vl - cfg.ent_coef * ent.mean()
+        approx_kl = ((ratio - 1) - jnp.log(ratio)).mean()
+        return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent.mean(), "approx_kl": approx_kl,
+                       "clip_frac": (jnp.abs(ratio - 1) > cfg.clip).mean()}
+
+    def update(params: Any, opt_state: Any, batch: dict[str, jnp.ndarray], key: jnp.ndarray, lr: float
+               ) -> tuple[Any, Any, dict[str, jnp.ndarray]]:
+        n = batch["obs"].shape[0]
+        mb = n // cfg.minibatches
+        opt_state[1].hyperparams["learning_rate"] = lr
+
+        def epoch(carry: Any, k: jnp.ndarray) -> tuple[Any, dict[str, jnp.ndarray]]:
+            perm = jax.random.permutation(k, n)[: mb * cfg.minibatches].reshape(cfg.minibatches, mb)
+
+            def minibatch(carry: Any, idx: jnp.ndarray) -> tuple[Any, dict[str, jnp.ndarray]]:
+                p, s = carry
+                (_, stats), grads = jax.value_and_grad(loss, has_aux=True)(p, {k_: v[idx] for k_, v in batch.items()})
+                upd, s = tx.update(grads, s, p)
+                return (optax.apply_updates(p, upd), s), stats
+
+            return jax.lax.scan(minibatch, carry, perm)
+
+        (params, opt_state), stats = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, cfg.epochs))
+        return params, opt_state, jax.tree_util.tree_map(jnp.mean, stats)
+
+    return jax.jit(update)
+
+
 class PPO:
     """A PPO agent for one observation and action space (see the module docstring)."""
 
@@ -166,66 +224,17 @@ class PPO:
         self.obs_shape = tuple(observation_space.shape)
         self.obs_dim = int(np.prod(self.obs_shape))
         cfg = self.config
-        self.actor = _MLP(tuple(cfg.hidden), self.act_dim, 0.01)
-        self.critic = _MLP(tuple(cfg.hidden), 1, 1.0)
+        self.actor, self.critic = _networks(cfg, self.act_dim)
         key = jax.random.PRNGKey(seed)
         self.key, ka, kc = jax.random.split(key, 3)
         dummy = jnp.zeros((1, self.obs_dim))
         self.params = {"actor": self.actor.init(ka, dummy), "critic": self.critic.init(kc, dummy),
                        "log_std": jnp.full((self.act_dim,), cfg.init_log_std)}
-        self.tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
-                              optax.inject_hyperparams(optax.adam)(learning_rate=cfg.lr, eps=1e-5))
-        self.opt_state = self.tx.init(self.params)
+        self.opt_state = _optimizer(cfg).init(self.params)
         self.obs_rms = RunningMeanStd.of((self.obs_dim,))
         self.ret_rms = RunningMeanStd.of(())
         self.steps_done = 0
         self.history: list[dict[str, float]] = []
-        self._build()
-
-    # -- compiled pieces ------------------------------------------------------------------
-    def _build(self) -> None:
-        kind, actor, critic, cfg = self.kind, self.actor, self.critic, self.config
-
-        def loss(params: Any, b: dict[str, jnp.ndarray]) -> tuple[jnp.ndarray, dict[str, jnp.ndarray]]:
-            out = actor.apply(params["actor"], b["obs"])
-            logp, ent = _logp_entropy(kind, out, params["log_std"], b["act"])
-            ratio = jnp.exp(logp - b["logp"])
-            adv = (b["adv"] - b["adv"].mean()) / (b["adv"].std() + 1e-8)
-            pg = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv).mean()
-            v = critic.apply(params["critic"], b["obs"])[:, 0]
-            if cfg.clip_value:
-                v_clip = b["val"] + jnp.clip(v - b["val"], -cfg.clip, cfg.clip)
-                vl = 0.5 * jnp.maximum((v - b["ret"]) ** 2, (v_clip - b["ret"]) ** 2).mean()
-            else:
-                vl = 0.5 * ((v - b["ret"]) ** 2).mean()
-            total = pg + cfg.vf_coef * vl - cfg.ent_coef * ent.mean()
-            approx_kl = ((ratio - 1) - jnp.log(ratio)).mean()
-            return total, {"policy_loss": pg, "value_loss": vl, "entropy": ent.mean(), "approx_kl": approx_kl,
-                           "clip_frac": (jnp.abs(ratio - 1) > cfg.clip).mean()}
-
-        tx = self.tx
-
-        def update(params: Any, opt_state: Any, batch: dict[str, jnp.ndarray], key: jnp.ndarray, lr: float
-                   ) -> tuple[Any, Any, dict[str, jnp.ndarray]]:
-            n = batch["obs"].shape[0]
-            mb = n // cfg.minibatches
-            opt_state[1].hyperparams["learning_rate"] = lr
-
-            def epoch(carry: Any, k: jnp.ndarray) -> tuple[Any, dict[str, jnp.ndarray]]:
-                perm = jax.random.permutation(k, n)[: mb * cfg.minibatches].reshape(cfg.minibatches, mb)
-
-                def minibatch(carry: Any, idx: jnp.ndarray) -> tuple[Any, dict[str, jnp.ndarray]]:
-                    p, s = carry
-                    (_, stats), grads = jax.value_and_grad(loss, has_aux=True)(p, {k_: v[idx] for k_, v in batch.items()})
-                    upd, s = tx.update(grads, s, p)
-                    return (optax.apply_updates(p, upd), s), stats
-
-                return jax.lax.scan(minibatch, carry, perm)
-
-            (params, opt_state), stats = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, cfg.epochs))
-            return params, opt_state, jax.tree_util.tree_map(jnp.mean, stats)
-
-        self._update = jax.jit(update)
 
     # -- acting -----------------------------------------------------------------------------
     def _numpy_policy(self) -> None:
@@ -355,7 +364,7 @@ class PPO:
             frac = 1.0 - done_updates / max(target_updates, 1) if cfg.anneal_lr else 1.0
             self.key, k = jax.random.split(self.key)
             lr = jnp.asarray(cfg.lr * max(frac, 0.0), jnp.float32)
-            self.params, self.opt_state, stats = self._update(self.params, self.opt_state, batch, k, lr)
+            self.params, self.opt_state, stats = _compiled_update(self.kind, self.act_dim, cfg)(self.params, self.opt_state, batch, k, lr)
             self._numpy_policy()
             self.steps_done += per_update
             elapsed = time.perf_counter() - t0
@@ -419,7 +428,6 @@ class PPO:
     def with_config(self, **changes: Any) -> "PPO":
         """Same weights, other hyper-parameters (e.g. a lower learning rate to fine-tune)."""
         self.config = replace(self.config, **changes)
-        self._build()
         return self
 
 
