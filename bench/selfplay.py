@@ -47,7 +47,6 @@ sys.path.insert(0, str(REPO))
 
 from nodes.learn import slime_game as sg  # noqa: E402
 from nodes.learn.ga_selfplay import GAConfig, TournamentGA  # noqa: E402
-from nodes.learn.slime import make_original_env  # noqa: E402
 from nodes.learn.slime_match import evaluate_original, evaluate_replica  # noqa: E402
 from nodes.learn.slime_policy import MlpPolicy  # noqa: E402
 
