@@ -48,3 +48,35 @@ class EnvStep(Message, tag="learn.EnvStep"):
     metrics: np.ndarray = const(np.zeros((0, 0)))
     metric_names: list[str] = []
     error: str = ""
+
+
+class Observation(Message, tag="learn.Observation"):
+    """A deployed simulator's (or robot's) observation for a policy, (obs_dim,), with its
+    episode, step and scenario metrics (named by ``metric_names``)."""
+
+    episode: int = 0
+    step: int = 0
+    sim_time_s: float = 0.0
+    obs: np.ndarray = const(np.zeros(0, np.float32))
+    metrics: np.ndarray = const(np.zeros(0))
+    metric_names: list[str] = []
+
+
+class PolicyAction(Message, tag="learn.PolicyAction"):
+    """A policy's action for the observation of ``episode``/``step`` (in the action space's units)."""
+
+    episode: int = 0
+    step: int = 0
+    action: np.ndarray = const(np.zeros(0, np.float32))
+
+
+class EpisodeSummary(Message, tag="learn.EpisodeSummary"):
+    """An episode's end: its return, length, why it ended, and the metrics at its last step."""
+
+    episode: int = 0
+    steps: int = 0
+    return_: float = 0.0
+    terminated: bool = False
+    truncated: bool = False
+    metrics: np.ndarray = const(np.zeros(0))
+    metric_names: list[str] = []

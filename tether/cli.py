@@ -493,6 +493,55 @@ def cmd_selfcal(args: argparse.Namespace) -> int:
     return 2 if cal.degenerate else 0
 
 
+def _learn_params(items: list[str] | None) -> dict[str, Any]:
+    from tether.launch import parse_value
+
+    out: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--param {item!r}: give KEY=VALUE")
+        out[key] = parse_value(value)
+    return out
+
+
+def cmd_learn(args: argparse.Namespace) -> int:
+    """Train, evaluate, export or replay PPO policies on Tether simulators (``nodes.learn``)."""
+    import dataclasses
+
+    from nodes.learn.bus_env import replay_log
+    from nodes.learn.ppo import PPO, PPOConfig
+    from nodes.learn.train import evaluate, export, report_json, train
+
+    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)   # "no TPU" is not news on a CPU
+
+    if args.learn_cmd == "train":
+        fields = {f.name: f.type for f in dataclasses.fields(PPOConfig)}
+        overrides = _learn_params(args.ppo)
+        unknown = sorted(set(overrides) - set(fields))
+        if unknown:
+            raise ConfigError(f"unknown PPO setting(s) {unknown}; known: {', '.join(fields)}")
+        if "hidden" in overrides:
+            overrides["hidden"] = tuple(overrides["hidden"])
+        agent = train(args.env, args.out, steps=int(args.steps), n_envs=args.n_envs, params=_learn_params(args.param),
+                      config=PPOConfig(**overrides), seed=args.seed, mode=args.mode, shards=args.shards,
+                      resume=args.resume, checkpoint_every=int(args.checkpoint_every), progress=print)
+        print(f"wrote {args.out} ({agent.steps_done} steps) and {Path(args.out).with_suffix('.png')}")
+        return 0
+    if args.learn_cmd == "eval":
+        agent = PPO.load(args.checkpoint)
+        report = evaluate(agent, args.env, episodes=args.episodes, seed=args.seed, params=_learn_params(args.param))
+        print(report_json(report))
+        return 0
+    if args.learn_cmd == "export":
+        size = export(args.checkpoint, args.out)
+        print(f"wrote {args.out} ({size} bytes: policy and normaliser, no optimiser state)")
+        return 0
+    result = replay_log(args.log)
+    print(f"{args.log}: {result['replies']} replies from {result['instances']} instances replayed bit-identically")
+    return 0
+
+
 def cmd_doctor(args: argparse.Namespace) -> int:
     """Check the runtime directory and keystores; clean what crashed runs left (stale registry
     entries, ipc sockets nobody listens on, seq-state files of graphs no longer running)."""
@@ -581,6 +630,7 @@ EXAMPLES = {
     "doctor": "tether doctor",
     "slam": "tether slam optimize graph.g2o --initial chordal --robust gnc -o optimised.g2o",
     "selfcal": "tether selfcal ../shared/data/camera/opencv-chessboard-stereo/left*.jpg --chessboard 9x6",
+    "learn": "tether learn train --env sim.car_env:ReachCar --steps 2e6 -o out/learn/reach.ppo --resume",
 }
 
 
@@ -737,6 +787,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-distortion", action="store_true", help="with --chessboard: do not estimate lens distortion")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_selfcal)
+
+    p = sub.add_parser("learn", help="train, evaluate, export and replay RL policies on Tether simulators")
+    learn = p.add_subparsers(dest="learn_cmd", required=True)
+    q = learn.add_parser("train", help="PPO on a bus environment (resumable; writes a learning curve PNG)")
+    q.add_argument("--env", default="sim.car_env:ReachCar", help="the simulator, module:Class (a VecSim)")
+    q.add_argument("--param", action="append", metavar="KEY=VALUE", help="a scenario parameter (repeatable)")
+    q.add_argument("--ppo", action="append", metavar="KEY=VALUE", help="a PPO setting, e.g. lr=1e-3 (repeatable)")
+    q.add_argument("--steps", type=float, default=1e6, help="env steps in all (all instances counted)")
+    q.add_argument("--n-envs", type=int, default=16, help="simulator instances stepped together")
+    q.add_argument("--mode", choices=("inproc", "ipc"), default="inproc", help="simulator in this process or in node processes")
+    q.add_argument("--shards", type=int, default=1, help="with --mode ipc: node processes sharing the instances")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--checkpoint-every", type=float, default=2e5, help="env steps between checkpoints")
+    q.add_argument("--resume", action="store_true", help="continue from the checkpoint at -o when it exists")
+    q.add_argument("-o", "--out", required=True, help="checkpoint path (msgpack)")
+    q = learn.add_parser("eval", help="one deterministic episode per seed; metrics at the episodes' end")
+    q.add_argument("checkpoint")
+    q.add_argument("--env", default="sim.car_env:ReachCar")
+    q.add_argument("--param", action="append", metavar="KEY=VALUE")
+    q.add_argument("--episodes", type=int, default=100)
+    q.add_argument("--seed", type=int, default=10_000, help="first seed (episode i: seed + i)")
+    q = learn.add_parser("export", help="strip optimiser state and history: a policy to deploy")
+    q.add_argument("checkpoint")
+    q.add_argument("out")
+    q = learn.add_parser("replay", help="re-run a recorded environment log and check it bit for bit")
+    q.add_argument("log")
+    p.set_defaults(func=cmd_learn)
 
     p = sub.add_parser("slam", help="pose-graph tools")
     slam = p.add_subparsers(dest="slam_cmd", required=True)

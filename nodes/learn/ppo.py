@@ -131,9 +131,10 @@ def _space_doc(space: gymnasium.spaces.Space) -> dict[str, Any]:
 def _space_from(doc: dict[str, Any]) -> gymnasium.spaces.Space:
     shape = tuple(doc["shape"])
     if doc["type"] == "Box":
-        low = np.asarray(doc["low"], np.float64).reshape(shape)
-        high = np.asarray(doc["high"], np.float64).reshape(shape)
-        return gymnasium.spaces.Box(low, high, shape, np.dtype(doc["dtype"]))
+        dtype = np.dtype(doc["dtype"])
+        low = np.asarray(doc["low"], dtype).reshape(shape)
+        high = np.asarray(doc["high"], dtype).reshape(shape)
+        return gymnasium.spaces.Box(low, high, shape, dtype)
     if doc["type"] == "Discrete":
         return gymnasium.spaces.Discrete(doc["n"], start=doc["start"])
     if doc["type"] == "MultiBinary":
@@ -300,20 +301,21 @@ class PPO:
         return self.to_env(out > 0)
 
     # -- learning ---------------------------------------------------------------------------
-    def learn(self, env: Any, total_steps: int, *, seed: int | None = 0,
+    def learn(self, env: Any, steps: int, *, seed: int | None = 0,
               callback: Callable[[dict[str, float]], bool | None] | None = None,
-              progress: Callable[[str], None] | None = None) -> list[dict[str, float]]:
-        """Train on a Gymnasium vector env (same-step autoreset, ``infos["final_obs"]``) for
-        ``total_steps`` more env steps (all instances counted). ``callback(entry)`` after each
-        update may return False to stop. Returns the history (one entry per update)."""
+              progress: Callable[[str], None] | None = None, total_steps: int | None = None) -> list[dict[str, float]]:
+        """Train on a Gymnasium vector env (same-step autoreset, ``infos["final_obs"]``) for ``steps``
+        more env steps (all instances counted). The learning rate anneals to zero at ``total_steps``
+        (default: the end of this call; give the whole run's length when training in chunks).
+        ``callback(entry)`` after each update may return False to stop. Returns the history."""
         cfg, n = self.config, env.num_envs
         if tuple(env.single_observation_space.shape) != self.obs_shape:
             raise ValueError(f"env observations {env.single_observation_space.shape} != policy's {self.obs_shape}")
         per_update = cfg.n_steps * n
         if per_update % cfg.minibatches:
             raise ValueError(f"n_steps x n_envs ({per_update}) must divide into {cfg.minibatches} minibatches")
-        updates = max(1, total_steps // per_update)
-        target_updates = (self.steps_done + total_steps) // per_update
+        updates = max(1, steps // per_update)
+        target_updates = (total_steps or self.steps_done + steps) // per_update
         obs, _ = env.reset(seed=seed)
         ep_ret, ep_len = np.zeros(n), np.zeros(n, np.int64)
         disc_ret = np.zeros(n)
@@ -413,7 +415,8 @@ class PPO:
         cfg["hidden"] = tuple(cfg["hidden"])
         agent = cls(obs_space, act_space, PPOConfig(**cfg))
         agent.params = serialization.from_state_dict(agent.params, doc["params"])
-        agent.opt_state = serialization.from_state_dict(agent.opt_state, doc["opt_state"])
+        if doc.get("opt_state") is not None:            # None in an exported policy
+            agent.opt_state = serialization.from_state_dict(agent.opt_state, doc["opt_state"])
         for name in ("obs_rms", "ret_rms"):
             r = doc[name]
             setattr(agent, name, RunningMeanStd(np.asarray(r["mean"]), np.asarray(r["var"]), float(r["count"])))
