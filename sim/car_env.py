@@ -65,12 +65,16 @@ class _Car(VecSim):
         x, y, th = self.pose.T
         dx, dy = self.target[:, 0] - x, self.target[:, 1] - y
         c, s = np.cos(th), np.sin(th)
-        return np.column_stack([x, y, c, s, self.target, c * dx + s * dy, -s * dx + c * dy,
-                                np.hypot(dx, dy), self.last])
+        out = np.empty((self.n, 11))
+        out[:, 0], out[:, 1], out[:, 2], out[:, 3] = x, y, c, s
+        out[:, 4:6] = self.target
+        out[:, 6], out[:, 7], out[:, 8] = c * dx + s * dy, -s * dx + c * dy, np.hypot(dx, dy)
+        out[:, 9:11] = self.last
+        return out
 
     def _move(self, actions: np.ndarray) -> np.ndarray:
         v, w = actions[:, 0] * V_MAX_MPS, actions[:, 1] * W_MAX_RADPS
-        self.last = actions.astype(np.float64)
+        self.last = actions
         return integrate(self.pose, v, w, self.DT_S)
 
 

@@ -22,21 +22,24 @@ def integrate(pose: np.ndarray, v_mps: np.ndarray, w_radps: np.ndarray, dt_s: fl
     """Poses (N, 3) [x, y, yaw] after ``dt_s`` at constant (v, w): the exact arc.
 
     Near w = 0 the arc's ``sin(w dt)/w`` is replaced by its series (no division near zero).
-    The returned yaw is wrapped to (-pi, pi].
+    The returned yaw is wrapped to [-pi, pi).
     """
-    x, y, th = pose[:, 0], pose[:, 1], pose[:, 2]
+    th = pose[:, 2]
     dth = w_radps * dt_s
     small = np.abs(dth) < 1e-6
-    safe = np.where(small, 1.0, dth)
-    # chord factors: sin(d)/d and (1 - cos(d))/d, series below 1e-6
-    s = np.where(small, 1.0 - dth**2 / 6.0, np.sin(safe) / safe)
-    c = np.where(small, dth / 2.0, (1.0 - np.cos(safe)) / safe)
+    if small.any():
+        safe = np.where(small, 1.0, dth)
+        s = np.where(small, 1.0 - dth**2 / 6.0, np.sin(safe) / safe)
+        c = np.where(small, dth / 2.0, (1.0 - np.cos(safe)) / safe)
+    else:                                   # the common case, without the series' masks
+        s, c = np.sin(dth) / dth, (1.0 - np.cos(dth)) / dth
     step = v_mps * dt_s
     ct, st = np.cos(th), np.sin(th)
-    nx = x + step * (s * ct - c * st)
-    ny = y + step * (s * st + c * ct)
-    nth = np.angle(np.exp(1j * (th + dth)))
-    return np.stack([nx, ny, nth], axis=1)
+    out = np.empty_like(pose, dtype=np.float64)
+    out[:, 0] = pose[:, 0] + step * (s * ct - c * st)
+    out[:, 1] = pose[:, 1] + step * (s * st + c * ct)
+    out[:, 2] = np.remainder(th + dth + np.pi, 2.0 * np.pi) - np.pi       # [-pi, pi)
+    return out
 
 
 @dataclass(frozen=True)

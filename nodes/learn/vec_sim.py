@@ -102,18 +102,21 @@ class VecSim(abc.ABC):
         space = self.action_space
         a = np.asarray(actions)
         shape = (self.n, *space.shape)
+        if a.shape == shape and a.dtype == np.float64 and isinstance(space, gymnasium.spaces.Box) \
+                and np.isfinite(a).all():
+            return np.clip(a, space.low, space.high)      # the common case, checked in one pass
         if a.shape != shape:
             if a.size == np.prod(shape):
                 a = a.reshape(shape)
             else:
                 raise ValueError(f"actions of shape {a.shape}: give {shape} (instances x action)")
         if isinstance(space, gymnasium.spaces.Box):
-            a = a.astype(np.float64)
-            bad = ~np.isfinite(a).reshape(self.n, -1).all(axis=1)
-            if bad.any():
+            a = np.asarray(a, np.float64)
+            if not np.isfinite(a).all():
+                bad = ~np.isfinite(a).reshape(self.n, -1).all(axis=1)
                 raise ValueError(f"non-finite action for instance(s) {np.flatnonzero(bad).tolist()}: "
                                  "refused (out-of-range finite actions are clipped, NaN/inf are not)")
-            return np.clip(a, space.low, space.high).astype(space.dtype)
+            return np.clip(a, space.low, space.high)       # float64: the simulators integrate in float64
         if isinstance(space, gymnasium.spaces.Discrete):
             a = a.astype(np.int64)
             bad = (a < space.start) | (a >= space.start + space.n)

@@ -1,0 +1,260 @@
+"""RL car benchmark (seed 14): PPO over the bus against hand controllers, error against training.
+
+1. PPO validated on CartPole-v1 (Gymnasium's own env): mean return of the deterministic policy
+   over 100 episodes; the commonly published figure is 500 (the cap; "solved" at 475).
+2. Reach the point: PPO trained on the bus env (16 instances); every ``--every`` steps the
+   policy is scored on 100 held-out episodes (seeds 10,000+; training uses 0+): final distance
+   to the target (mm, mean +- std, median, p95) against env steps and wall minutes. Baseline in
+   the same run: the classic go-to-goal law (turn toward the target, drive forward or backward
+   by the cosine of the bearing), with the same observation, its two gains set by a sweep on
+   training seeds.
+3. Maze: PPO with the corridor (geodesic) distance in the paper's reward, and with the paper's
+   own straight-line distance, same budget; success = the exit reached within 30 s, over 100
+   held-out episodes. Baseline: a left-hand wall follower on the same range readings, gains by a
+   sweep on training seeds.
+
+Checkpoints live in out/learn/ and are resumed (``--fresh`` retrains); the minutes reported are
+those the checkpoints recorded. PNG: out/bench_rl_car.png.
+
+    python bench/rl_car.py [--quick] [--fresh] [--json]
+
+``--json`` keys: reach_err_mm_mean, reach_err_mm_std, maze_success_frac, train_minutes, and
+cartpole, reach (curve, baseline), maze (per reward rule, baseline).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from nodes.learn.bus_env import BusVecEnv  # noqa: E402
+from nodes.learn.ppo import PPO, PPOConfig  # noqa: E402
+from nodes.learn.train import evaluate  # noqa: E402
+
+OUT = REPO / "out" / "learn"
+REACH, MAZE = "sim.car_env:ReachCar", "sim.car_env:MazeCar"
+HELD_OUT = 10_000
+
+
+# -- hand controllers (same observation as the policy) --------------------------------------------
+def go_to_goal(obs: np.ndarray, k_v: float, k_w: float) -> np.ndarray:
+    """Turn toward the target and drive by the cosine of the bearing (backward when it is behind)."""
+    bx, by, d = obs[:, 6], obs[:, 7], obs[:, 8]
+    bearing = np.arctan2(by, bx)
+    back = np.abs(bearing) > np.pi / 2
+    bearing = np.where(back, np.angle(np.exp(1j * (bearing + np.pi))), bearing)
+    v = k_v * d * np.cos(bearing) * np.where(back, -1.0, 1.0)
+    return np.column_stack([np.clip(v, -1, 1), np.clip(k_w * bearing / np.pi, -1, 1)])
+
+
+def wall_follower(obs: np.ndarray, gap_m: float, k_w: float) -> np.ndarray:
+    """Keep a wall on the left at ``gap_m``; turn right when blocked ahead, left when the wall ends."""
+    rays = obs[:, 11:]            # 16 rays from -pi in steps of pi/8: index 8 ahead, 10 front-left, 12 left
+    front, front_left, left = rays[:, 8], rays[:, 10], rays[:, 12]
+    w = np.clip(k_w * (np.minimum(left, front_left / np.sqrt(2)) - gap_m), -1, 1)
+    v = np.full(len(obs), 0.6)
+    blocked = front < 0.35
+    lost = (left > 2 * gap_m + 0.3) & ~blocked
+    w = np.where(blocked, -1.0, np.where(lost, 0.7, w))
+    v = np.where(blocked, 0.1, v)
+    return np.column_stack([v, w])
+
+
+def run_hand(sim: str, law, seed: int, episodes: int) -> dict:
+    env = BusVecEnv(sim, episodes)
+    obs, _ = env.reset(seed=seed)
+    final = {n: np.full(episodes, np.nan) for n in env.metric_names}
+    pending = np.ones(episodes, bool)
+    steps = np.zeros(episodes)
+    while pending.any():
+        obs, _, term, trunc, info = env.step(law(obs))
+        steps += pending
+        ended = pending & (term | trunc)
+        for n in env.metric_names:
+            final[n][ended] = info[n][ended]
+        pending &= ~ended
+    env.close()
+    return {**final, "steps": steps}
+
+
+def tune(sim: str, make_law, grid: list[tuple[float, float]], score) -> tuple[tuple[float, float], float]:
+    """The gains that score best on training seeds (0-99)."""
+    best = None
+    for g in grid:
+        s = score(run_hand(sim, make_law(*g), 0, 100))
+        if best is None or s < best[1]:
+            best = (g, s)
+    return best
+
+
+# -- PPO runs ----------------------------------------------------------------------------------------
+def train_and_score(name: str, sim: str, steps: int, every: int, params: dict, fresh: bool, episodes: int,
+                    score_key: str) -> tuple[PPO, list[dict]]:
+    """Train (resuming) to ``steps`` in chunks of ``every``; score each chunk on held-out episodes."""
+    path = OUT / f"bench_{name}.ppo"
+    curve_path = path.with_suffix(".curve.json")
+    if fresh:
+        path.unlink(missing_ok=True)
+        curve_path.unlink(missing_ok=True)
+    curve = json.loads(curve_path.read_text()) if curve_path.exists() else []
+    env = BusVecEnv(sim, 16, params=params)
+    agent = PPO.load(path) if path.exists() else PPO(env.single_observation_space, env.single_action_space,
+                                                     PPOConfig(), seed=0)
+    minutes = curve[-1]["train_minutes"] if curve else 0.0
+    first = not curve
+    while agent.steps_done < steps:
+        t0 = time.perf_counter()
+        agent.learn(env, min(every, steps - agent.steps_done), seed=0 if first else None, total_steps=steps,
+                    progress=lambda s: print(f"  [{name}] {s}", file=sys.stderr, flush=True)
+                    if int(s.split()[1]) % (every // 4 or 1) < 4096 else None)
+        first = False
+        minutes += (time.perf_counter() - t0) / 60
+        agent.save(path)
+        rep = evaluate(agent, sim, episodes=episodes, seed=HELD_OUT, params=params)
+        curve.append({"steps": agent.steps_done, "train_minutes": minutes,
+                      **{k: v for k, v in rep.items() if not isinstance(v, list)},
+                      "values": rep[score_key]})
+        curve_path.write_text(json.dumps(curve))
+        print(f"  [{name}] {agent.steps_done} steps, {minutes:.1f} min: {score_key} "
+              f"{rep[score_key + '_mean']:.4f}", file=sys.stderr, flush=True)
+    env.close()
+    return agent, curve
+
+
+def cartpole(steps: int) -> dict:
+    import gymnasium
+    from gymnasium.vector import AutoresetMode
+
+    env = gymnasium.make_vec("CartPole-v1", num_envs=8, vectorization_mode="sync",
+                             vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP})
+    cfg = PPOConfig(n_steps=128, epochs=4, minibatches=4, lr=2.5e-4, ent_coef=0.01, clip_value=True, norm_reward=False)
+    agent = PPO(env.single_observation_space, env.single_action_space, cfg, seed=0)
+    t0 = time.perf_counter()
+    agent.learn(env, steps)
+    minutes = (time.perf_counter() - t0) / 60
+    ev = gymnasium.make("CartPole-v1")
+    rets = []
+    for ep in range(100):
+        o, _ = ev.reset(seed=HELD_OUT + ep)
+        total, done = 0.0, False
+        while not done:
+            o, r, te, tr, _ = ev.step(int(agent.act(o[None])[0]))
+            total, done = total + r, te or tr
+        rets.append(total)
+    return {"steps": steps, "minutes": minutes, "return_mean": float(np.mean(rets)), "return_std": float(np.std(rets)),
+            "published": 500.0}
+
+
+def plot(reach: list[dict], reach_base: dict, mazes: dict, maze_base: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4))
+    s = np.array([c["steps"] for c in reach])
+    m = np.array([c["distance_m_mean"] for c in reach]) * 1000
+    med = np.array([np.median(c["values"]) for c in reach]) * 1000
+    ax[0].semilogy(s / 1e6, m, "o-", label="PPO mean")
+    ax[0].semilogy(s / 1e6, med, "s--", label="PPO median")
+    ax[0].axhline(reach_base["mean_mm"], color="k", ls=":", label=f"go-to-goal law mean ({reach_base['mean_mm']:.2g} mm)")
+    ax[0].axhline(8.12, color="r", ls="--", lw=1, label="paper 8.12 mm")
+    ax[0].set_xlabel("env steps (M)")
+    ax[0].set_ylabel("final distance (mm), 100 held-out episodes")
+    ax[0].set_title("reach the point")
+    ax[1].semilogy([c["train_minutes"] for c in reach], m, "o-")
+    ax[1].axhline(8.12, color="r", ls="--", lw=1)
+    ax[1].set_xlabel("training wall minutes")
+    ax[1].set_title("reach: error against time")
+    for name, curve in mazes.items():
+        ax[2].plot([c["steps"] / 1e6 for c in curve], [c["success_mean"] for c in curve], "o-", label=f"PPO, {name} distance")
+    ax[2].axhline(maze_base["success"], color="k", ls=":", label=f"wall follower ({maze_base['success']:.2f})")
+    ax[2].set_xlabel("env steps (M)")
+    ax[2].set_ylabel("exit reached (fraction of 100)")
+    ax[2].set_title("maze")
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="tiny budgets (a smoke run, not a result)")
+    ap.add_argument("--fresh", action="store_true", help="retrain instead of resuming the checkpoints in out/learn")
+    ap.add_argument("--reach-steps", type=float, default=4e6)
+    ap.add_argument("--maze-steps", type=float, default=1e6)
+    ap.add_argument("--every", type=float, default=5e5)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    OUT.mkdir(parents=True, exist_ok=True)
+    q = args.quick
+    reach_steps, maze_steps, every = (int(8192 * 2), int(8192 * 2), 8192) if q else \
+        (int(args.reach_steps), int(args.maze_steps), int(args.every))
+    tag = "quick_" if q else ""
+    episodes = 20 if q else 100
+
+    cp = cartpole(20_480 if q else 200_000)
+    print(f"CartPole-v1: PPO {cp['return_mean']:.1f} +- {cp['return_std']:.1f} over 100 episodes after "
+          f"{cp['steps']} steps ({cp['minutes']:.1f} min); published 500 (solved at 475)")
+
+    (kv, kw), _ = tune(REACH, lambda a, b: (lambda o: go_to_goal(o, a, b)),
+                       [(a, b) for a in (1, 2, 4, 8) for b in (2, 4, 8, 16)], lambda r: np.mean(r["distance_m"]))
+    base = run_hand(REACH, lambda o: go_to_goal(o, kv, kw), HELD_OUT, episodes)["distance_m"] * 1000
+    reach_base = {"k_v": kv, "k_w": kw, "mean_mm": float(base.mean()), "std_mm": float(base.std()),
+                  "median_mm": float(np.median(base))}
+    _, reach = train_and_score(f"{tag}reach", REACH, reach_steps, every, {}, args.fresh, episodes, "distance_m")
+    last = np.array(reach[-1]["values"]) * 1000
+    print(f"\nreach the point, {episodes} held-out episodes (final distance, mm):")
+    print(f"{'steps':>10}{'minutes':>9}{'mean':>9}{'std':>9}{'median':>9}{'p95':>9}")
+    for c in reach:
+        v = np.array(c["values"]) * 1000
+        print(f"{c['steps']:>10}{c['train_minutes']:>9.1f}{v.mean():>9.2f}{v.std():>9.2f}{np.median(v):>9.2f}"
+              f"{np.percentile(v, 95):>9.2f}")
+    print(f"{'go-to-goal law (k_v %g, k_w %g)' % (kv, kw):<28}{base.mean():>9.3f}{base.std():>9.3f}"
+          f"{np.median(base):>9.3f}{np.percentile(base, 95):>9.3f}")
+    print(f"goal: PPO better than the paper's 8.12 +- 1.23 mm: {last.mean():.2f} +- {last.std():.2f} mm "
+          f"({'met' if last.mean() < 8.12 else 'NOT met'} on the mean)")
+
+    (gap, kw2), _ = tune(MAZE, lambda a, b: (lambda o: wall_follower(o, a, b)),
+                         [(a, b) for a in (0.3, 0.4, 0.5) for b in (1, 2, 4)], lambda r: -np.mean(r["success"]))
+    mb = run_hand(MAZE, lambda o: wall_follower(o, gap, kw2), HELD_OUT, episodes)
+    maze_base = {"gap_m": gap, "k_w": kw2, "success": float(np.mean(mb["success"])),
+                 "steps_mean": float(np.mean(mb["steps"]))}
+    mazes = {}
+    for rule in ("geodesic", "euclidean"):
+        _, mazes[rule] = train_and_score(f"{tag}maze_{rule}", MAZE, maze_steps, every, {"distance": rule}, args.fresh,
+                                         episodes, "success")
+    print(f"\nmaze, {episodes} held-out episodes: exit reached")
+    for rule, curve in mazes.items():
+        print(f"  PPO, {rule} distance in the reward: " + ", ".join(
+            f"{c['steps'] / 1e6:.1f}M {c['success_mean']:.2f} ({c['steps_mean']:.0f} steps)" for c in curve))
+    print(f"  wall follower (gap {gap} m, k_w {kw2}): {maze_base['success']:.2f} ({maze_base['steps_mean']:.0f} steps)")
+    geo = mazes["geodesic"][-1]["success_mean"]
+    print(f"goal: exit in >= 90 % of episodes: {geo:.2f} ({'met' if geo >= 0.9 else 'NOT met'}); the paper's "
+          f"straight-line rule: {mazes['euclidean'][-1]['success_mean']:.2f}")
+
+    minutes = reach[-1]["train_minutes"] + sum(c[-1]["train_minutes"] for c in mazes.values())
+    png = REPO / "out" / "bench_rl_car.png"
+    plot(reach, reach_base, mazes, maze_base, png)
+    print(f"wrote {png}; training minutes in all: {minutes:.1f}")
+    if args.json:
+        strip = lambda curve: [{k: v for k, v in c.items() if k != "values"} for c in curve]  # noqa: E731
+        print(json.dumps({"reach_err_mm_mean": float(last.mean()), "reach_err_mm_std": float(last.std()),
+                          "reach_err_mm_median": float(np.median(last)), "maze_success_frac": geo,
+                          "maze_success_frac_euclidean": mazes["euclidean"][-1]["success_mean"],
+                          "train_minutes": minutes, "cartpole": cp, "reach": {"curve": strip(reach), "baseline": reach_base},
+                          "maze": {"curves": {k: strip(v) for k, v in mazes.items()}, "baseline": maze_base}}))
+
+
+if __name__ == "__main__":
+    main()
