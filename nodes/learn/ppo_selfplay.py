@@ -6,8 +6,10 @@ champion list starts with a random-action agent; the trainee plays the most rece
 it plays ``check_episodes`` games against that champion and, when its mean score is above
 ``threshold`` (0.5), a frozen copy of it is appended to the list and becomes the opponent.
 Against the baseline (Algorithm 1 with the expert as the fixed champion) the opponent
-never changes. Both policies play deterministically in these checks and as opponents
-(estool sampled); the random first champion samples.
+never changes. As in estool, the trainee and the champions *sample* their actions in the
+challenge games and as opponents (stable-baselines' ``predict`` default); the curve and the
+final scores against the baseline use the deterministic policy (the leaderboard's
+``eval_agents.py``).
 
 Training stops when the training CPU time (process CPU, evaluation excluded) reaches the
 budget. The learning curve evaluates, every ``curve_every_steps``, the policy the method
@@ -30,9 +32,9 @@ from nodes.learn.slime_match import evaluate_replica, play_matches, seeded_serve
 log = logging.getLogger(__name__)
 
 
-def ppo_policy(agent: PPO) -> Callable[[np.ndarray], np.ndarray]:
-    """``act(obs (k, 12)) -> (k, 3)`` of a PPO agent, deterministic, on float32 observations as trained."""
-    return lambda obs: agent.act(np.asarray(obs, np.float32), deterministic=True)
+def ppo_policy(agent: PPO, deterministic: bool = True) -> Callable[[np.ndarray], np.ndarray]:
+    """``act(obs (k, 12)) -> (k, 3)`` of a PPO agent on float32 observations, as trained."""
+    return lambda obs: agent.act(np.asarray(obs, np.float32), deterministic=deterministic)
 
 
 class RandomPolicy:
@@ -85,34 +87,34 @@ def train_ppo_slime(agent: PPO, env: Any, *, mode: str, cpu_budget_s: float, out
     cpu0 = time.process_time()
     next_check, next_curve, n_checks = check_every_steps, 0, 0
 
-    def evaluate(steps: int, games: int) -> None:
+    def evaluate(steps: int, games: int, train_return: float = float("nan")) -> None:
         nonlocal next_curve
         delivered = agent if mode == "baseline" else champion
         policy = RandomPolicy(seed + 1) if delivered is None else ppo_policy(delivered)
         scores = evaluate_replica(stateless(policy), curve_episodes, seed=10_000_000 + seed)
         row = {"steps": steps, "games": games, "cpu_s": run.train_cpu_s, "score": float(scores.mean()),
-               "score_std": float(scores.std()), "champions": len(run.champions)}
+               "score_std": float(scores.std()), "champions": len(run.champions), "train_return": train_return}
         run.curve.append(row)
         if progress is not None:
             progress(f"ppo-{mode} {steps:>9d} steps {games:>6d} games {run.train_cpu_s / 60:6.1f} cpu-min "
-                     f"score {row['score']:+.3f} champions {len(run.champions)}")
+                     f"score {row['score']:+.3f} champions {len(run.champions)} training return {train_return:+.2f}")
         next_curve = steps + curve_every_steps
 
     def challenge(steps: int) -> None:
         nonlocal champion, next_check, n_checks
         n_checks += 1
-        opponent = RandomPolicy(seed + 2) if champion is None else ppo_policy(champion)
+        opponent = RandomPolicy(seed + 2) if champion is None else ppo_policy(champion, False)
         serve = seeded_server(20_000_000 + seed * 1000 + n_checks * check_episodes + np.arange(check_episodes))
-        scores, _ = play_matches(stateless(ppo_policy(agent)), stateless(opponent), serve, check_episodes)
+        scores, _ = play_matches(stateless(ppo_policy(agent, False)), stateless(opponent), serve, check_episodes)
         next_check = steps + check_every_steps
         if scores.mean() > threshold:
             path = out_dir / f"champion_{len(run.champions) + 1:04d}.ppo"
             agent.save(path)
             champion = PPO.load(path)
             run.champions.append(str(path))
-            sim.opponent = ppo_policy(champion)
-            log.info("ppo self-play: champion %d at %d steps (%.2f against the previous one)",
-                     len(run.champions), steps, scores.mean())
+            sim.opponent = ppo_policy(champion, False)
+        log.info("ppo self-play: %d steps, %.2f against champion %d%s", steps, scores.mean(), len(run.champions)
+                 - (scores.mean() > threshold), ": a new champion" if scores.mean() > threshold else "")
 
     def callback(entry: dict[str, float]) -> bool:
         run.steps, run.games = int(entry["steps"]), int(entry["episodes"])
@@ -120,7 +122,7 @@ def train_ppo_slime(agent: PPO, env: Any, *, mode: str, cpu_budget_s: float, out
         if mode == "selfplay" and run.steps >= next_check:
             challenge(run.steps)
         if run.steps >= next_curve:
-            evaluate(run.steps, run.games)
+            evaluate(run.steps, run.games, entry["return_mean"])
         run.eval_cpu_s += time.process_time() - e0
         run.train_cpu_s = time.process_time() - cpu0 - run.eval_cpu_s
         return run.train_cpu_s < cpu_budget_s
