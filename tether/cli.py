@@ -530,7 +530,8 @@ def cmd_learn(args: argparse.Namespace) -> int:
         return 0
     if args.learn_cmd == "eval":
         agent = PPO.load(args.checkpoint)
-        report = evaluate(agent, args.env, episodes=args.episodes, seed=args.seed, params=_learn_params(args.param))
+        report = evaluate(agent, args.env, episodes=args.episodes, seed=args.seed, params=_learn_params(args.param),
+                          record=args.record)
         print(report_json(report))
         return 0
     if args.learn_cmd == "export":
@@ -808,6 +809,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--param", action="append", metavar="KEY=VALUE")
     q.add_argument("--episodes", type=int, default=100)
     q.add_argument("--seed", type=int, default=10_000, help="first seed (episode i: seed + i)")
+    q.add_argument("--record", metavar="FILE", help="record the episodes to an MCAP log (tether learn replay FILE)")
     q = learn.add_parser("export", help="strip optimiser state and history: a policy to deploy")
     q.add_argument("checkpoint")
     q.add_argument("out")

@@ -235,11 +235,15 @@ class BusVecEnv(VectorEnv):
     def _record(self, msgs: list[Message], replies: list[EnvStep]) -> None:
         if self._log is None:
             return
+        # log time is simulation time: a step's request at t, its reply 1 ns before t + dt, when the
+        # next request goes (no ties: a reader ordering by time alone keeps request before reply)
+        t0 = self._ticks
+        if isinstance(msgs[0], EnvAction):
+            self._ticks += int(round(self.dt_s * 1e9))
         for k, (m, r) in enumerate(zip(msgs, replies)):
-            self._ticks += 1
             kind = "reset" if isinstance(m, EnvReset) else "action"
-            self._log.write(f"env/{kind}{k}", m, log_time_ns=self._ticks * 1000)
-            self._log.write(f"sim{k}/step", r, log_time_ns=self._ticks * 1000 + 1)
+            self._log.write(f"env/{kind}{k}", m, log_time_ns=t0)
+            self._log.write(f"sim{k}/step", r, log_time_ns=max(self._ticks - 1, t0))
 
     def _exchange(self, msgs: list[Message]) -> EnvStep:
         replies = self._link.request(msgs)

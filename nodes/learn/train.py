@@ -54,9 +54,10 @@ def train(sim: str, out: str | Path, *, steps: int, n_envs: int = 16, params: di
 
 
 def evaluate(agent: PPO, sim: str, *, episodes: int = 100, seed: int = 10_000, params: dict[str, Any] | None = None,
-             max_steps: int = 0) -> dict[str, Any]:
-    """Metrics at the end of one deterministic episode per instance: mean, std and the values."""
-    env = BusVecEnv(sim, episodes, params=params, max_steps=max_steps)
+             max_steps: int = 0, record: str | Path | None = None) -> dict[str, Any]:
+    """Metrics at the end of one deterministic episode per instance: mean, std and the values.
+    ``record``: an MCAP log of every request and reply (``tether learn replay`` checks it)."""
+    env = BusVecEnv(sim, episodes, params=params, max_steps=max_steps, record=record)
     try:
         obs, _ = env.reset(seed=seed)
         final: dict[str, np.ndarray] = {name: np.full(episodes, np.nan) for name in env.metric_names}

@@ -5,6 +5,7 @@ import os
 import signal
 import time
 
+import msgspec
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -132,9 +133,28 @@ def test_a_simulator_that_dies_mid_episode_raises_without_hanging():
         env.close()
 
 
-def test_recorded_episodes_replay_bit_identically(tmp_path):
+@pytest.mark.parametrize("mode,shards", [("inproc", 1), ("ipc", 2)])
+def test_recorded_episodes_replay_bit_identically(tmp_path, mode, shards):
     path = tmp_path / "ep.mcap"
-    env = BusVecEnv(MAZE, 3, record=path)
+    env = BusVecEnv(MAZE, 3, record=path, mode=mode, shards=shards)
     _rollout(env, 11, 30)
     env.close()
-    assert replay_log(path) == {"replies": 31, "instances": 3}
+    assert replay_log(path) == {"replies": 31 * shards, "instances": 3}     # replayed in-process
+
+
+def test_a_tampered_log_is_caught(tmp_path):
+    from tether.log import LogReader, LogWriter
+
+    path, bad = tmp_path / "ep.mcap", tmp_path / "bad.mcap"
+    env = BusVecEnv(REACH, 2, record=path)
+    _rollout(env, 1, 5)
+    env.close()
+    reader = LogReader(path)
+    with LogWriter(bad) as out:
+        for rec in reader.messages():
+            msg = reader.decode(rec)
+            if rec.topic == "sim0/step" and msg.step == 3:
+                msg = msgspec.structs.replace(msg, rewards=msg.rewards + 1e-12)
+            out.write(rec.topic, msg, log_time_ns=rec.log_time_ns)
+    with pytest.raises(ValueError, match="step 3: field rewards differs on replay"):
+        replay_log(bad)
