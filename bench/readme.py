@@ -361,8 +361,37 @@ def uav_register(d: dict) -> list[Row]:
     return rows
 
 
+def rl_env(d: dict) -> list[Row]:
+    v = d["vectorised"]
+    ratio = d["ratio_plain_over_inproc"]
+    return [("`rl_env.py` reach-the-point car, env steps/s",
+             f"bus in-process {d['steps_per_s_inproc']:,.0f}; over ipc (node process, lockstep) "
+             f"{d['steps_per_s_ipc']:,.0f} at N = 1, {v['ipc_n64_shards1']:,.0f} with 64 instances per message "
+             f"({v['ipc_n64_shards2']:,.0f} on 2 processes); in-process 64 instances {v['inproc_n64_shards1']:,.0f}",
+             f"plain Gymnasium env, same dynamics: {d['steps_per_s_plain']:,.0f} (plain / bus {ratio:.2f}); "
+             f"the batched core alone {d['steps_per_s_core']:,.0f}",
+             f"in-process within 1.5x: {_met(ratio <= 1.5)}; ipc >= 5,000/s: {_met(d['steps_per_s_ipc'] >= 5000)} "
+             f"at N = 1, {_met(v['ipc_n64_shards1'] >= 5000)} vectorised")]
+
+
+def rl_car(d: dict) -> list[Row]:
+    cp, rb, mb = d["cartpole"], d["reach"]["baseline"], d["maze"]["baseline"]
+    curve = d["reach"]["curve"]
+    return [("`rl_car.py` PPO (JAX) over the bus, 100 held-out episodes",
+             f"reach the point: {d['reach_err_mm_mean']:.2f} +- {d['reach_err_mm_std']:.2f} mm (median "
+             f"{d['reach_err_mm_median']:.2f}) after {curve[-1]['steps'] / 1e6:.1f}M steps; maze: exit in "
+             f"{100 * d['maze_success_frac']:.0f} % (corridor distance in the reward), "
+             f"{100 * d['maze_success_frac_euclidean']:.0f} % with the paper's straight line; "
+             f"{d['train_minutes']:.0f} training minutes in all; CartPole-v1 {cp['return_mean']:.0f} +- {cp['return_std']:.0f}",
+             f"paper 8.12 +- 1.23 mm; go-to-goal law {rb['mean_mm']:.2g} mm; wall follower {100 * mb['success']:.0f} % "
+             f"({mb['steps_mean']:.0f} steps); CartPole published 500",
+             f"< 8 mm: {_met(d['reach_err_mm_mean'] < 8)}; maze >= 90 %: {_met(d['maze_success_frac'] >= 0.9)}")]
+
+
 #: bench name -> (arguments for --run, formatter)
 FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
+    "rl_env": ([], rl_env),
+    "rl_car": ([], rl_car),
     "set_localize": ([], set_localize),
     "winding": ([], winding),
     "ping360": ([], ping360),

@@ -97,14 +97,12 @@ class VecSim(abc.ABC):
         return self._observe()
 
     def check_actions(self, actions: Any) -> np.ndarray:
-        """Actions as (N, *action_shape) in the space's dtype: a Box's are clipped to its bounds,
-        a NaN is refused (``ValueError`` naming the instance), a discrete one out of range too."""
+        """Actions as (N, *action_shape): a Box's clipped to its bounds (float64: the simulators
+        integrate in float64), a NaN refused (``ValueError`` naming the instance), a discrete or
+        binary one out of range refused too."""
         space = self.action_space
         a = np.asarray(actions)
         shape = (self.n, *space.shape)
-        if a.shape == shape and a.dtype == np.float64 and isinstance(space, gymnasium.spaces.Box) \
-                and np.isfinite(a).all():
-            return np.clip(a, space.low, space.high)      # the common case, checked in one pass
         if a.shape != shape:
             if a.size == np.prod(shape):
                 a = a.reshape(shape)
@@ -116,7 +114,7 @@ class VecSim(abc.ABC):
                 bad = ~np.isfinite(a).reshape(self.n, -1).all(axis=1)
                 raise ValueError(f"non-finite action for instance(s) {np.flatnonzero(bad).tolist()}: "
                                  "refused (out-of-range finite actions are clipped, NaN/inf are not)")
-            return np.clip(a, space.low, space.high)       # float64: the simulators integrate in float64
+            return np.clip(a, space.low, space.high)
         if isinstance(space, gymnasium.spaces.Discrete):
             a = a.astype(np.int64)
             bad = (a < space.start) | (a >= space.start + space.n)
