@@ -379,9 +379,11 @@ def rl_car(d: dict) -> list[Row]:
     curve = d["reach"]["curve"]
     return [("`rl_car.py` PPO (JAX) over the bus, 100 held-out episodes",
              f"reach the point: {d['reach_err_mm_mean']:.2f} +- {d['reach_err_mm_std']:.2f} mm (median "
-             f"{d['reach_err_mm_median']:.2f}) after {curve[-1]['steps'] / 1e6:.1f}M steps; maze: exit in "
-             f"{100 * d['maze_success_frac']:.0f} % (corridor distance in the reward), "
-             f"{100 * d['maze_success_frac_euclidean']:.0f} % with the paper's straight line; "
+             f"{d['reach_err_mm_median']:.2f}) at {d['reach_steps_picked'] / 1e6:.1f}M steps, picked on validation seeds "
+             f"({d['reach_err_mm_mean_end']:.2f} +- {d['reach_err_mm_std_end']:.2f} at {curve[-1]['steps'] / 1e6:.1f}M); "
+             f"maze: exit in "
+             f"{100 * d['maze_success_frac']:.0f} % (the paper's straight-line reward), "
+             f"{100 * d['maze_success_frac_geodesic']:.0f} % with the corridor distance; "
              f"{d['train_minutes']:.0f} training minutes in all; CartPole-v1 {cp['return_mean']:.0f} +- {cp['return_std']:.0f}",
              f"paper 8.12 +- 1.23 mm; go-to-goal law {rb['mean_mm']:.2g} mm; wall follower {100 * mb['success']:.0f} % "
              f"({mb['steps_mean']:.0f} steps); CartPole published 500",

@@ -78,19 +78,20 @@ def test_maze_walls_block_and_the_exit_terminates():
 
 
 def test_geodesic_distance_follows_the_corridors():
-    sim = MazeCar(1)
+    sim = MazeCar(1, distance="geodesic")
     _, start, exit_ = serpentine()
     geo = sim._dist(np.array([start[:2]]))[0]
     assert geo > 1.8 * np.hypot(*(np.array(exit_) - start[:2]))          # 2 m straight, ~4 m around
     assert sim._dist(np.array([exit_]))[0] == pytest.approx(0.0, abs=0.05)
 
 
-def test_unreachable_exit_is_refused_or_runs_without_success():
+def test_unreachable_exit_is_refused_or_runs_without_success(caplog):
     walls, start, exit_ = serpentine()
     sealed = np.vstack([walls, [[0.0, 2.0, 1.0, 2.0]]])                  # close the last gap
     with pytest.raises(ValueError, match="cannot be reached"):
-        MazeCar(1, walls=sealed)
+        MazeCar(1, walls=sealed, distance="geodesic")
     sim = MazeCar(2, walls=sealed, distance="euclidean", max_steps=50)
+    assert not sim.reachable and "cannot be reached" in caplog.text
     sim.reset([0, 1])
     rng = np.random.default_rng(0)
     for _ in range(50):
