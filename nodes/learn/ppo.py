@@ -235,6 +235,7 @@ class PPO:
         self.obs_rms = RunningMeanStd.of((self.obs_dim,))
         self.ret_rms = RunningMeanStd.of(())
         self.steps_done = 0
+        self.train_seconds = 0.0          # across calls and resumed runs
         self.history: list[dict[str, float]] = []
 
     # -- acting -----------------------------------------------------------------------------
@@ -370,7 +371,7 @@ class PPO:
             self._numpy_policy()
             self.steps_done += per_update
             elapsed = time.perf_counter() - t0
-            entry = {"steps": float(self.steps_done), "seconds": elapsed,
+            entry = {"steps": float(self.steps_done), "seconds": self.train_seconds + elapsed,
                      "return_mean": float(np.mean(finished[-20:])) if finished else float("nan"),
                      "episodes": float(len(finished)), "steps_per_s": (u + 1) * per_update / elapsed,
                      **{k_: float(v) for k_, v in stats.items()}}
@@ -380,6 +381,7 @@ class PPO:
                          f"{entry['steps_per_s']:7.0f} steps/s  kl {entry['approx_kl']:.4f}")
             if callback is not None and callback(entry) is False:
                 break
+        self.train_seconds += time.perf_counter() - t0
         return self.history
 
     # -- checkpoints ------------------------------------------------------------------------
@@ -393,7 +395,7 @@ class PPO:
                 "obs_rms": {"mean": self.obs_rms.mean, "var": self.obs_rms.var, "count": self.obs_rms.count},
                 "ret_rms": {"mean": self.ret_rms.mean, "var": self.ret_rms.var, "count": self.ret_rms.count},
                 "key": np.asarray(self.key),
-                "steps_done": self.steps_done,
+                "steps_done": self.steps_done, "train_seconds": self.train_seconds,
                 "history": {k: [h[k] for h in self.history] for k in (self.history[0] if self.history else {})}}
 
     def save(self, path: str | Path) -> None:
@@ -423,6 +425,7 @@ class PPO:
         agent.key = jnp.asarray(doc["key"], jnp.uint32)
         agent._numpy_policy()
         agent.steps_done = int(doc["steps_done"])
+        agent.train_seconds = float(doc.get("train_seconds", 0.0))
         hist = doc.get("history") or {}
         keys = list(hist)
         agent.history = [{k: float(hist[k][i]) for k in keys} for i in range(len(hist[keys[0]]))] if keys else []

@@ -114,7 +114,7 @@ def plot_curve(history: list[dict[str, float]], path: str | Path, *, title: str 
     ax[0].set_xlabel("env steps")
     ax[0].set_ylabel("mean episode return (last 20)")
     ax[1].plot(secs / 60.0, ret)
-    ax[1].set_xlabel("wall minutes (this run)")
+    ax[1].set_xlabel("training wall minutes (resumed runs added)")
     for a in ax:
         a.grid(alpha=0.3)
     fig.suptitle(title)

@@ -63,6 +63,8 @@ def test_resumed_training_continues_where_it_stopped(tmp_path):
     assert b.steps_done == 128 and len(b.history) == 2
     b.learn(env, 64)
     assert b.steps_done == 192 and len(b.history) == 3
+    seconds = [h["seconds"] for h in b.history]
+    assert seconds == sorted(seconds) and b.train_seconds >= seconds[-1]    # time adds up across resumes
     env.close()
 
 
