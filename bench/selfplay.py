@@ -20,7 +20,7 @@ env; the GA champion also on the replica over the same seeds (the replica restar
 baseline's memory every episode, the original env does not: the two agree statistically,
 and exactly when the original's baseline is restarted too -- tested). The replica's speed
 against the original is measured first. PPO results are cached in ``--out`` and reused
-unless ``--retrain``.
+unless ``--retrain`` (the GA's evaluation too, while its checkpoint has not moved).
 
     python bench/selfplay.py [--quick] [--json] [--ppo-cpu-minutes 12] [--png out/selfplay.png]
 
@@ -105,6 +105,14 @@ def run_ga(args: argparse.Namespace) -> dict:
         ga.run(args.ga_games, pairs_per_round=min(64, ga.config.population // 2), checkpoint=ck,
                progress=lambda i: print(f"GA {i['games']} games {i['games_per_s']:.0f}/s lineage "
                                         f"{i['champion_lineage']}", flush=True), progress_every=2000)
+    cache = Path(args.out) / "ga_result.json"
+    key = {"games": ga.games, "episodes": args.episodes, "curve_episodes": args.curve_episodes,
+           "curve_points": args.curve_points}
+    if cache.exists() and not args.retrain:
+        res = json.loads(cache.read_text())
+        if res.get("key") == key:
+            print(f"GA: reusing the evaluation in {cache}", flush=True)
+            return res
     snaps = ga.snapshots
     pick = np.unique(np.linspace(0, len(snaps.games) - 1, min(args.curve_points, len(snaps.games))).astype(int))
     curve = []
@@ -124,8 +132,12 @@ def run_ga(args: argparse.Namespace) -> dict:
     t_rep = time.perf_counter() - t0
     print(f"GA champion (lineage {ga.lineage.max()}): original {final.mean():+.3f} +- {final.std():.3f} "
           f"({t_orig:.0f} s), replica {replica.mean():+.3f} +- {replica.std():.3f} ({t_rep:.1f} s)", flush=True)
-    return {"final": score(final), "replica": score(replica), "eval_s_original": t_orig, "eval_s_replica": t_rep,
-            "games": ga.games, "steps": ga.steps, "cpu_s": ga.cpu_s, "lineage": int(ga.lineage.max()), "curve": curve}
+    res = {"final": score(final), "replica": score(replica), "eval_s_original": t_orig, "eval_s_replica": t_rep,
+           "games": ga.games, "steps": ga.steps, "cpu_s": ga.cpu_s, "lineage": int(ga.lineage.max()), "curve": curve,
+           "key": key}
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    cache.write_text(json.dumps(res, indent=1))
+    return res
 
 
 def run_ppo(mode: str, args: argparse.Namespace) -> dict:
@@ -221,7 +233,7 @@ def main() -> None:
     ap.add_argument("--curve-points", type=int, default=30)
     ap.add_argument("--episodes", type=int, default=1000)
     ap.add_argument("--methods", default="ga,ppo_selfplay,ppo_baseline")
-    ap.add_argument("--retrain", action="store_true", help="train PPO again even if a cached result exists")
+    ap.add_argument("--retrain", action="store_true", help="train PPO and evaluate the GA again even if cached")
     args = ap.parse_args()
     if args.quick:
         args.out, args.png = "out/selfplay/quick", "out/selfplay/quick/selfplay.png"
