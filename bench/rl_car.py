@@ -238,8 +238,8 @@ def main() -> None:
                  "steps_mean": float(np.mean(mb["steps"]))}
     mazes = {}
     for rule in ("euclidean", "geodesic"):
-        _, mazes[rule] = train_and_score(f"{tag}maze_{rule}", MAZE, maze_steps, every, {"distance": rule}, args.fresh,
-                                         episodes, "success")
+        _, mazes[rule] = train_and_score(f"{tag}maze_{rule}", MAZE, maze_steps, max(every // 5, 8192),
+                                         {"distance": rule}, args.fresh, episodes, "success")
     print(f"\nmaze, {episodes} held-out episodes: exit reached")
     for rule, curve in mazes.items():
         print(f"  PPO, {rule} distance in the reward: " + ", ".join(
