@@ -1,0 +1,62 @@
+"""Training figures: loss curves and image grids (PNG), for the learning tools to write and people to open."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_curves(curves: Mapping[str, tuple[Sequence[float], Sequence[float]]], path: str | Path, *,
+                xlabel: str = "step", ylabel: str = "loss", title: str = "", logy: bool = False) -> None:
+    """One line per ``name -> (x, y)``."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 3.8))
+    for name, (x, y) in curves.items():
+        ax.plot(np.asarray(x), np.asarray(y), label=name)
+    if logy:
+        ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def image_grid(images: np.ndarray, path: str | Path, *, cols: int = 8, titles: Sequence[str] | None = None,
+               rows_label: Sequence[str] | None = None) -> None:
+    """A grid of (N, H, W) or (N, H, W, 3) images scaled to [0, 1] per image; optional titles."""
+    plt = _plt()
+    images = np.asarray(images, np.float64)
+    n = len(images)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(1.4 * cols, 1.4 * rows), squeeze=False)
+    for i, ax in enumerate(axes.ravel()):
+        ax.axis("off")
+        if i >= n:
+            continue
+        im = images[i]
+        lo, hi = np.nanmin(im), np.nanmax(im)
+        ax.imshow((im - lo) / (hi - lo) if hi > lo else np.zeros_like(im), cmap="gray" if im.ndim == 2 else None)
+        if titles is not None:
+            ax.set_title(titles[i], fontsize=7)
+    if rows_label is not None:
+        for r, label in enumerate(rows_label[:rows]):
+            axes[r, 0].text(-0.1, 0.5, label, transform=axes[r, 0].transAxes, ha="right", va="center", fontsize=7)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
