@@ -104,3 +104,22 @@ def test_skin_background_is_close_to_the_hand_colour():
     corner = img[:6, :6].reshape(-1, 3).mean(0)
     hand = img[palm[1], palm[0]].astype(float)
     assert np.linalg.norm(corner - hand) < 80
+
+
+def test_hand_camera_node_follows_its_script_and_drops_frames_in_the_blackout():
+    from sim.hand_node import HandCamera, parse_script
+    from tether.testing import Harness
+
+    h = Harness(HandCamera, params={"script": "fist:1,none:1", "rate_hz": 10, "width_px": 64, "height_px": 48,
+                                    "blackout_start_s": 2.5, "blackout_end_s": 3.0})
+    h.advance_to(3.95)
+    truths = [(m.stamp_ns / 1e9, m.gesture, m.present) for m in h.of("truth")]
+    images = h.of("image")
+    assert images[0].data.shape == (48, 64, 3) and images[0].encoding == "bgr8"
+    assert all(g == "fist" and p for t, g, p in truths if t < 0.95 or 2.0 <= t < 2.5)
+    assert all(g == "none" and not p for t, g, p in truths if 1.0 <= t < 1.95)
+    assert not any(2.5 <= t < 3.0 for t, _, _ in truths) and len(images) == len(truths) == 35
+    with pytest.raises(ValueError, match="gesture must be"):
+        parse_script("wave:2")
+    with pytest.raises(ValueError, match="seconds must be"):
+        parse_script("fist:0")
