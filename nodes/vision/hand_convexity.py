@@ -30,8 +30,8 @@ class ConvexityResult:
     """``count`` fingers; ``present`` False when no blob is large enough (then count 0);
     ``tips_px`` (K, 2) fingertips, ``valleys_px`` (D, 2) accepted defects' deepest points,
     ``palm_px`` (2,) palm centre, ``palm_radius_px``; ``arm_dir`` (2,) unit vector or zeros;
-    ``confidence`` in [0, 1] (blob solidity-free heuristic: how far the decision was from its
-    thresholds); ``reason`` when absent."""
+    ``confidence`` in [0, 1] (a heuristic: how far the farthest reach outside the arm cone
+    was from the fingertip threshold); ``reason`` when absent."""
 
     count: int
     present: bool

@@ -1,8 +1,8 @@
 """A small learned 21-keypoint hand model (seed 13, its reference [1] in miniature): a
-four-level convolutional encoder-decoder (~70 k parameters) in Flax over a 96x96 colour image, 21 heatmaps at
-24x24 read out by a soft-argmax (sub-cell keypoints, differentiable), and from the bottleneck a
-hand-presence logit and five finger-extension logits (an auxiliary head: the gesture can be
-read from the keypoints' geometry or from it). CPU-trainable in minutes on simulator images
+four-level convolutional encoder-decoder (196 k parameters) in Flax over a 96x96 colour
+image, 21 heatmaps at 24x24 read out by a soft-argmax (sub-cell keypoints, differentiable),
+and from the bottleneck a hand-presence logit and five finger-extension logits (an auxiliary
+head: the gesture can be read from the keypoints' geometry or from it). CPU-trainable in minutes on simulator images
 (``python -m sim.hand_train``); weights are a flax.serialization msgpack file, never a pickle.
 
     model = KeypointModel.load()                      # the committed weights

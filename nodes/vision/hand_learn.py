@@ -10,6 +10,7 @@ The images come from the simulator (``python -m sim.hand_train``); nothing here 
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -98,8 +99,6 @@ def train_keypoints(images: np.ndarray, keypoints: np.ndarray, present: np.ndarr
     params : start from these instead of a fresh initialisation
     heat_weight : weight of the heatmap cross-entropy in :func:`keypoint_loss`
     """
-    import time
-
     n = len(images)
     if images.shape[1:] != (INPUT_PX, INPUT_PX, 3) or keypoints.shape != (n, 21, 2) or present.shape != (n,):
         raise ValueError(f"need images (N, {INPUT_PX}, {INPUT_PX}, 3), keypoints (N, 21, 2), present (N,); got "
