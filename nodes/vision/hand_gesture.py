@@ -37,6 +37,7 @@ class HandGestureNode(Node):
         c = self.config
         kw = {"weights": c.weights} if c.weights else {}
         self.recognise = Recogniser(c.method, presence_min=c.presence_min, fingers=c.fingers, **kw)
+        self.recognise(np.zeros((96, 96, 3), np.uint8))   # compile the net now, not on the first frame
 
     def on_image(self, msg: Image) -> dict[str, HandGesture]:
         img = msg.data
