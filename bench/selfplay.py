@@ -145,7 +145,7 @@ def run_ppo(mode: str, args: argparse.Namespace) -> dict:
     from nodes.learn.ppo import PPO, PPOConfig
     from nodes.learn.ppo_selfplay import ppo_policy, train_ppo_slime
 
-    out = Path(args.out) / f"ppo_{mode}"
+    out = Path(args.out) / mode
     cache = out / "result.json"
     if cache.exists() and not args.retrain:
         res = json.loads(cache.read_text())
@@ -249,14 +249,18 @@ def main() -> None:
         results[m] = run_ga(args) if m == "ga" else run_ppo(m, args)
     common = min(r["cpu_s"] for r in results.values())
     at = {m: at_cpu(r["curve"], common) for m, r in results.items()}
-    winner = max(at, key=lambda m: -np.inf if np.isnan(at[m]) else at[m])
+    def best(methods: list[str]) -> str | None:
+        return max(methods, key=lambda m: -np.inf if np.isnan(at[m]) else at[m]) if methods else None
+
+    winner = best(list(at))
+    sp_winner = best([m for m in at if m != "ppo_baseline"])
     print(f"\n{'method':14s} {'games':>8s} {'CPU min':>8s} {'score (original, ' + str(args.episodes) + ' eps)':>30s}"
           f" {'at ' + format(common / 60, '.1f') + ' CPU min':>16s} {'leaderboard':>12s}")
     for m, r in results.items():
         f = r["final"]
         print(f"{m:14s} {r['games']:>8d} {r['cpu_s'] / 60:>8.1f} {f['mean']:>+22.3f} +- {f['std']:.3f} "
               f"{at[m]:>+16.3f} {LEADERBOARD[m]:>+12.3f}")
-    print(f"best score at the common {common / 60:.1f} CPU minutes: {winner}")
+    print(f"best score at the common {common / 60:.1f} CPU minutes: {winner}; among self-play methods: {sp_winner}")
     plot(results, Path(args.png), args.curve_episodes)
     out = {"ga_selfplay_score": results.get("ga", {}).get("final", {}).get("mean"),
            "ppo_selfplay_score": results.get("ppo_selfplay", {}).get("final", {}).get("mean"),
@@ -267,7 +271,7 @@ def main() -> None:
            "cpu_minutes": {m: r["cpu_s"] / 60 for m, r in results.items()},
            "games": {m: r["games"] for m, r in results.items()},
            "episodes": args.episodes, "common_cpu_minutes": common / 60, "score_at_common_cpu": at,
-           "winner_per_cpu_minute": winner,
+           "winner_per_cpu_minute": winner, "selfplay_winner_per_cpu_minute": sp_winner,
            "ga_replica_score": results["ga"]["replica"]["mean"] if "ga" in results else None,
            "curves": {m: [{"games": c["games"], "cpu_min": c["cpu_s"] / 60, "score": c["score"],
                            "std": c["score_std"]} for c in r["curve"]] for m, r in results.items()},
