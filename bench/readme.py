@@ -390,10 +390,57 @@ def rl_car(d: dict) -> list[Row]:
              f"< 8 mm: {_met(d['reach_err_mm_mean'] < 8)}; maze >= 90 %: {_met(d['maze_success_frac'] >= 0.9)}")]
 
 
+def pretrain(d: dict) -> list[Row]:
+    def cell(ds: str, f: str, key: str) -> str:
+        v = d["table"][ds][f][key]
+        return f"{sum(v) / len(v):.3f}"
+
+    t = d["table"]
+    hands = ""
+    if "hands" in t:
+        hands = (f"; hand photos ({d['sizes']['hands']['train']} to train) at 10 % labels: random "
+                 f"{cell('hands', '0.1', 'random/tuned')}, pre-trained {cell('hands', '0.1', 'autoencoder/tuned')}")
+    return [(f"`pretrain.py` seed 07's classifier, accuracy against label fraction, {d['seeds']} seeds",
+             f"digits, pre-trained and fine-tuned: gain {d['gain_at_1pct']:+.3f} +- {d['gain_std_at_1pct']:.3f} at 1 % "
+             f"labels, {d['gain_at_100pct']:+.3f} at 100 %; frozen features at 10 %: pre-trained "
+             f"{cell('digits', '0.1', 'autoencoder/frozen')} vs random {cell('digits', '0.1', 'random/frozen')}{hands}",
+             f"random initialisation, same optimiser and steps: {cell('digits', '0.01', 'random/tuned')} / "
+             f"{cell('digits', '1.0', 'random/tuned')} at 1 % / 100 %",
+             f"gain > 2 std at 1 %: {_met(d['gain_at_1pct'] > 2 * d['gain_std_at_1pct'])}")]
+
+
+def hand_gesture(d: dict) -> list[Row]:
+    a, b = d["methods"]["convexity"], d["methods"]["learned"]
+    sa, sb = a["sim"], b["sim"]
+
+    def zo(m: dict) -> str:
+        z = m["zero_vs_one"]
+        return f"{z['0_as_1'] + z['1_as_0']}/{z['n0'] + z['n1']}"
+
+    rows = [(f"`hand_gesture.py` held-out simulated scenes, {d['n_per_class']} per class (14 classes)",
+             f"learned 21-keypoint net: worst class {100 * sb['count_acc_min_class']:.1f} % ({sb['count_acc_min_class_named']}), "
+             f"spread two {100 * sb['count_acc']['victory_spread']:.1f} %, 0-vs-1 errors {zo(sb)}; PCK@0.2 palm "
+             f"{sb['pck']:.3f} ({sb['kp_err_px_median']:.2f} px median on 128 px); {d['ms_per_frame']:.1f} ms per frame",
+             f"OpenCV convexity defects: worst {100 * sa['count_acc_min_class']:.1f} % ({sa['count_acc_min_class_named']}), "
+             f"spread two {100 * sa['count_acc']['victory_spread']:.1f} %, 0-vs-1 errors {zo(sa)}; {sa['ms_per_frame']:.2f} ms",
+             f">= 97 % every class: {_met(d['count_acc_min_class'] >= 0.97)}; PCK >= 0.9: {_met(d['pck'] >= 0.9)}; "
+             f"<= 15 ms: {_met(d['ms_per_frame'] <= 15)}")]
+    if b.get("real"):
+        rb, ra = b["real"]["count_acc"], a["real"]["count_acc"]
+        digits = [k for k in ("1", "2", "3", "4", "5") if k in rb]
+        rows.append(("`hand_gesture.py` real sign-language digit photos 1-5 (60 each; evaluation only)",
+                     "learned: " + " / ".join(f"{100 * rb[k]:.0f}" for k in digits) + " % for 1-5 (the sim-to-real gap)",
+                     "convexity: " + " / ".join(f"{100 * ra[k]:.0f}" for k in digits) + " %",
+                     "— (not tuned on them)"))
+    return rows
+
+
 #: bench name -> (arguments for --run, formatter)
 FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "rl_env": ([], rl_env),
     "rl_car": ([], rl_car),
+    "pretrain": ([], pretrain),
+    "hand_gesture": ([], hand_gesture),
     "set_localize": ([], set_localize),
     "winding": ([], winding),
     "ping360": ([], ping360),
