@@ -8,7 +8,6 @@ first observation. After ``episodes`` episodes the car holds still.
 """
 from __future__ import annotations
 
-import importlib
 from typing import Any
 
 import msgspec
@@ -16,9 +15,8 @@ import numpy as np
 
 from msgs.geometry import Odometry2D, Pose2D
 from msgs.learn import EpisodeSummary, Observation, PolicyAction
-from nodes.learn.vec_sim import VecSim
+from nodes.learn.sim_node import load_sim
 from tether import Node
-from tether.errors import ConfigError
 from tether.node import Input, Tick
 
 
@@ -42,13 +40,7 @@ class CarSim(Node):
 
     def setup(self) -> None:
         cfg = self.config
-        module, _, name = cfg.scenario.partition(":")
-        if not module.startswith(("sim.", "nodes.")):
-            raise ConfigError(f"scenario {cfg.scenario!r}: give module:Class under sim. or nodes.", key="scenario")
-        cls = getattr(importlib.import_module(module), name, None)
-        if not (isinstance(cls, type) and issubclass(cls, VecSim)):
-            raise ConfigError(f"scenario {cfg.scenario!r} is not a VecSim", key="scenario")
-        self.sim = cls(1, max_steps=cfg.max_steps, **cfg.params)
+        self.sim = load_sim(cfg.scenario, 1, max_steps=cfg.max_steps, params=cfg.params)
         self.zero = np.zeros((1, *self.sim.action_space.shape), self.sim.action_space.dtype)
         self.episode, self.step, self.ret, self.started = 0, 0, 0.0, False
         self.last: PolicyAction | None = None

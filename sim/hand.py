@@ -19,6 +19,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from nodes.vision.hand_geometry import GESTURE_SETS
+
 __all__ = ["FINGERS", "GESTURES", "KEYPOINT_NAMES", "LIMITS", "HandPose", "count_of", "finger_chains",
            "forward_kinematics", "gesture_of", "project", "sample_pose"]
 
@@ -31,17 +33,9 @@ KEYPOINT_NAMES = ("wrist",
                   "pinky_mcp", "pinky_pip", "pinky_dip", "pinky_tip")
 
 # Gestures by the set of extended fingers (thumb, index, middle, ring, pinky). A count is the
-# number of extended fingers; the wrist and arm are never fingers.
-GESTURES: dict[str, tuple[tuple[int, ...], ...]] = {
-    "fist": ((0, 0, 0, 0, 0),),
-    "point": ((0, 1, 0, 0, 0),),
-    "thumb": ((1, 0, 0, 0, 0),),
-    "victory": ((0, 1, 1, 0, 0),),
-    "L": ((1, 1, 0, 0, 0),),
-    "three": ((0, 1, 1, 1, 0), (1, 1, 1, 0, 0)),
-    "four": ((0, 1, 1, 1, 1),),
-    "open": ((1, 1, 1, 1, 1),),
-}
+# number of extended fingers; the wrist and arm are never fingers. One table for the simulator
+# and the recogniser (nodes/ does not import sim/, so it lives there).
+GESTURES = GESTURE_SETS
 
 # Geometry (palm lengths): MCPs of index..pinky, thumb CMC, segment lengths, radii.
 _MCP = np.array([[0.30, 0.95], [0.10, 1.0], [-0.10, 0.96], [-0.28, 0.88]])

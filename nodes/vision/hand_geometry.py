@@ -13,8 +13,8 @@ import numpy as np
 
 __all__ = ["GESTURE_SETS", "THRESHOLDS", "extended_fingers", "finger_scores", "gesture_label"]
 
-# Finger sets (thumb, index, middle, ring, pinky) of the named gestures; the same table as the
-# simulator's (sim.hand.GESTURES), kept here because nodes/ does not import sim/.
+# Finger sets (thumb, index, middle, ring, pinky) of the named gestures; the simulator renders
+# from this table too (sim.hand.GESTURES).
 GESTURE_SETS: dict[str, tuple[tuple[int, ...], ...]] = {
     "fist": ((0, 0, 0, 0, 0),),
     "point": ((0, 1, 0, 0, 0),),
