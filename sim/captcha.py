@@ -46,7 +46,7 @@ class CaptchaStyle:
     jitter_px: tuple[float, float] = (1.5, 2.0)            # +- (x, y) per digit
     n_lines: tuple[int, int] = (4, 10)                     # noise lines per image (inclusive)
     line_length_px: tuple[float, float] = (6.0, 20.0)
-    border_prob: float = 0.3                               # a dark 1-px edge on top/left
+    border_prob: float = 1.0                               # a dark 1-px frame
     warp_px: float = 0.8                                   # sine warp amplitude
     jpeg_quality: tuple[int, int] = (60, 90)
     supersample: int = 3
@@ -155,11 +155,11 @@ def render_captcha(text: str, rng: np.random.Generator, style: CaptchaStyle = Ca
         col = tuple(float(c) for c in np.clip(grey + rng.uniform(-25, 25, 3), 0, 255))
         cv2.line(img, tuple(int(v) for v in p * ss), tuple(int(v) for v in q * ss), col, max(1, (2 * ss) // 3), cv2.LINE_AA)
     img = cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)
-    if rng.random() < style.border_prob:
-        img[0, :] = img[0, :] * 0.3 + 20
-        if rng.random() < 0.5:
-            img[:, 0] = img[:, 0] * 0.3 + 20
     img = _warp(img, rng, style.warp_px)
+    if rng.random() < style.border_prob:   # the real set has a near-black 1-px frame on every side (drawn after the warp)
+        dark = rng.uniform(0, 25)
+        img[[0, -1], :] = dark
+        img[:, [0, -1]] = dark
     quality = int(rng.integers(style.jpeg_quality[0], style.jpeg_quality[1] + 1))
     ok, buf = cv2.imencode(".jpg", np.clip(img, 0, 255).astype(np.uint8)[..., ::-1],
                            [cv2.IMWRITE_JPEG_QUALITY, quality])

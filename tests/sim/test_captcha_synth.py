@@ -19,6 +19,8 @@ def test_synthesised_captchas_are_labelled_seeded_and_varied():
     # ink is darker than the pastel background: the centre band holds the darkest pixels
     grey = a.mean(-1)
     assert grey[:, 8:22, 5:65].min() < 120 and np.median(grey) > 170
+    # the real set's near-black 1-px frame on every side
+    assert max(grey[:, 0].mean(), grey[:, -1].mean(), grey[:, :, 0].mean(), grey[:, :, -1].mean()) < 40
 
 
 def test_hershey_fallback_and_plain_style_render_digits():
