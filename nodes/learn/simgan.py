@@ -44,7 +44,7 @@ class SimGANConfig:
     features: int = 16             # refiner width
     blocks: int = 2                # refiner ResNet blocks
     disc_features: tuple[int, ...] = (16, 32, 32)
-    lam: float = 10.0              # weight of the L1 self-regularisation (per pixel mean)
+    lam: float = 30.0              # weight of the L1 self-regularisation (per pixel mean)
     lr_r: float = 1e-4
     lr_d: float = 5e-4
     batch: int = 16
