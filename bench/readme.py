@@ -435,12 +435,37 @@ def hand_gesture(d: dict) -> list[Row]:
     return rows
 
 
+def selfplay(d: dict) -> list[Row]:
+    cpu, games = d["cpu_minutes"], d["games"]
+    return [("`selfplay.py` SlimeVolley against the built-in baseline, "
+             f"{d['episodes']} episodes of the original env",
+             f"GA self-play (Algorithm 3, 64 disjoint pairs a round on a bit-exact numpy copy of the game): "
+             f"{d['ga_selfplay_score']:+.3f} +- {d['ga_selfplay_score_std']:.3f} after {games['ga']:,} games, "
+             f"{cpu['ga']:.1f} CPU min; PPO self-play (champion list) {d['ppo_selfplay_score']:+.3f}, "
+             f"PPO against the baseline {d['ppo_baseline_score']:+.3f} after {cpu['ppo_baseline']:.0f} CPU min each; "
+             f"best per CPU minute: {d['winner_per_cpu_minute']} (self-play: {d['selfplay_winner_per_cpu_minute']})",
+             "leaderboard: GA self-play +0.353, PPO self-play -0.371, PPO +1.377",
+             f"GA >= 0.35 within 2 h on 2 cores: {_met(d['ga_selfplay_score'] >= 0.35)} "
+             f"(in {cpu['ga']:.0f} CPU min)")]
+
+
+def captcha(d: dict) -> list[Row]:
+    return [(f"`captcha.py` 4-digit solver judged on {d['test_n']} held-out real captchas",
+             f"trained on synthetic {d['acc_synthetic']:.3f}, on SimGAN-refined {d['acc_refined']:.3f} "
+             f"(full-captcha accuracy)",
+             f"trained on the 600 real labelled captchas {d['acc_real']:.3f}",
+             f"refined >= synthetic + {d['goal_gain_points']:.0f} points: {_met(d['goal_met'])} "
+             f"({d['gain_points']:+.1f})")]
+
+
 #: bench name -> (arguments for --run, formatter)
 FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "rl_env": ([], rl_env),
     "rl_car": ([], rl_car),
     "pretrain": ([], pretrain),
     "hand_gesture": ([], hand_gesture),
+    "selfplay": ([], selfplay),
+    "captcha": ([], captcha),
     "set_localize": ([], set_localize),
     "winding": ([], winding),
     "ping360": ([], ping360),
