@@ -452,7 +452,7 @@ def selfplay(d: dict) -> list[Row]:
 def captcha(d: dict) -> list[Row]:
     return [(f"`captcha.py` 4-digit solver judged on {d['test_n']} held-out real captchas",
              f"trained on synthetic {d['acc_synthetic']:.3f}, on SimGAN-refined {d['acc_refined']:.3f} "
-             f"(full-captcha accuracy)",
+             f"(full-captcha accuracy); {d['train_minutes']:.1f} min training ({d['cpu_minutes']:.1f} CPU min)",
              f"trained on the 600 real labelled captchas {d['acc_real']:.3f}",
              f"refined >= synthetic + {d['goal_gain_points']:.0f} points: {_met(d['goal_met'])} "
              f"({d['gain_points']:+.1f})")]
