@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -70,7 +71,7 @@ class _InProc:
         self.ctx = _Capture()
         self.node = SimNode(SimNode.make_config(spec), node_id="sim", context=self.ctx)
         self.node.setup()
-        self.sims = [self.node.sim]
+        self.sim = self.node.sim
 
     def request(self, msgs: list[Message]) -> list[EnvStep]:
         out = []
@@ -100,7 +101,9 @@ class _Ipc:
         self.seq: dict[bytes, int] = {}
         self.procs: list[subprocess.Popen] = []
         self.logs: list[Path] = []
-        self.sims = [load_sim(s["sim"], s["n_envs"], max_steps=s.get("max_steps", 0), params=s.get("params")) for s in specs]
+        # one instance in this process, for the spaces and metric names only: the shards hold the real ones
+        first = specs[0]
+        self.sim = load_sim(first["sim"], 1, max_steps=first.get("max_steps", 0), params=first.get("params"))
         for k, spec in enumerate(specs):
             sim_ep = f"ipc://{self.dir}/sim{k}"
             run = RunSpec(graph=f"busenv-{tag}", node_id=f"sim{k}", node="nodes.learn.sim_node:SimNode",
@@ -147,10 +150,10 @@ class _Ipc:
         deadline = time.monotonic() + self.timeout_s
         resend = time.monotonic() + 0.1
         while len(replies) < len(msgs):
-            if self.poller.poll(50 if len(replies) or not isinstance(msgs[0], EnvReset) else 20):
+            if self.poller.poll(20):
                 while self.sub.poll(0):
                     frames = self.sub.recv_multipart(copy=False)
-                    k = int(frames[0].bytes.split(b"/")[0][3:])
+                    k = int(frames[0].bytes[3:frames[0].bytes.index(b"/")])    # b"sim3/step" -> 3
                     reply = self.codec.decode(EnvStep, [frames[1].bytes, *frames[2:]])
                     if want.get(k) == (reply.epoch, reply.step):
                         replies[k] = reply
@@ -212,7 +215,7 @@ class BusVecEnv(VectorEnv):
         self._link = _InProc(specs[0]) if mode == "inproc" else _Ipc(specs, timeout_s)
         self.bounds = np.cumsum([0, *counts])
         self.num_envs, self.mode = n_envs, mode
-        first = self._link.sims[0]
+        first = self._link.sim
         self.single_observation_space, self.single_action_space = first.observation_space, first.action_space
         self.observation_space = batch_space(self.single_observation_space, n_envs)
         self.action_space = batch_space(self.single_action_space, n_envs)
@@ -230,7 +233,7 @@ class BusVecEnv(VectorEnv):
         """The in-process simulator (to set scenario attributes such as an opponent policy)."""
         if self.mode != "inproc":
             raise AttributeError("the simulator runs in another process: only in-process envs expose .sim")
-        return self._link.sims[0]
+        return self._link.sim
 
     def _record(self, msgs: list[Message], replies: list[EnvStep]) -> None:
         if self._log is None:
@@ -335,6 +338,11 @@ class BusEnv(gymnasium.Env):
         self.vec.close()
 
 
+def _shard(topic: str) -> int:
+    """The shard of ``env/action3`` or ``sim3/step``: 3."""
+    return int(re.search(r"(\d+)(?:/step)?$", topic).group(1))
+
+
 def replay_log(path: str | Path) -> dict[str, int]:
     """Re-run a recorded environment log's requests through fresh simulators; count replies that are
     bit-identical to the recorded ones (every field but the header). Raises ``ValueError`` on the first
@@ -353,10 +361,10 @@ def replay_log(path: str | Path) -> dict[str, int]:
             continue
         msg = reader.decode(rec)
         if rec.topic.startswith("env/"):
-            k = int(rec.topic.rstrip("0123456789") and rec.topic[len(rec.topic.rstrip("0123456789")):])
+            k = _shard(rec.topic)
             pending[k] = links[k].request([msg])[0]
             continue
-        k = int(rec.topic.split("/")[0][3:])
+        k = _shard(rec.topic)
         got = pending.pop(k)
         for name in msg.__struct_fields__:
             if name in ("stamp_ns", "seq", "frame_id"):

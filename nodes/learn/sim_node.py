@@ -77,10 +77,10 @@ class SimNode(Node):
         except ValueError as exc:
             return self._refuse(msg.epoch, 0, str(exc))
         n = self.sim.n
-        metrics = np.zeros((n, len(self.sim.metric_names)))
-        reply = EnvStep(epoch=msg.epoch, step=0, sim_time_s=np.zeros(n), obs=obs, final_obs=obs,
-                        rewards=np.zeros(n), terminated=np.zeros(n, bool), truncated=np.zeros(n, bool),
-                        metrics=metrics, metric_names=list(self.sim.metric_names))
+        batch = Batch(obs=obs, final_obs=obs, rewards=np.zeros(n), terminated=np.zeros(n, bool),
+                      truncated=np.zeros(n, bool), metrics=np.zeros((n, len(self.sim.metric_names))),
+                      sim_time_s=np.zeros(n))
+        reply = step_message(batch, self.sim.metric_names, msg.epoch, 0)
         self._last, self._reply = key, reply
         return {"step": reply}
 
