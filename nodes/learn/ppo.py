@@ -21,7 +21,7 @@ from __future__ import annotations
 import functools
 import logging
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -318,7 +318,7 @@ class PPO:
         updates = max(1, steps // per_update)
         target_updates = (total_steps or self.steps_done + steps) // per_update
         obs, _ = env.reset(seed=seed)
-        ep_ret, ep_len = np.zeros(n), np.zeros(n, np.int64)
+        ep_ret = np.zeros(n)
         disc_ret = np.zeros(n)
         finished: list[float] = []
         t0 = time.perf_counter()
@@ -340,7 +340,6 @@ class PPO:
                 obs, rew, term, trunc, info = env.step(self.to_env(a))
                 rew = np.asarray(rew, np.float64)
                 ep_ret += rew
-                ep_len += 1
                 if cfg.norm_reward:
                     disc_ret = disc_ret * cfg.gamma + rew
                     self.ret_rms.update(disc_ret)
@@ -353,7 +352,7 @@ class PPO:
                     rew[idx] += cfg.gamma * self._np_value(self.normalize(final).astype(np.float64))
                 for i in np.flatnonzero(done):
                     finished.append(float(ep_ret[i]))
-                ep_ret[done], ep_len[done], disc_ret[done] = 0.0, 0, 0.0
+                ep_ret[done], disc_ret[done] = 0.0, 0.0
                 buf["obs"][t], buf["act"][t] = x, a.reshape(n, -1)
                 buf["logp"][t], buf["val"][t], buf["rew"][t], buf["done"][t] = logp, val, rew, done
             last_val = self._np_value(self.normalize(obs).astype(np.float64))
@@ -430,11 +429,6 @@ class PPO:
         keys = list(hist)
         agent.history = [{k: float(hist[k][i]) for k in keys} for i in range(len(hist[keys[0]]))] if keys else []
         return agent
-
-    def with_config(self, **changes: Any) -> "PPO":
-        """Same weights, other hyper-parameters (e.g. a lower learning rate to fine-tune)."""
-        self.config = replace(self.config, **changes)
-        return self
 
 
 def _rows(batch: Any, idx: np.ndarray) -> np.ndarray:

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import os
 import signal
-import time
 
 import msgspec
 import numpy as np
@@ -119,16 +118,16 @@ def test_ipc_shards_give_the_in_process_episode_bit_for_bit():
 
 
 def test_a_simulator_that_dies_mid_episode_raises_without_hanging():
-    env = BusVecEnv(REACH, 2, mode="ipc", timeout_s=20)
+    # the deadline is far beyond the test's own timeout: the error must come from noticing the death,
+    # not from waiting out the reply deadline (whose message says "no reply")
+    env = BusVecEnv(REACH, 2, mode="ipc", timeout_s=3600)
     try:
         env.reset(seed=0)
         env.step(np.zeros((2, 2)))
         os.kill(env._link.procs[0].pid, signal.SIGKILL)
-        t0 = time.monotonic()
         with pytest.raises(SimulatorError, match="exited with code -9 mid-episode"):
             for _ in range(10):
                 env.step(np.zeros((2, 2)))
-        assert time.monotonic() - t0 < 5.0
     finally:
         env.close()
 
