@@ -8,6 +8,7 @@ import msgspec
 import numpy as np
 
 from msgs.learn import EpisodeSummary, Observation
+from nodes.learn.plots import draw_episodes
 from tether import Node
 from tether.node import Input
 
@@ -27,10 +28,12 @@ class EpisodeView(Node):
 
     def setup(self) -> None:
         self.paths: dict[int, list[np.ndarray]] = {}
+        self.times: dict[int, list[float]] = {}
         self.summaries: list[EpisodeSummary] = []
 
     def on_obs(self, msg: Observation) -> None:
         self.paths.setdefault(msg.episode, []).append(np.asarray(msg.obs, np.float64).copy())
+        self.times.setdefault(msg.episode, []).append(msg.sim_time_s)
 
     def on_episode(self, msg: EpisodeSummary) -> None:
         self.summaries.append(msg)
@@ -43,38 +46,7 @@ class EpisodeView(Node):
         if self.config.summary_json:
             Path(self.config.summary_json).write_text(json.dumps(self.results(), indent=1))
         if self.config.png and self.paths:
-            self._draw(Path(self.config.png))
-
-    def _draw(self, path: Path) -> None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.6))
-        for seg in self.config.walls:
-            ax.plot([seg[0], seg[2]], [seg[1], seg[3]], "k-", lw=2)
-        finals = {s.episode: dict(zip(s.metric_names, s.metrics)) for s in self.summaries}
-        for k, obs in sorted(self.paths.items()):
-            o = np.array(obs)
-            line, = ax.plot(o[:, 0], o[:, 1], "-", lw=1.2)
-            ax.plot(o[0, 0], o[0, 1], "o", color=line.get_color(), ms=4)
-            ax.plot(o[0, 4], o[0, 5], "x", color=line.get_color(), ms=9, mew=2)
-            dist = np.hypot(o[:, 4] - o[:, 0], o[:, 5] - o[:, 1])
-            label = f"episode {k}"
-            if k in finals and "distance_m" in finals[k]:
-                label += f": final {finals[k]['distance_m'] * 1000:.1f} mm"
-            bx.semilogy(np.arange(len(dist)) * 0.1, np.maximum(dist, 1e-4), color=line.get_color(), label=label)
-        ax.set_aspect("equal")
-        ax.set_title("paths (o start, x target)")
-        bx.axhline(0.008, color="grey", ls="--", lw=1, label="paper's 8 mm")
-        bx.set_xlabel("time (s)")
-        bx.set_ylabel("straight-line distance to target (m)")
-        bx.legend(fontsize=8)
-        for a in (ax, bx):
-            a.grid(alpha=0.3)
-        fig.tight_layout()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=90)
-        plt.close(fig)
-        self.log.info("wrote %s", path)
+            finals = {s.episode: dict(zip(s.metric_names, s.metrics)) for s in self.summaries}
+            draw_episodes({k: (np.array(self.times[k]), np.array(o)) for k, o in self.paths.items()}, finals,
+                          self.config.png, walls=self.config.walls)
+            self.log.info("wrote %s", self.config.png)

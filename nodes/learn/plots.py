@@ -60,3 +60,37 @@ def image_grid(images: np.ndarray, path: str | Path, *, cols: int = 8, titles: S
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def draw_episodes(episodes: Mapping[int, tuple[np.ndarray, np.ndarray]], finals: Mapping[int, Mapping[str, float]],
+                  path: str | Path, *, walls: Sequence[Sequence[float]] = ()) -> None:
+    """Paths of the simple car's episodes and their distance to the target over time.
+
+    ``episodes``: episode -> (times (T,) s, observations (T, >= 6): x, y, cos, sin, target x, y);
+    ``finals``: episode -> metrics at its end (``distance_m`` labels the line); ``walls``: segments.
+    """
+    plt = _plt()
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.6))
+    for seg in walls:
+        ax.plot([seg[0], seg[2]], [seg[1], seg[3]], "k-", lw=2)
+    for k, (t, o) in sorted(episodes.items()):
+        line, = ax.plot(o[:, 0], o[:, 1], "-", lw=1.2)
+        ax.plot(o[0, 0], o[0, 1], "o", color=line.get_color(), ms=4)
+        ax.plot(o[0, 4], o[0, 5], "x", color=line.get_color(), ms=9, mew=2)
+        dist = np.hypot(o[:, 4] - o[:, 0], o[:, 5] - o[:, 1])
+        label = f"episode {k}"
+        if "distance_m" in finals.get(k, {}):
+            label += f": final {finals[k]['distance_m'] * 1000:.1f} mm"
+        bx.semilogy(t, np.maximum(dist, 1e-4), color=line.get_color(), label=label)
+    ax.set_aspect("equal")
+    ax.set_title("paths (o start, x target)")
+    bx.axhline(0.008, color="grey", ls="--", lw=1, label="paper's 8 mm")
+    bx.set_xlabel("time (s)")
+    bx.set_ylabel("straight-line distance to target (m)")
+    bx.legend(fontsize=8)
+    for a in (ax, bx):
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
