@@ -13,7 +13,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
-	$(BIN)/pip install -q -e '.[dev,learn]'
+	$(BIN)/pip install -q -e '.[dev,learn,foxglove]'
 	touch $(VENV)/.installed $@
 
 demo: $(VENV)/.installed
