@@ -4,6 +4,13 @@ Conventions: the world is z-up; ``pose`` is the sonar's pose in it, body frame F
 along the boresight, y starboard, z down: the paper's eq. 15-17 and ``sim.fls``; ``body_frame="flu"``
 for x, port, up). Tilt, roll and altitude come from the pose (altitude = z - ``seafloor_z_m``)
 unless given as parameters.
+
+Each ping is placed with the pose at its own stamp, interpolated between the two poses around it
+(:mod:`nodes.sonar.pose_buffer`). A ping newer than the newest pose waits (at most ``max_wait_s``
+and ``max_pending`` pings) for the pose after it; a ping between two poses more than
+``max_pose_gap_s`` apart, older than the pose buffer, or that waited too long is dropped. All
+counted in ``dropped``; ``placed`` counts pings placed at a pose of their own stamp ("exact") and
+interpolated ones, ``waited`` those that had to wait.
 """
 from __future__ import annotations
 
@@ -19,6 +26,7 @@ from msgs.geometry import Pose3D
 from msgs.sensor import PointCloud
 from msgs.sonar import SonarPing
 from nodes.sonar.highlight import down_from_tilt, extract_line_scan
+from nodes.sonar.pose_buffer import PoseBuffer
 from tether import Input, Node
 
 _FLIP = np.diag([1.0, -1.0, -1.0])      # FLU <-> FRD (its own inverse)
@@ -40,7 +48,10 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     max_points: int = 200_000                # accumulated cloud keeps the newest points
     publish_every: int = 1                   # publish the accumulated cloud every n-th ping
     publish_scan: bool = False               # also publish each ping's line scan (sonar frame)
-    max_pose_age_s: float = 0.5              # pose further than this from the ping's stamp: drop the ping
+    max_pose_gap_s: float = 0.5              # the poses around a ping further apart than this: drop the ping
+    max_wait_s: float = 0.5                  # a ping newer than the newest pose waits this long (node clock) ...
+    max_pending: int = 32                    # ... and at most this many pings wait
+    pose_buffer_s: float = 5.0               # poses kept behind the newest
     world_frame: str = "world"
 
     def __post_init__(self) -> None:
@@ -48,17 +59,26 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
             raise ValueError("need 0 < spread_rad < pi, max_points >= 1 and publish_every >= 1")
         if self.sigma_px < 0 or not (0 < self.threshold < 1) or self.altitude_m < 0:
             raise ValueError("need sigma_px >= 0, 0 < threshold < 1 (fraction of full scale), altitude_m >= 0")
+        if not (self.max_pose_gap_s > 0 and self.max_wait_s >= 0 and self.max_pending >= 1
+                and self.pose_buffer_s >= self.max_pose_gap_s):
+            raise ValueError("need max_pose_gap_s > 0, max_wait_s >= 0, max_pending >= 1 and "
+                             "pose_buffer_s >= max_pose_gap_s")
 
 
 class HighlightCloud(Node):
-    """Inputs ``ping`` and ``pose`` (latest only); outputs ``points`` (world) and ``scan`` (sonar frame)."""
+    """Inputs ``ping`` and ``pose``; outputs ``points`` (world) and ``scan`` (sonar frame)."""
 
     Config = Config
-    inputs = {"ping": SonarPing, "pose": Input(Pose3D, latest=True)}
+    # every pose is kept (a "latest only" queue would widen the interpolation brackets when busy)
+    inputs = {"ping": Input(SonarPing, depth=16), "pose": Input(Pose3D, depth=256)}
     outputs = {"points": PointCloud, "scan": PointCloud}
 
     def setup(self) -> None:
-        self._poses: deque[tuple[int, np.ndarray]] = deque(maxlen=64)
+        self._poses = PoseBuffer(span_ns=int(self.config.pose_buffer_s * 1e9))
+        self._pending: deque[tuple[int, SonarPing]] = deque()     # (arrival ns, ping) waiting for a pose
+        self.placed = {"exact": 0, "interpolated": 0}
+        self.waited = 0
+        self._bracket_ms: list[float] = []
         self._xyz = np.zeros((self.config.max_points, 3), np.float32)
         self._strength = np.zeros(self.config.max_points, np.float32)
         self._count = 0
@@ -68,20 +88,55 @@ class HighlightCloud(Node):
         self._age_ms: list[float] = []
         self._work_ms: list[float] = []
 
-    def on_pose(self, pose: Pose3D) -> None:
+    def on_pose(self, pose: Pose3D) -> list[tuple[str, PointCloud]]:
+        q = np.array([pose.qw, pose.qx, pose.qy, pose.qz])
         transform = pose.matrix()
-        if not np.all(np.isfinite(transform)) or abs(np.linalg.det(transform[:3, :3]) - 1) > 1e-3:
+        if not (np.all(np.isfinite(transform)) and np.all(np.isfinite(q)) and float(q @ q) > 1e-12):
             self._drop("bad pose (non-finite or zero quaternion)")
-            return None
-        self._poses.append((pose.stamp_ns, transform))
-        return None
+            return self._drain()
+        self._poses.add(pose.stamp_ns, transform)
+        return self._drain()
 
-    def on_ping(self, ping: SonarPing) -> list[tuple[str, PointCloud]] | None:
+    def on_ping(self, ping: SonarPing) -> list[tuple[str, PointCloud]]:
         self._age_ms.append((self.now_ns() - ping.stamp_ns) / 1e6)
+        self._pending.append((self.now_ns(), ping))
+        out = self._drain()
+        if self._pending and self._pending[-1][1] is ping:
+            self.waited += 1                    # its pose has not come yet
+        return out
+
+    def _drain(self) -> list[tuple[str, PointCloud]]:
+        """Place every pending ping whose pose is known; drop those that cannot get one (counted)."""
+        out: list[tuple[str, PointCloud]] = []
+        cfg = self.config
+        while self._pending:
+            arrived, ping = self._pending[0]
+            pose, status, bracket = self._poses.at(ping.stamp_ns, int(cfg.max_pose_gap_s * 1e9))
+            if status == "wait":
+                overdue = self.now_ns() - arrived > cfg.max_wait_s * 1e9 or len(self._pending) > cfg.max_pending
+                if not overdue:
+                    break
+                self._pending.popleft()
+                if len(self._poses):
+                    self._drop("no pose after the ping's stamp in time (pose stream late or stopped)", ping.ping_id)
+                else:
+                    self._drop("no sonar pose received yet", ping.ping_id, expected=True)
+                continue
+            self._pending.popleft()
+            if status == "before_first":
+                self._drop("ping older than the oldest buffered pose", ping.ping_id, expected=True)
+            elif status == "gap":
+                self._drop(f"the poses around the ping are further apart than max_pose_gap_s "
+                           f"({cfg.max_pose_gap_s} s)", ping.ping_id)
+            else:
+                self.placed[status] += 1
+                if status == "interpolated":
+                    self._bracket_ms.append(bracket / 1e6)
+                out += self._place(ping, pose)
+        return out
+
+    def _place(self, ping: SonarPing, pose: np.ndarray) -> list[tuple[str, PointCloud]]:
         begin = time.perf_counter()
-        pose = self._pose_at(ping.stamp_ns)
-        if pose is None:
-            return None
         rot, origin, down, tilt = self._sonar_in_world(pose)
         altitude = self.config.altitude_m or float(origin[2] - self.config.seafloor_z_m)
         cfg = self.config
@@ -98,7 +153,7 @@ class HighlightCloud(Node):
                                      include_seafloor=cfg.include_seafloor)
         except ValueError as exc:
             self._drop(str(exc).split(",")[0], ping.ping_id)
-            return None
+            return []
         self.pings += 1
         world = scan.points_m @ rot.T + origin
         self._append(world, scan.strength)
@@ -122,22 +177,19 @@ class HighlightCloud(Node):
     def teardown(self) -> None:
         self.log.info("highlight cloud: %d pings, %d points accumulated, dropped %s", self.pings,
                       min(self._count, self.config.max_points), self.dropped or "none")
+        placed = sum(self.placed.values())
+        if placed:
+            self.log.info("highlight cloud poses: %d pings placed at a pose of their own stamp, %d interpolated "
+                          "(bracket median %.1f ms), %d waited for their pose, %d still waiting; 0 placed with "
+                          "another stamp's pose", self.placed["exact"], self.placed["interpolated"],
+                          float(np.median(self._bracket_ms)) if self._bracket_ms else 0.0, self.waited,
+                          len(self._pending))
         if self._work_ms:
             self.log.info("highlight cloud timing: ping age on arrival median %.1f ms (p90 %.1f), work per ping "
                           "median %.1f ms (p90 %.1f)", np.median(self._age_ms), np.percentile(self._age_ms, 90),
                           np.median(self._work_ms), np.percentile(self._work_ms, 90))
 
     # -- helpers ------------------------------------------------------------------------
-    def _pose_at(self, stamp_ns: int) -> np.ndarray | None:
-        if not self._poses:
-            self._drop("no sonar pose received yet", expected=True)
-            return None
-        t, transform = min(reversed(self._poses), key=lambda p: abs(p[0] - stamp_ns))   # newest wins ties
-        if abs(t - stamp_ns) > self.config.max_pose_age_s * 1e9:
-            self._drop("no sonar pose close enough in time to the ping")
-            return None
-        return transform
-
     def _sonar_in_world(self, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """Rotation world<-sonar FRD, sonar origin, gravity in sonar FRD, boresight depression (rad)."""
         rot = transform[:3, :3] if self.config.body_frame == "frd" else transform[:3, :3] @ _FLIP
