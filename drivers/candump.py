@@ -15,18 +15,17 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import re
-import struct
 import threading
 import time
-import zlib
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, TextIO
 
 import can
 import msgspec
 
-from drivers.can_bus import message_from_frame, open_bus
+from drivers.can_bus import frame_from_message, message_from_frame, open_bus
 from drivers.cia402 import describe_frame
 from msgs.can import CanFrame
 from tether import Node
@@ -74,14 +73,18 @@ def parse_line(line: str) -> CanFrame | None:
     return CanFrame(arbitration_id=raw_id, data=data, is_extended_id=extended, is_fd=is_fd, dlc=len(data), **common)
 
 
-MAX_STAMP_S = ((1 << 63) - 1) // 1_000_000_000     # 2262: the last second an int64 ns stamp holds
+MAX_STAMP_NS = (1 << 63) - 1
+MAX_STAMP_S = MAX_STAMP_NS // 1_000_000_000        # 2262: the last second an int64 ns stamp holds
 
 
 def _seconds_to_ns(text: str) -> int:
     whole, _, frac = text.partition(".")
     if len(whole) > 12 or int(whole) > MAX_STAMP_S:
         raise ValueError(f"time {text[:40]} s is past what a nanosecond stamp holds (year 2262)")
-    return int(whole) * 1_000_000_000 + int((frac + "000000000")[:9])
+    ns = int(whole) * 1_000_000_000 + int((frac + "000000000")[:9])
+    if ns > MAX_STAMP_NS:                          # 9223372036.9 s: the last second holds only 0.85 s
+        raise ValueError(f"time {text[:40]} s is past what a nanosecond stamp holds (year 2262)")
+    return ns
 
 
 def format_line(frame: CanFrame, *, direction: bool = False, channel: str = "can0") -> str:
@@ -249,35 +252,67 @@ def iter_can_log(path: str | Path, *, on_skip: Callable[[int, str], None] | None
     format because python-can's ``CanutilsLogReader`` reads the stamp as a float (the digits
     below the microsecond of a 2023 epoch stamp are lost), rejects the ``_X`` DLC extension and
     ``#`` comments, and stops at the first bad line (``tests/drivers/test_candump_io.py``
-    measures both). A reader that fails mid-file (a truncated BLF) ends the import there: what
-    was read is kept and the failure is counted as a skip."""
+    measures both). A message python-can reads but a frame cannot hold (a time that is not a
+    time, an id past 29 bits, more than 64 data bytes) is skipped with its number; a reader
+    that fails mid-file (a truncated BLF, a mangled ASC) ends the import there: what was read
+    is kept and the failure is reported like a skipped message."""
     path = Path(path)
+    skip = on_skip or _log_skip
     if path.suffix.lower() in CANDUMP_SUFFIXES:
         with open(path, encoding="ascii", errors="replace") as f:
-            yield from iter_frames(f, errors="skip", on_skip=on_skip)
+            yield from iter_frames(f, errors="skip", on_skip=skip)
         return
-    from drivers.can_bus import frame_from_message
-
-    count = 0
     try:
-        with can.LogReader(path) as reader:
-            for msg in reader:
-                count += 1
-                yield frame_from_message(msg, is_rx=bool(getattr(msg, "is_rx", True)))
-    except ValueError as exc:                           # an unknown suffix: say which ones python-can knows
-        if "suffix" in str(exc).lower() or "unknown" in str(exc).lower():
+        reader = can.LogReader(path)
+    except OSError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - an unknown suffix, or a header the reader cannot parse
+        if isinstance(exc, ValueError) and ("suffix" in str(exc).lower() or "unknown" in str(exc).lower()):
             raise ValueError(f"{path.name}: python-can has no reader for {path.suffix!r} ({exc})") from None
-        (on_skip or _log_skip)(count + 1, f"the reader stopped: {exc}")
-    except (OSError, EOFError, struct.error, zlib.error) as exc:
-        (on_skip or _log_skip)(count + 1, f"the reader stopped: {exc}")
+        skip(1, f"the reader could not start: {type(exc).__name__}: {str(exc)[:200]}")
+        return
+    count = 0
+    with reader:
+        messages = iter(reader)
+        while True:
+            try:
+                msg = next(messages)
+            except StopIteration:
+                return
+            except Exception as exc:  # noqa: BLE001 - python-can's readers raise what their parsers meet
+                skip(count + 1, f"the reader stopped: {type(exc).__name__}: {str(exc)[:200]}")
+                return
+            count += 1
+            frame, problem = _frame_of(msg)
+            if frame is None:
+                skip(count, problem)
+                continue
+            yield frame
+
+
+def _frame_of(msg: can.Message) -> tuple[CanFrame | None, str]:
+    """A python-can message as a CanFrame, or None and why it cannot be one."""
+    ts = msg.timestamp
+    if not isinstance(ts, (int, float)) or not math.isfinite(ts) or not 0 <= ts <= MAX_STAMP_S:
+        return None, f"time {ts!r} s is not a time a nanosecond stamp holds (0 to year 2262)"
+    ident, data = msg.arbitration_id, msg.data or b""
+    if not isinstance(ident, int) or not 0 <= ident <= 0x1FFFFFFF:
+        return None, f"CAN id {ident!r} does not fit 29 bits"
+    if len(data) > 64 or not 0 <= int(msg.dlc or 0) <= 64:
+        return None, f"{len(data)} data bytes / dlc {msg.dlc!r}: a CAN FD frame holds at most 64"
+    try:
+        return frame_from_message(msg, is_rx=bool(getattr(msg, "is_rx", True))), ""
+    except (TypeError, ValueError, OverflowError) as exc:
+        return None, f"not a CAN frame: {type(exc).__name__}: {exc}"
 
 
 def import_candump(src: str | Path, dst: str | Path, *, topic: str | None = None,
-                   max_bytes: int | None = None) -> "ImportResult":
+                   max_bytes: int | None = None, skip_bad: bool = False) -> "ImportResult":
     """``tether import can`` (and its old name ``candump``): every CAN log format python-can
-    reads, and ``candump -L`` text -> ``can/frame`` (``max_bytes`` unused)."""
+    reads, and ``candump -L`` text -> ``can/frame`` (``max_bytes`` unused). A bad line or
+    message ends the import with one line naming it, or with ``skip_bad`` is counted and skipped."""
     from tether.imports import ImportResult, write_messages
 
-    result = ImportResult(unit="line" if Path(src).suffix.lower() in CANDUMP_SUFFIXES else "message")
+    result = ImportResult(unit="line" if Path(src).suffix.lower() in CANDUMP_SUFFIXES else "message",
+                          skip_bad=skip_bad, source=str(src))
     return write_messages(iter_can_log(src, on_skip=result.skip), dst, topic or "can/frame", result)
-

@@ -202,11 +202,11 @@ def write_rmlog(path: str | Path, messages: list[tuple[float, bytes]], *, compre
 
 
 def import_oculus(src: str | Path, dst: str | Path, *, topic: str | None = None,
-                  max_bytes: int | None = None) -> "ImportResult":
-    """``tether import oculus``: raw Oculus message streams and ViewPoint ``.oculus`` logs -> ``sonar/ping``."""
+                  max_bytes: int | None = None, skip_bad: bool = False) -> "ImportResult":
+    """``tether import oculus``: raw Oculus message streams and ViewPoint ``.oculus`` logs -> ``sonar/ping``.
+    A bad record ends the import with one line naming its byte offset, or with ``skip_bad`` is counted."""
     from tether.imports import ImportResult, write_messages
 
-    result = ImportResult()
+    result = ImportResult(skip_bad=skip_bad, source=str(src))
     pings = iter_oculus_file(src, on_skip=result.skip, max_bytes=max_bytes or DEFAULT_MAX_BYTES)
     return write_messages(pings, dst, topic or "sonar/ping", result)
-

@@ -50,10 +50,12 @@ def iter_ping360_stream(path: str | Path, *, start_ns: int = 0, period_s: float 
             offset += len(chunk)
 
 
-def import_ping360(src: str | Path, dst: str | Path, *, topic: str | None = None, **_: object) -> "ImportResult":
-    """``tether import ping360``: raw Ping360 byte streams -> ``sonar/ping`` (one beam per message)."""
+def import_ping360(src: str | Path, dst: str | Path, *, topic: str | None = None, skip_bad: bool = False,
+                   **_: object) -> "ImportResult":
+    """``tether import ping360``: raw Ping360 byte streams -> ``sonar/ping`` (one beam per message).
+    A bad frame ends the import with one line, or with ``skip_bad`` is counted and skipped."""
     from tether.imports import ImportResult, write_messages
 
-    result = ImportResult()
+    result = ImportResult(skip_bad=skip_bad, source=str(src))
     beams = iter_ping360_stream(src, on_skip=result.skip)
     return write_messages(beams, dst, topic or "sonar/ping", result)

@@ -391,7 +391,13 @@ def _size(text: str) -> int:
 def cmd_import(args: argparse.Namespace) -> int:
     from tether.imports import importer
 
-    result = importer(args.kind)(args.file, args.output, topic=args.topic, max_bytes=args.max_bytes)
+    run = importer(args.kind)
+    if Path(args.file).is_dir():
+        raise ConfigError(f"{args.file}: a directory, not a log file")
+    try:
+        result = run(args.file, args.output, topic=args.topic, max_bytes=args.max_bytes, skip_bad=args.skip_bad)
+    except OSError as exc:                  # unreadable input, unwritable output: one line, not a traceback
+        raise ConfigError(f"{exc.filename or args.file}: {exc.strerror or exc}") from None
     print(result.summary(args.file, args.output))
     if result.imported == 0:
         Path(args.output).unlink(missing_ok=True)
@@ -626,7 +632,7 @@ EXAMPLES = {
     "topic": "tether topic hz sonar/ping -w 50",
     "node": "tether node info imager",
     "log": "tether log cut run.mcap -o slice.mcap --start 10 --end 20 --topics 'sonar/*'",
-    "import": "tether import oculus capture.oculus -o pings.mcap --max-bytes 32M",
+    "import": "tether import oculus capture.oculus -o pings.mcap --max-bytes 32M --skip-bad",
     "export": "tether export foxglove run.mcap -o run-foxglove.mcap",
     "doctor": "tether doctor",
     "slam": "tether slam optimize graph.g2o --initial chordal --robust gnc -o optimised.g2o",
@@ -749,6 +755,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--topic", help="topic to write (default sonar/ping or can/frame)")
     p.add_argument("--max-bytes", type=_size, default=None,
                    help="the most one record may take once decompressed (e.g. 64M; default 64 MiB)")
+    p.add_argument("--skip-bad", action="store_true",
+                   help="skip bad records (counted; the first 20 logged) and import the rest; "
+                        "without it the first bad record stops the import with one line naming it")
     p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("export", help="export a log for other tools")

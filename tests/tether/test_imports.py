@@ -45,9 +45,12 @@ def test_import_skips_and_counts_bad_lines_and_fails_when_nothing_is_left(tmp_pa
     good = tmp_path / "mixed.log"
     good.write_text("(1.0) can0 701#00\n(99999999999999999999.0) can0 701#00\n(1.0) can0 123#RFFFF\n(2.0) can0 702#05\n")
     res = tether("import", "candump", str(good), "-o", str(tmp_path / "m.mcap"), env=runtime_env)
+    assert res.returncode == 2 and f"{good}: line 2: " in res.stderr and "--skip-bad" in res.stderr
+    assert res.stderr.strip().count("\n") == 0 and not (tmp_path / "m.mcap").exists()
+    res = tether("import", "candump", str(good), "-o", str(tmp_path / "m.mcap"), "--skip-bad", env=runtime_env)
     assert res.returncode == 0 and "imported 2 messages" in res.stdout and "skipped 2 bad records" in res.stdout
     assert "line 2:" in res.stderr and "line 3:" in res.stderr and "Traceback" not in res.stderr
     bad = tmp_path / "bad.log"
     bad.write_text("(99999999999999999999.0) can0 701#00\n")
-    res = tether("import", "candump", str(bad), "-o", str(tmp_path / "b.mcap"), env=runtime_env)
+    res = tether("import", "candump", str(bad), "-o", str(tmp_path / "b.mcap"), "--skip-bad", env=runtime_env)
     assert res.returncode == 1 and "nothing could be imported" in res.stderr and not (tmp_path / "b.mcap").exists()
