@@ -1,4 +1,4 @@
-"""The ``tether`` command line: launch, run, check, graph, record, replay, topic, node, import, log, export."""
+"""The ``tether`` command line: launch, run, check, graph, record, replay, topic, node, import, log, export, foxglove."""
 from __future__ import annotations
 
 import argparse
@@ -409,8 +409,32 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from tether.export import export_foxglove
 
-    n = export_foxglove(args.file, args.output)
-    print(f"exported {n} messages to {args.output} (json channels, viewable in Foxglove)")
+    progress = _Progress()
+    n = export_foxglove(args.file, args.output, lambda k, total: progress(f"export {k}/{total} messages"))
+    progress.done()
+    print(f"exported {n.converted} messages to {args.output} as {n.logged} Foxglove messages (images, clouds, "
+          f"poses, grids in Foxglove's schemas; the rest JSON)" + (f"; {n.errors} dropped" if n.errors else ""))
+    return 0
+
+
+def cmd_foxglove(args: argparse.Namespace) -> int:
+    from tether.foxglove_bridge import LiveView
+
+    view = LiveView(host=args.host, port=args.port, patterns=_flat(args.include) or (),
+                    exclude=_flat(args.exclude) or ()).start()
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    print(f"serving running graphs to Foxglove at ws://{args.host}:{view.port} (Open connection -> Foxglove "
+          f"WebSocket); Ctrl-C stops", flush=True)
+    progress = _Progress()
+    t_end = time.monotonic() + args.duration if args.duration else None
+    while not stop.wait(1.0) and (t_end is None or time.monotonic() < t_end):
+        n = view.sink.counters
+        progress(f"foxglove: {len(view.sink.topics)} channels, {n.converted} messages, {n.skipped} sampled out, "
+                 f"{n.errors} dropped")
+    view.stop()
+    progress.done()
     return 0
 
 
@@ -634,6 +658,7 @@ EXAMPLES = {
     "log": "tether log cut run.mcap -o slice.mcap --start 10 --end 20 --topics 'sonar/*'",
     "import": "tether import oculus capture.oculus -o pings.mcap --max-bytes 32M --skip-bad",
     "export": "tether export foxglove run.mcap -o run-foxglove.mcap",
+    "foxglove": "tether foxglove --port 8765 --exclude 'sim/*'",
     "doctor": "tether doctor",
     "slam": "tether slam optimize graph.g2o --initial chordal --robust gnc -o optimised.g2o",
     "selfcal": "tether selfcal ../shared/data/camera/opencv-chessboard-stereo/left*.jpg --chessboard 9x6",
@@ -765,6 +790,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", help="the tether MCAP log")
     p.add_argument("-o", "--output", required=True, help="the MCAP file to write")
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("foxglove", help="serve the running graphs live to Foxglove (WebSocket)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
+    p.add_argument("--port", type=int, default=8765, help="WebSocket port (0: a free one)")
+    p.add_argument("--include", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
+                   help="only topics matching these globs (default: all but */_stats; repeatable)")
+    p.add_argument("--exclude", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
+                   help="not topics matching these globs (repeatable)")
+    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.set_defaults(func=cmd_foxglove)
 
     p = sub.add_parser("doctor", help="check the runtime directory and keystores; clean what crashed runs left")
     p.set_defaults(func=cmd_doctor)

@@ -1,47 +1,38 @@
-"""Export a tether log for other tools: Foxglove reads MCAP with json channels and jsonschema schemas."""
+"""Export a tether log for Foxglove: the live view's conversion (:mod:`tether.foxglove_convert`)
+written to an MCAP file by the Foxglove SDK, so an exported log renders like the live graph."""
 from __future__ import annotations
 
-import base64
-import json
 from pathlib import Path
-from typing import Any
+from typing import Callable
 
-from mcap.writer import Writer
+import foxglove
 
+from tether.errors import DecodeError
+from tether.foxglove_bridge import Counters, FoxgloveSink
 from tether.log import LogReader
+from tether.message import message_type
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (bytes, bytearray, memoryview)):
-        return base64.b64encode(bytes(value)).decode()
-    if isinstance(value, float) and value != value:
-        return None      # NaN is not JSON
-    return value
-
-
-def export_foxglove(src: str | Path, dst: str | Path) -> int:
-    """Rewrite ``src`` with json-encoded channels (arrays' ``data`` base64, as their schema says)."""
+def export_foxglove(src: str | Path, dst: str | Path,
+                    progress: Callable[[int, int], None] | None = None) -> Counters:
+    """Rewrite ``src`` into ``dst`` with Foxglove's schemas (images, clouds, poses, grids) and
+    JSON for the rest; log times are kept. Returns the counters (``converted``, ``errors``, ...)."""
     reader = LogReader(src)
-    schemas_by_type = reader.schemas()     # the original schemas travel along
-    count = 0
-    with open(dst, "wb") as fh:
-        writer = Writer(fh)
-        writer.start(profile="", library="tether export")
-        schema_ids: dict[str, int] = {}
-        channel_ids: dict[str, int] = {}
-        for rec in reader.messages():
-            if rec.type_name not in schema_ids:
-                data = schemas_by_type.get(rec.type_name, b"{}")
-                schema_ids[rec.type_name] = writer.register_schema(rec.type_name, "jsonschema", data)
-            if rec.topic not in channel_ids:
-                channel_ids[rec.topic] = writer.register_channel(rec.topic, "json", schema_ids[rec.type_name])
-            doc = _jsonable(LogReader.decode_plain(rec))
-            writer.add_message(channel_ids[rec.topic], log_time=rec.log_time_ns, publish_time=rec.publish_time_ns,
-                               data=json.dumps(doc, allow_nan=False).encode())
-            count += 1
-        writer.finish()
-    return count
+    total = sum(reader.info().counts.values())
+    context = foxglove.Context()
+    sink = FoxgloveSink(context)
+    with foxglove.open_mcap(dst, allow_overwrite=True, context=context):
+        for k, rec in enumerate(reader.messages(), 1):
+            sink.counters.received += 1
+            try:
+                try:
+                    msg = reader.decode_as(message_type(rec.type_name), rec)
+                except KeyError:           # a type unknown here still exports, as plain JSON
+                    msg = LogReader.decode_plain(rec)
+            except (DecodeError, ValueError) as exc:
+                sink.error(f"dropped an undecodable record on {rec.topic}: {exc}")
+                continue
+            sink.log(rec.topic, rec.type_name, msg, rec.log_time_ns)
+            if progress is not None:
+                progress(k, total)
+    return sink.counters
