@@ -6,7 +6,8 @@ Node ``sim.fls:FlsSonar`` serves the real protocol: a UDP status datagram (142 B
 renders pings with the requested range, gain, gamma, frequency, beams and bits at the requested
 ping rate (one per request when the network-trigger flag is set; dummies in standby) and sends
 SimplePingResults (V1 or V2, as fired; image padded to ``image_align``; per-row gain of 1.0 when
-asked, encoded as ``row_gain_encoding``). For every ping it publishes, stamped alike:
+asked, or rising ``row_gain_db_per_m`` dB per metre of range, 0 dB at mid-range, encoded as
+``row_gain_encoding``). For every ping it publishes, stamped alike:
 
 * ``ping``  (SonarPing): what the driver will decode from that ping (a launch may skip the driver);
 * ``pose``  (geometry.Pose3D, frame ``world``): the sonar head (FRD: x boresight, y starboard,
@@ -67,6 +68,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     elevation_rays: int = 0            # 0 = the scene's
     image_align: int = 2048
     row_gain_encoding: str = "float"
+    row_gain_db_per_m: float = 0.0     # per-row gain slope the device applies and reports (0: gain 1 everywhere)
     truth_structures_only: bool = False
     self_fire: bool = False            # ping without a client, with the settings below
     range_m: float = 20.0
@@ -84,7 +86,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
             raise ValueError(f"row_gain_encoding must be 'float' or 'u32', got {self.row_gain_encoding!r}")
 
 
-def settings_from_fire(fire: FireSettings, scene: Scene, elevation_rays: int = 0) -> PingSettings:
+def settings_from_fire(fire: FireSettings, scene: Scene, elevation_rays: int = 0,
+                       row_gain_db_per_m: float = 0.0) -> PingSettings:
     """What to render for a SimpleFire (range in % of the mode's maximum when flag bit0 is clear)."""
     frequency = "low" if fire.master_mode == 1 else "high"
     max_range = scene.sonar.modes[frequency]["max_range_m"]
@@ -92,7 +95,8 @@ def settings_from_fire(fire: FireSettings, scene: Scene, elevation_rays: int = 0
     gamma = fire.gamma / 255.0 if fire.gamma not in (0, 255) else 1.0
     return PingSettings(n_beams=fire.beams, range_m=max(min(range_m, max_range), 0.1), frequency=frequency,
                         gain_percent=min(max(fire.gain_percent, 0.0), 100.0), gamma=gamma,
-                        bits=16 if fire.bits > 8 else 8, elevation_rays=elevation_rays)
+                        bits=16 if fire.bits > 8 else 8, elevation_rays=elevation_rays,
+                        row_gain_db_per_m=row_gain_db_per_m if fire.row_gain else 0.0)
 
 
 class FakeOculus:
@@ -225,14 +229,15 @@ class FlsSonar(Node):
         begin = time.perf_counter()
         stamp_ns = self.now_ns() // 1000 * 1000
         pose = self.scene.sonar_pose((stamp_ns - (self._t0_ns or 0)) / 1e9 + cfg.time_offset_s)
-        r = render_ping(self.scene, pose, settings_from_fire(fire, self.scene, cfg.elevation_rays), rng=self.rng)
+        r = render_ping(self.scene, pose, settings_from_fire(fire, self.scene, cfg.elevation_rays, cfg.row_gain_db_per_m),
+                        rng=self.rng)
         self.ping_id += 1
         echo = replace(fire, range=r.range_m, flags=fire.flags | FLAG_RANGE_METRES, ext_flags=0)
         data = encode_ping(r.intensities, r.bearings_cdeg, fire=echo, version=2 if version == 2 else 0,
                            ping_id=self.ping_id, range_resolution_m=r.range_resolution_m, frequency_hz=r.frequency_hz,
                            sound_speed_mps=self.scene.sonar.sound_speed_mps,
                            ping_start_time=stamp_ns / 1e9 if version == 2 else (stamp_ns // 1000) & 0xFFFFFFFF,
-                           row_gains=np.ones(r.intensities.shape[0]) if fire.row_gain else None,
+                           row_gains=r.row_gains if fire.row_gain else None,
                            gain_encoding=cfg.row_gain_encoding, image_align=cfg.image_align, src=cfg.serial)
         self.fake.send(data)
         self.render_ms.append((time.perf_counter() - begin) * 1e3)

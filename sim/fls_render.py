@@ -7,7 +7,9 @@ vertical beam pattern x two-way absorption``, and spreads it over the range bins
 between two neighbouring elevation rays on the same surface the echo is spread uniformly over the
 range interval they span (a grazing seafloor fills many bins, a wall few); an isolated hit (an
 edge) fills ``point_extent_m``. Then speckle (exponential intensity), a noise floor, the gain,
-the gamma and 8/16-bit quantisation, as the sonar's image.
+the gamma and 8/16-bit quantisation, as the sonar's image. With ``row_gain_db_per_m`` the device
+also amplifies each range row by its own gain (a time-varying gain, 0 dB at mid-range) and reports
+it (``row_gains``), as an Oculus does with the per-row gain flag.
 """
 from __future__ import annotations
 
@@ -47,6 +49,7 @@ class PingSettings:
     n_ranges: int = 0                  # 0: range / min_resolution, capped at the scene's max_ranges
     elevation_rays: int = 0            # 0: the scene's
     point_extent_m: float = 0.05
+    row_gain_db_per_m: float = 0.0     # per-row gain slope (intensity dB per metre of range, 0 dB at mid-range)
 
 
 @dataclass(frozen=True)
@@ -62,6 +65,7 @@ class RenderedPing:
     hits_m : (K, 3) world coordinates of the first hits inside the range (K <= rays).
     hit_ranges_m, hit_bearings_rad, hit_elevations_rad (positive down), hit_echo : (K,).
     hit_labels : (K,) int, 0 = seafloor, k = scene.structures[k - 1].
+    row_gains : (R,) linear gain each row was amplified by before gamma and quantisation.
     """
 
     intensities: np.ndarray
@@ -79,6 +83,7 @@ class RenderedPing:
     hit_elevations_rad: np.ndarray
     hit_echo: np.ndarray
     hit_labels: np.ndarray
+    row_gains: np.ndarray | None = None    # (R,) linear gain applied to each row (ones without a slope)
 
 
 def _intervals(t: np.ndarray, echo: np.ndarray, labels: np.ndarray, valid: np.ndarray, ext: float):
@@ -189,7 +194,11 @@ def render_ping(scene: Scene, pose: np.ndarray, settings: PingSettings = PingSet
         e = rng.standard_exponential(level.shape, np.float32)
         noisy = level * ((1 - sonar.speckle) + sonar.speckle * e) + np.float32(sonar.noise_floor) * e[::-1, ::-1]
     full = 255 if settings.bits == 8 else 65535
-    out = np.clip(noisy * gain, 0, 1)
+    row_r = (np.arange(n_ranges) + 0.5) * res
+    row_gains = (10.0 ** (settings.row_gain_db_per_m * (row_r - range_m / 2) / 10.0)).astype(np.float32)
+    if not np.all(np.isfinite(row_gains)) or not np.all(row_gains > 0):
+        raise ValueError(f"row_gain_db_per_m {settings.row_gain_db_per_m} gives non-finite gains over {range_m} m")
+    out = np.clip(noisy * gain * row_gains[:, None], 0, 1)
     out = (np.sqrt(out) if settings.gamma == 0.5 else out ** np.float32(settings.gamma)) * np.float32(full)
     intensities = np.rint(out).astype(np.uint8 if settings.bits == 8 else np.uint16)
     el_of_ray = np.repeat(phi, settings.n_beams)
@@ -200,4 +209,4 @@ def render_ping(scene: Scene, pose: np.ndarray, settings: PingSettings = PingSet
                         horizontal_aperture_rad=float(np.radians(mode["horizontal_aperture_deg"])),
                         hits_m=origin + t[valid, None] * dirs[valid], hit_ranges_m=t[valid],
                         hit_bearings_rad=az_of_ray[valid], hit_elevations_rad=el_of_ray[valid],
-                        hit_echo=echo[valid], hit_labels=labels[valid])
+                        hit_echo=echo[valid], hit_labels=labels[valid], row_gains=row_gains)

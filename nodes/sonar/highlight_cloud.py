@@ -25,6 +25,7 @@ import numpy as np
 from msgs.geometry import Pose3D
 from msgs.sensor import PointCloud
 from msgs.sonar import SonarPing
+from nodes.sonar.gain import compensate_row_gains
 from nodes.sonar.highlight import down_from_tilt, extract_line_scan
 from nodes.sonar.pose_buffer import PoseBuffer
 from tether import Input, Node
@@ -52,6 +53,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     max_wait_s: float = 0.5                  # a ping newer than the newest pose waits this long (node clock) ...
     max_pending: int = 32                    # ... and at most this many pings wait
     pose_buffer_s: float = 5.0               # poses kept behind the newest
+    row_gains: Literal["apply", "ignore"] = "apply"   # detect on gain-compensated samples (nodes.sonar.gain)
     world_frame: str = "world"
 
     def __post_init__(self) -> None:
@@ -77,6 +79,7 @@ class HighlightCloud(Node):
         self._poses = PoseBuffer(span_ns=int(self.config.pose_buffer_s * 1e9))
         self._pending: deque[tuple[int, SonarPing]] = deque()     # (arrival ns, ping) waiting for a pose
         self.placed = {"exact": 0, "interpolated": 0}
+        self.gain_problems = {"invalid": 0, "mismatch": 0, "repaired": 0}
         self.waited = 0
         self._bracket_ms: list[float] = []
         self._xyz = np.zeros((self.config.max_points, 3), np.float32)
@@ -144,8 +147,18 @@ class HighlightCloud(Node):
         if not resolution > 0 and ping.range_m > 0 and ping.intensities.shape[0] > 0:
             resolution = ping.range_m / ping.intensities.shape[0]
         spread = ping.vertical_aperture_rad if 0 < ping.vertical_aperture_rad < math.pi else cfg.spread_rad
+        intensities = np.asarray(ping.intensities)
+        if cfg.row_gains == "apply":
+            gained = compensate_row_gains(intensities, np.asarray(ping.row_gains), ping.gamma)
+            if gained.status in self.gain_problems:
+                self.gain_problems[gained.status] += 1
+                if self.gain_problems[gained.status] == 1:
+                    self.log.error("ping %d: row gains %s (%d bad rows); %s", ping.ping_id, gained.status,
+                                   gained.bad_rows, "bad rows take their neighbours' gain" if gained.status == "repaired"
+                                   else "detecting on the unscaled samples")
+            intensities = gained.image
         try:
-            scan = extract_line_scan(np.asarray(ping.intensities), np.asarray(ping.bearings_rad), resolution,
+            scan = extract_line_scan(intensities, np.asarray(ping.bearings_rad), resolution,
                                      altitude_m=altitude, tilt_rad=tilt, spread_rad=spread, down_frd=down,
                                      model=cfg.model, sigma_px=cfg.sigma_px,
                                      sigma_beam_px=None if cfg.sigma_beam_px < 0 else cfg.sigma_beam_px,
@@ -175,8 +188,8 @@ class HighlightCloud(Node):
                           intensity=self._strength[order])
 
     def teardown(self) -> None:
-        self.log.info("highlight cloud: %d pings, %d points accumulated, dropped %s", self.pings,
-                      min(self._count, self.config.max_points), self.dropped or "none")
+        self.log.info("highlight cloud: %d pings, %d points accumulated, dropped %s, row-gain problems %s",
+                      self.pings, min(self._count, self.config.max_points), self.dropped or "none", self.gain_problems)
         placed = sum(self.placed.values())
         if placed:
             self.log.info("highlight cloud poses: %d pings placed at a pose of their own stamp, %d interpolated "

@@ -1,4 +1,10 @@
-"""Polar imager node: raw sonar ping -> Cartesian fan image (seed 01, eq. 1-6)."""
+"""Polar imager node: raw sonar ping -> Cartesian fan image (seed 01, eq. 1-6).
+
+The ping's per-row gains (when the sonar sends them) are divided out first, in the sample's own
+encoding (``nodes.sonar.gain``: ``sample / g ** gamma``, 8 or 16 bit kept), so the fan shows every
+range at the same gain. A ping whose gains are all zero, negative or NaN (or not one per row)
+is rendered unscaled and counted in ``gain_problems``; a few bad rows take their neighbours' gain.
+"""
 from __future__ import annotations
 
 from typing import Literal
@@ -7,6 +13,7 @@ import msgspec
 import numpy as np
 
 from msgs.sonar import FanImage, SonarPing
+from nodes.sonar.gain import compensate_row_gains
 from nodes.sonar.polar import FanRenderer
 from tether import Input, Node
 
@@ -16,6 +23,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     height_px: int = 0                              # 0: from the fan's aspect ratio
     interpolation: Literal["nearest", "bilinear"] = "bilinear"
     backend: Literal["numpy", "cv2"] = "cv2"        # cv2.remap on the cached maps is the fastest bilinear
+    row_gains: Literal["apply", "ignore"] = "apply"  # divide out the sonar's per-row gains
 
     def __post_init__(self) -> None:
         if self.width_px < 2 or self.width_px > 8192 or self.height_px < 0 or self.height_px > 8192:
@@ -39,21 +47,26 @@ class PolarImager(Node):
                                      interpolation=cfg.interpolation, backend=cfg.backend)
         self.rendered = 0
         self.dropped = 0
+        self.gain_problems = {"invalid": 0, "mismatch": 0, "repaired": 0}
         self._warned: set[str] = set()
 
     def on_ping(self, ping: SonarPing) -> dict[str, FanImage] | None:
         resolution = ping.range_resolution_m
         if not resolution > 0 and ping.range_m > 0 and ping.intensities.shape[0] > 0:
             resolution = ping.range_m / ping.intensities.shape[0]
+        intensities = np.asarray(ping.intensities)
+        if self.config.row_gains == "apply":
+            gained = compensate_row_gains(intensities, np.asarray(ping.row_gains), ping.gamma)
+            if gained.status in self.gain_problems:
+                self.gain_problems[gained.status] += 1
+                self._warn_once(gained.status, "ping %d: row gains %s (%d bad rows)%s", ping.ping_id, gained.status,
+                                gained.bad_rows, "; rendered unscaled" if gained.status != "repaired" else "")
+            intensities = gained.image
         try:
-            image, lut = self._renderer.render(np.asarray(ping.intensities), np.asarray(ping.bearings_rad),
-                                               resolution)
+            image, lut = self._renderer.render(intensities, np.asarray(ping.bearings_rad), resolution)
         except ValueError as exc:
             self.dropped += 1
-            kind = str(exc).split(",")[0]
-            if kind not in self._warned:
-                self._warned.add(kind)
-                self.log.error("dropping ping %d: %s", ping.ping_id, exc)
+            self._warn_once(str(exc).split(",")[0], "dropping ping %d: %s", ping.ping_id, exc)
             return None
         self.rendered += 1
         return {"image": FanImage(stamp_ns=ping.stamp_ns, frame_id=ping.frame_id, image=image, mask=lut.mask,
@@ -61,5 +74,10 @@ class PolarImager(Node):
                                   origin_col_px=lut.origin_col_px, ping_id=ping.ping_id)}
 
     def teardown(self) -> None:
-        self.log.info("polar imager: %d pings rendered, %d dropped, %d lookup-table builds",
-                      self.rendered, self.dropped, self._renderer.builds)
+        self.log.info("polar imager: %d pings rendered, %d dropped, %d lookup-table builds, row-gain problems %s",
+                      self.rendered, self.dropped, self._renderer.builds, self.gain_problems)
+
+    def _warn_once(self, kind: str, fmt: str, *args: object) -> None:
+        if kind not in self._warned:
+            self._warned.add(kind)
+            self.log.error(fmt, *args)

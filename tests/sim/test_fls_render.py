@@ -134,3 +134,20 @@ def test_range_is_clipped_to_the_frequency_mode_maximum():
     assert ping.range_m == 10.0 and ping.horizontal_aperture_rad == pytest.approx(np.radians(80))
     assert ping.bearings_rad.max() == pytest.approx(np.radians(40), abs=1e-3)
     assert json.dumps(float(ping.vertical_aperture_rad))                  # plain float, not numpy
+
+
+def test_row_gains_rise_with_range_and_are_what_the_image_got() -> None:
+    from sim.fls import PingSettings, load_scene, render_ping
+
+    scene = load_scene("tripod")
+    pose = scene.sonar_pose(14.0)
+    flat = render_ping(scene, pose, PingSettings(n_beams=128, range_m=20.0, gain_percent=10), rng=None)
+    sloped = render_ping(scene, pose, PingSettings(n_beams=128, range_m=20.0, gain_percent=10, row_gain_db_per_m=0.5),
+                         rng=None)
+    np.testing.assert_allclose(flat.row_gains, 1.0)
+    g = sloped.row_gains
+    assert g.shape == (flat.intensities.shape[0],) and np.all(np.diff(g) > 0)
+    assert 10 * np.log10(g[-1] / g[0]) == pytest.approx(10.0, abs=0.1)       # 0.5 dB/m over 20 m
+    unsat = (sloped.intensities < 250) & (flat.intensities < 250) & (flat.intensities > 20)
+    want = flat.intensities * np.sqrt(g)[:, None]
+    np.testing.assert_allclose(sloped.intensities[unsat], want[unsat], atol=1.5)

@@ -213,3 +213,23 @@ def test_a_turning_vehicle_keeps_the_pile_sharp_when_each_ping_gets_the_pose_at_
         return float(np.percentile(d, 90) - np.percentile(d, 10))
 
     assert spread(_turning_run(10.0, "interpolate")[0]) < spread(truth) + cell
+
+
+def test_detection_sees_gain_compensated_samples() -> None:
+    tilt, altitude = math.radians(15), 5.0
+    fronts = {j: 6.0 + 0.05 * j for j in range(20, 80)}
+    clean = _ping(0, altitude, tilt, fronts)
+    gains = np.linspace(1.0, 0.3, M)                    # the device attenuated far rows (-5 dB at the end)
+    sent = np.rint(np.asarray(clean.intensities, float) * np.sqrt(gains)[:, None]).astype(np.uint8)
+    with_gains = SonarPing(stamp_ns=0, intensities=sent, bearings_rad=clean.bearings_rad, range_resolution_m=DR,
+                           range_m=M * DR, vertical_aperture_rad=SPREAD, gamma=0.5, row_gains=gains.astype(np.float32))
+    clouds = {}
+    for name, ping, mode in (("clean", clean, "apply"), ("gains", with_gains, "apply"), ("raw", with_gains, "ignore")):
+        with Harness(HighlightCloud, params={"row_gains": mode}) as h:
+            h.feed([(0.0, "pose", _pose([0, 0, altitude], _rot(0, tilt), 0)), (0.0, "ping", ping)])
+        c = h.of("points")[-1]
+        clouds[name] = (np.asarray(c.points_m), np.asarray(c.intensity) > 0)
+    assert clouds["clean"][1].sum() >= len(fronts)          # (blur across beams adds a neighbour each side)
+    np.testing.assert_array_equal(clouds["gains"][1], clouds["clean"][1])
+    np.testing.assert_allclose(clouds["gains"][0], clouds["clean"][0], atol=2 * DR)
+    assert not np.array_equal(clouds["raw"][1], clouds["clean"][1])     # uncompensated, the far fronts are lost
