@@ -145,7 +145,8 @@ def test_log_is_readable_with_the_mcap_package_and_plain_msgpack(tmp_path: Path)
     assert doc["data"]["shape"] == [2, 3] and doc["data"]["data"] == bytes(range(6))
 
 
-def test_foxglove_export_writes_json_channels(tmp_path: Path, runtime_env: dict) -> None:
+def test_foxglove_export_writes_foxglove_schemas(tmp_path: Path, runtime_env: dict) -> None:
+    """Images export as Foxglove RawImage (protobuf), the rest as JSON (tests/tether/test_foxglove_convert.py)."""
     import numpy as np
     from mcap.reader import make_reader
 
@@ -156,9 +157,8 @@ def test_foxglove_export_writes_json_channels(tmp_path: Path, runtime_env: dict)
     res = tether("export", "foxglove", str(log), "-o", str(out), env=runtime_env)
     assert res.returncode == 0, res.stderr
     with open(out, "rb") as fh:
-        _, channel, message = next(make_reader(fh).iter_messages())
-    assert channel.message_encoding == "json"
-    assert json.loads(message.data)["data"]["data"] == "AAAAAA=="
+        schema, channel, message = next(make_reader(fh).iter_messages())
+    assert (schema.name, channel.message_encoding, message.log_time) == ("foxglove.RawImage", "protobuf", 5)
 
 
 def test_cli_attaches_echo_hz_and_node_info_to_a_running_graph(runtime_env: dict) -> None:
