@@ -37,7 +37,8 @@ class Cia402Bus(Node):
     """CANopen CiA 402 driver. Input ``cmd`` (per-axle wheel command), ``reset`` (clear a
     latched quick stop); outputs ``drives`` (one DriveState per drive at ``state_hz``),
     ``frames`` (every frame on the bus, rx and tx), ``measured`` (achieved per-axle
-    speeds and steer angles, at ``state_hz``) and ``ready`` (at ``state_hz`` and on every change).
+    speeds and steer angles, at ``measured_hz`` -- the control rate -- or else at ``state_hz``)
+    and ``ready`` (at ``state_hz`` and on every change).
 
     The bus is opened by :meth:`open_bus`; a bus with a true ``synchronous`` attribute (the
     in-process lockstep bus of :mod:`sim.cia402_bank`) gets the bring-up inside the cyclic
@@ -58,7 +59,7 @@ class Cia402Bus(Node):
         self._rejected = {"bad": 0, "stale": 0}
         self._clamped = 0
         self._last_reject_log_ns = self._last_clamp_log_ns = 0
-        self._next_state_ns = 0
+        self._next_state_ns = self._next_measured_ns = 0
         self._ready: bool | None = None
         self._frames: collections.deque[CanFrame] = collections.deque(maxlen=20_000)
         self._bus = self.open_bus()
@@ -131,10 +132,15 @@ class Cia402Bus(Node):
         ready = self.master.enabled()
         if ready != self._ready:
             self.log.info("drives %s", "all OPERATION ENABLED: ready" if ready else "not ready")
+        measured_hz = self.config.measured_hz
+        if measured_hz > 0 and now >= self._next_measured_ns:      # at the control rate: what the controller reads
+            self._next_measured_ns = max(self._next_measured_ns + int(1e9 / measured_hz), now + int(0.5e9 / measured_hz))
+            out.append(("measured", self.measured(now)))
         if now >= self._next_state_ns:
             self._next_state_ns = now + int(1e9 / self.config.state_hz)
             out.extend(("drives", s) for s in self.drive_states(now))
-            out.append(("measured", self.measured(now)))
+            if measured_hz <= 0:
+                out.append(("measured", self.measured(now)))
             out.append(("ready", Bool(stamp_ns=now, data=ready)))
         elif ready != self._ready:
             out.append(("ready", Bool(stamp_ns=now, data=ready)))

@@ -30,7 +30,16 @@ POSITION_ACTUAL, VELOCITY_ACTUAL = 0x6064, 0x606C
 TARGET_POSITION, TARGET_VELOCITY = 0x607A, 0x60FF
 PROFILE_VELOCITY, PROFILE_ACCEL, PROFILE_DECEL, QUICK_STOP_DECEL = 0x6081, 0x6083, 0x6084, 0x6085
 ERROR_CODE = 0x603F
+HOME_OFFSET, HOMING_METHOD, HOMING_SPEEDS, HOMING_ACCEL = 0x607C, 0x6098, 0x6099, 0x609A
+INTERPOLATION_PERIOD = 0x60C2     # :01 value, :02 exponent of ten (s): 10 ms = (10, -3)
+COB_ID_SYNC, COMM_CYCLE_PERIOD = 0x1005, 0x1006    # SYNC COB-ID; SYNC period in microseconds
 MODE_PP, MODE_PV, MODE_HOMING, MODE_CSP, MODE_CSV = 1, 3, 6, 8, 9
+MODE_NAMES = {MODE_PP: "profile position", MODE_PV: "profile velocity", MODE_HOMING: "homing",
+              MODE_CSP: "cyclic synchronous position", MODE_CSV: "cyclic synchronous velocity"}
+#: Homing methods the simulated drive and the master know: home switch (search its edge) or current position.
+HOMING_METHODS = {19: "home switch, positive", 20: "home switch, positive (other edge)",
+                  21: "home switch, negative", 22: "home switch, negative (other edge)",
+                  35: "current position (CiA 402-2 before 2012)", 37: "current position"}
 
 CW_DISABLE_VOLTAGE = 0x0000
 CW_QUICK_STOP = 0x0002
@@ -41,6 +50,11 @@ CW_FAULT_RESET = 0x0080
 CW_NEW_SET_POINT = 0x0010      # PP: rising edge latches 0x607A
 CW_CHANGE_IMMEDIATELY = 0x0020  # PP: new set-point replaces the running one
 CW_HALT = 0x0100
+CW_HOMING_START = 0x0010        # homing: bit 4 high starts (and keeps) the homing run
+
+SW_TARGET_REACHED = 0x0400
+SW_HOMING_ATTAINED = 0x1000     # homing mode: bit 12
+SW_HOMING_ERROR = 0x2000        # homing mode: bit 13
 
 NOT_READY = "NOT READY TO SWITCH ON"
 SWITCH_ON_DISABLED = "SWITCH ON DISABLED"
@@ -103,6 +117,7 @@ EMCY_CODES = {
     0x8240: "unexpected SYNC data length",
     0x8250: "RPDO timeout",
     0x8611: "following error",
+    0x8700: "sync controller (SYNC lost)",
     0xFF00: "device specific",
 }
 
@@ -191,11 +206,13 @@ def next_controlword(state: str, target: str, previous: int) -> int:
 class SdoResponse:
     """A decoded SDO server -> client frame."""
 
-    kind: str            # 'upload', 'download', 'abort', 'upload-segmented', 'segment', 'other'
+    kind: str            # 'upload', 'download', 'abort', 'upload-segmented', 'segment', 'download-segment', 'other'
     index: int = 0
     subindex: int = 0
-    data: bytes = b""    # upload: the *indicated* bytes only
+    data: bytes = b""    # upload: the *indicated* bytes only; upload-segmented: the size (u32 LE)
     abort_code: int = 0
+    toggle: int = 0      # segments: the toggle bit (0 / 1)
+    last: bool = False   # upload segment: no more segments follow
 
     @property
     def abort_text(self) -> str:
@@ -224,6 +241,28 @@ def sdo_abort(index: int, subindex: int, code: int) -> bytes:
     return struct.pack("<BHBI", 0x80, index, subindex, code)
 
 
+def sdo_segment(data: bytes, *, toggle: int, last: bool) -> bytes:
+    """One segment of a segmented transfer: ``000 t nnn c`` then up to 7 data bytes.
+
+    The same layout serves a client's download segment and a server's upload segment
+    (command specifier 0 both ways); ``toggle`` (0 / 1) alternates from 0 on the first
+    segment of each transfer, ``last`` sets c (no more segments).
+    """
+    if len(data) > 7:
+        raise ValueError(f"an SDO segment carries at most 7 bytes, got {len(data)}")
+    return bytes([(toggle & 1) << 4 | (7 - len(data)) << 1 | int(last)]) + bytes(data).ljust(7, b"\0")
+
+
+def sdo_segment_request(toggle: int) -> bytes:
+    """Upload-segment request ``60/70 00..`` (toggle 0 / 1)."""
+    return bytes([0x60 | (toggle & 1) << 4]) + bytes(7)
+
+
+def sdo_download_initiate(index: int, subindex: int, size: int) -> bytes:
+    """Initiate a segmented download of ``size`` bytes: ``21 ii ii ss <size u32>``."""
+    return struct.pack("<BHBI", 0x21, index, subindex, size)
+
+
 def parse_sdo_response(data: bytes) -> SdoResponse:
     """Decode an SDO response; an expedited upload keeps **only the indicated size**.
 
@@ -248,7 +287,9 @@ def parse_sdo_response(data: bytes) -> SdoResponse:
         size = 4 - (cmd >> 2 & 0x3) if sized else 4
         return SdoResponse("upload", index, subindex, data=data[4:4 + size])
     if ccs == 0:
-        return SdoResponse("segment", data=data[1:8 - (cmd >> 1 & 0x7)])
+        return SdoResponse("segment", data=data[1:8 - (cmd >> 1 & 0x7)], toggle=cmd >> 4 & 1, last=bool(cmd & 1))
+    if ccs == 1:
+        return SdoResponse("download-segment", toggle=cmd >> 4 & 1)
     return SdoResponse("other", index, subindex)
 
 

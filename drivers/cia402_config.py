@@ -54,7 +54,13 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     master_node_id: int = 127            # our own heartbeat (0: none); drives consume it
     master_heartbeat_ms: int = 100       # drives fault after factor x this without it
     tpdo_event_ms: int = 10              # TPDO event timer
-    sync_hz: float = 0.0                 # > 0: produce SYNC and use synchronous TPDOs
+    sync_hz: float = 0.0                 # > 0: the cyclic step produces SYNC (after the RPDOs); synchronous TPDOs
+    wheel_mode: str = "pv"               # pv (profile velocity) | csv (cyclic synchronous velocity: needs sync_hz)
+    steer_mode: str = "pp"               # pp (profile position) | csp (cyclic synchronous position: needs sync_hz)
+    homing_method: int = 0               # 0: none; else steer drives home with this CiA 402 method (0x6098) first
+    homing_speed_radps: float = 0.5      # homing search speed (0x6099:1; :2 is a tenth of it)
+    homing_timeout_s: float = 10.0       # a homing run longer than this trips the master
+    measured_hz: float = 0.0             # > 0: publish 'measured' at this rate (the control rate), else at state_hz
     sdo_timeout_s: float = 0.3
     boot_timeout_s: float = 1.0
     retry_s: float = 1.0                 # bring-up retry of a missing drive
@@ -82,8 +88,12 @@ REQUIRED_OBJECTS = {
               (p.MODES_DISPLAY, 8, True), (p.POSITION_ACTUAL, 32, True), (p.VELOCITY_ACTUAL, 32, True),
               (p.TARGET_POSITION, 32, True)),
 }
-OPTIONAL_OBJECTS = {"wheel": (p.PROFILE_ACCEL, p.PROFILE_DECEL, p.QUICK_STOP_DECEL),
-                    "steer": (p.PROFILE_VELOCITY, p.PROFILE_ACCEL, p.PROFILE_DECEL, p.QUICK_STOP_DECEL)}
+_CYCLIC_OBJECTS = (p.COMM_CYCLE_PERIOD, p.INTERPOLATION_PERIOD)
+OPTIONAL_OBJECTS = {"wheel": (p.PROFILE_ACCEL, p.PROFILE_DECEL, p.QUICK_STOP_DECEL, *_CYCLIC_OBJECTS),
+                    "steer": (p.PROFILE_VELOCITY, p.PROFILE_ACCEL, p.PROFILE_DECEL, p.QUICK_STOP_DECEL,
+                              *_CYCLIC_OBJECTS, p.HOMING_METHOD, p.HOMING_SPEEDS, p.HOMING_ACCEL)}
+WHEEL_MODES = {"pv": p.MODE_PV, "csv": p.MODE_CSV}
+STEER_MODES = {"pp": p.MODE_PP, "csp": p.MODE_CSP}
 
 
 def check_object_dictionary(od: canopen.ObjectDictionary, role: str) -> tuple[list[str], set[int]]:
@@ -116,6 +126,18 @@ def check_config(cfg: Config) -> None:
             or cfg.steer_speed_radps <= 0:
         raise ValueError("feedback_timeout_ms and fault_reset_interval_s must be >= 0 (0: off), "
                          "max_speed_mps and steer_speed_radps > 0")
+    if cfg.wheel_mode not in WHEEL_MODES or cfg.steer_mode not in STEER_MODES:
+        raise ValueError(f"wheel_mode must be one of {sorted(WHEEL_MODES)} and steer_mode one of {sorted(STEER_MODES)}, "
+                         f"not {cfg.wheel_mode!r} / {cfg.steer_mode!r}")
+    cyclic = cfg.wheel_mode == "csv" or cfg.steer_mode == "csp"
+    if cfg.sync_hz < 0 or (cyclic and not 0 < cfg.sync_hz <= cfg.rate_hz * (1 + 1e-9)):
+        raise ValueError(f"cyclic synchronous modes need 0 < sync_hz <= rate_hz (the step produces SYNC), "
+                         f"got sync_hz {cfg.sync_hz} with rate_hz {cfg.rate_hz}")
+    if not -128 <= cfg.homing_method <= 127:
+        raise ValueError(f"homing_method is an int8 (0x6098), got {cfg.homing_method}; e.g. 37 current position, "
+                         "19 home switch, 0 for no homing")
+    if cfg.homing_speed_radps <= 0 or cfg.homing_timeout_s <= 0 or cfg.measured_hz < 0:
+        raise ValueError("homing_speed_radps and homing_timeout_s must be > 0, measured_hz >= 0")
 
 
 def feedback_bound_s(cfg: Config) -> float:

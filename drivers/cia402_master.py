@@ -4,7 +4,11 @@
 type check, heartbeat producer / consumer, PDO mapping by SDO, mode, ramps, NMT start),
 then runs the power state machine cyclically over RPDO1 (controlword + target) from
 TPDO1 (statusword, mode display) and TPDO2 (position, velocity). Wheels run in profile
-velocity, steering in profile position.
+velocity (or CSV), steering in profile position (or CSP). With ``sync_hz`` > 0 the cyclic
+step is the SYNC producer: it sends every RPDO, then SYNC, so in the cyclic synchronous
+modes every drive takes its set-point at the same instant; there the master slews the
+set-points itself (steer rate, wheel acceleration), as a drive's profile would. Steer
+drives can home first (``homing_method``, CiA 402 mode 6) before their operating mode.
 
 Safety: the master quick-stops **every** drive when commands go stale (watchdog), a
 heartbeat is lost, a drive reboots, an EMCY arrives or a drive faults in service; those
@@ -29,7 +33,7 @@ import can
 import canopen
 
 from drivers import cia402 as p
-from drivers.cia402_bringup import Drive, EmcyRecord, bring_up, sdo_read
+from drivers.cia402_bringup import Drive, EmcyRecord, bring_up, finish_homing, sdo_read
 from drivers.cia402_config import Config, check_config, check_object_dictionary, feedback_bound_s
 from tether import DriverError
 
@@ -52,6 +56,9 @@ class Cia402Master:
         self._on_trip = on_trip
         self._stop = threading.Event()
         self._next_master_hb = 0.0
+        self._next_sync: float | None = None
+        self.syncs_sent = 0
+        self._sync_failures = 0
         self._thread: threading.Thread | None = None
         self._inline = False             # bring-up inside step() (synchronous bus, virtual time)
         self._skip: dict[str, set[int]] = {}
@@ -140,14 +147,10 @@ class Cia402Master:
         notifier thread, and bring-up runs inside :meth:`step`: everything in the caller's thread.
         """
         if getattr(self.bus, "synchronous", False):
-            if self.cfg.sync_hz > 0:
-                raise ValueError("sync_hz > 0 needs a real bus (SYNC is produced by a thread); use 0 in lockstep")
             self.bus.receivers.append(self._dispatch)
             self._inline = True
             return
         self.network.connect()
-        if self.cfg.sync_hz > 0:
-            self.network.sync.start(1.0 / self.cfg.sync_hz)
         self._thread = threading.Thread(target=self._bring_up_loop, name="cia402-bring-up", daemon=True)
         self._thread.start()
 
@@ -165,6 +168,12 @@ class Cia402Master:
         for d in self.drives.values():
             if d.configured and d.read_error_code and not self._stop.is_set():
                 self._read_error_code(d)
+            if d.configured and d.homing == "switch" and not self._stop.is_set():
+                try:
+                    finish_homing(d)
+                except (DriverError, can.CanError) as exc:
+                    d.fault = f"after homing: {exc}"
+                    self.trip(f"{d.name}: {d.fault}")
             if d.configured or self._clock() < d.next_try or self._stop.is_set():
                 continue
             try:
@@ -213,14 +222,14 @@ class Cia402Master:
                 d.fault, d.emcy_code = "", 0
 
     def ready(self) -> bool:
-        """Every drive is configured (it may still be disabled)."""
-        return all(d.configured for d in self.drives.values())
+        """Every drive is configured and homed (it may still be disabled)."""
+        return all(d.configured and not d.homing for d in self.drives.values())
 
     def enabled(self) -> bool:
         """Every drive is configured, OPERATION ENABLED with a live heartbeat, and nothing is latched:
         the vehicle is under command (what a trajectory may wait for before it starts)."""
-        return not self.latched and all(d.configured and d.state == p.OPERATION_ENABLED and d.nmt_state != "LOST"
-                                        for d in self.drives.values())
+        return not self.latched and all(d.configured and not d.homing and d.state == p.OPERATION_ENABLED
+                                        and d.nmt_state != "LOST" for d in self.drives.values())
 
     def step(self, now_s: float, setpoints: dict[str, int] | None) -> None:
         """One cycle: master heartbeat, heartbeat check, controlword + target per drive.
@@ -252,8 +261,52 @@ class Cia402Master:
         faulted = any(d.state in (p.FAULT, p.FAULT_REACTION_ACTIVE) for d in self.drives.values())
         run = setpoints is not None and not self.latched and self.ready() and not faulted
         for d in self.drives.values():
-            if d.configured:
+            if d.configured and d.homing and not self.latched and d.state not in (p.FAULT, p.FAULT_REACTION_ACTIVE):
+                self._home(d)
+            elif d.configured:
                 self._command(d, setpoints if run else None)
+        self._produce_sync(now_s)
+
+    def _produce_sync(self, now_s: float) -> None:
+        """SYNC after this cycle's RPDOs, on a fixed grid of 1/sync_hz (a late step skips, never bursts)."""
+        hz = self.cfg.sync_hz
+        if hz <= 0:
+            return
+        if self._next_sync is None:
+            self._next_sync = now_s
+        if now_s < self._next_sync - 1e-6 / hz:
+            return
+        self._next_sync = max(self._next_sync + 1.0 / hz, now_s + 0.5 / hz)
+        if self._send(p.SYNC, b""):
+            self.syncs_sent += 1
+            self._sync_failures = 0
+        else:
+            self._sync_failures += 1
+            if self._sync_failures >= 3:     # the drives stop by themselves; say why here too
+                self.trip(f"SYNC producer failing: {self._sync_failures} SYNC frames in a row not sent")
+
+    def _home(self, d: Drive) -> None:
+        """Homing (mode 6, set at bring-up): enable, raise controlword bit 4, wait for bits 12 + 10."""
+        clock, sw = self._clock(), d.statusword
+        if d.homing == "pending":
+            cw = p.next_controlword(d.state, p.OPERATION_ENABLED, d.cw_prev)
+            if d.state == p.OPERATION_ENABLED and d.mode == p.MODE_HOMING:
+                cw |= p.CW_HOMING_START
+                d.homing, d.homing_since = "running", clock
+                log.info("%s: homing, method %d", d.name, self.cfg.homing_method)
+        elif d.homing == "running":
+            cw = p.CW_ENABLE_OPERATION | p.CW_HOMING_START
+            if sw & p.SW_HOMING_ERROR:
+                d.fault = f"homing error (method {self.cfg.homing_method}, statusword 0x{sw:04X})"
+                self.trip(f"{d.name}: {d.fault}")
+            elif sw & p.SW_HOMING_ATTAINED and sw & p.SW_TARGET_REACHED and d.cw_prev & p.CW_HOMING_START:
+                d.homing, cw = "switch", p.CW_SHUTDOWN       # motor off while the mode changes by SDO
+            elif clock - d.homing_since > self.cfg.homing_timeout_s:
+                d.fault = f"homing not attained within {self.cfg.homing_timeout_s:g} s"
+                self.trip(f"{d.name}: {d.fault}")
+        else:                                                # 'switch': wait for the bring-up thread
+            cw = p.CW_SHUTDOWN
+        self._rpdo(d, cw, d.target)
 
     def _command(self, d: Drive, setpoints: dict[str, int] | None) -> None:
         wheel = d.spec.role == "wheel"
@@ -273,6 +326,9 @@ class Cia402Master:
             if d.fault_resets == cfg.max_fault_resets:
                 log.error("%s: fault persists after %d resets", d.name, d.fault_resets)
         enabled = d.state == p.OPERATION_ENABLED and setpoints is not None
+        if d.cyclic:
+            self._cyclic(d, cw, setpoints[d.name] if enabled and setpoints is not None else None)
+            return
         if wheel:
             d.target = setpoints[d.name] if enabled and setpoints is not None else 0
             self._rpdo(d, cw, d.target)
@@ -293,17 +349,36 @@ class Cia402Master:
         else:
             self._rpdo(d, cw | p.CW_CHANGE_IMMEDIATELY, d.target)
 
+    def _cyclic(self, d: Drive, cw: int, goal: int | None) -> None:
+        """CSP / CSV: the set-point of this SYNC, slewed toward ``goal`` at the steer rate / wheel
+        acceleration (a cyclic drive follows its set-points as they come; a jump would be a step).
+        No goal: wheels ramp to 0, steering holds where it is (and the drive is quick-stopped)."""
+        k = abs(d.spec.counts_per_unit)
+        period = 1.0 / self.cfg.sync_hz
+        if d.spec.role == "wheel":
+            goal, limit = goal or 0, self.cfg.wheel_accel_mps2 * k * period
+            if d.state != p.OPERATION_ENABLED:
+                d.target = 0
+        else:
+            limit = self.cfg.steer_speed_radps * k * period
+            if goal is None or d.state != p.OPERATION_ENABLED:
+                goal = d.target = int(d.position if d.position is not None else d.target)
+        d.target += int(max(-limit, min(limit, goal - d.target)))
+        self._rpdo(d, cw, d.target)
+
     def _rpdo(self, d: Drive, cw: int, target: int) -> None:
         d.cw_prev = cw
         target = max(-2**31, min(2**31 - 1, int(target)))
         self._send(p.RPDO_BASE[0] + d.spec.node_id, struct.pack("<Hi", cw, target))
 
-    def _send(self, can_id: int, data: bytes) -> None:
+    def _send(self, can_id: int, data: bytes) -> bool:
         try:
             self.network.send_message(can_id, data)
         except can.CanError as exc:
             self.errors += 1
             log.error("CAN send 0x%03X failed: %s", can_id, exc)
+            return False
+        return True
 
     def close(self) -> None:
         """Quick-stop enabled drives, stop threads, release the bus (safe to call twice)."""
@@ -316,8 +391,4 @@ class Cia402Master:
         for d in self.drives.values():
             if d.configured and d.state in (p.OPERATION_ENABLED, p.QUICK_STOP_ACTIVE):
                 self._rpdo(d, p.CW_QUICK_STOP, 0 if d.spec.role == "wheel" else d.target)
-        try:
-            self.network.sync.stop()
-        except Exception:  # noqa: BLE001 - stopping a never-started SYNC is fine
-            pass
         self.network.disconnect()

@@ -1,11 +1,16 @@
 """A simulated CiA 402 drive: first-order motor behind a CiA 301 / 402 protocol stack.
 
-:class:`SimDrive` is one motor (a wheel in profile velocity or a steer motor in profile
-position): boot-up, heartbeat producer and consumer, the SDO server of
-:mod:`sim.cia402_od`, configurable RPDO / TPDO mapping (event-timer and SYNC), the power
-state machine with its statusword bits (optionally vendor bits such as the Maxon EPOS bit
-8), EMCY on faults, quick stop on NMT stop. It is driven by frames and time only, so the
-same object runs in real time (:class:`sim.cia402_bank.SimDriveBank`) or in lockstep.
+:class:`SimDrive` is one motor: boot-up, heartbeat producer and consumer, the SDO server of
+:mod:`sim.cia402_od` (expedited and segmented), configurable RPDO / TPDO mapping
+(event-timer and SYNC; synchronous RPDOs act at the next SYNC), the power state machine
+with its statusword bits (optionally vendor bits such as the Maxon EPOS bit 8), EMCY on
+faults, quick stop on NMT stop. Modes: profile velocity and position, homing (home switch
+or current position, :data:`drivers.cia402.HOMING_METHODS`), and the cyclic synchronous
+modes CSP / CSV: the set-point received before a SYNC is taken at that SYNC and (CSP)
+interpolated linearly over the interpolation period. A drive in CSP / CSV that sees no
+SYNC for three communication cycles (0x1006) sends EMCY 0x8700 and quick-stops.
+It is driven by frames and time only, so the same object runs in real time
+(:class:`sim.cia402_bank.SimDriveBank`) or in lockstep.
 """
 from __future__ import annotations
 
@@ -15,6 +20,10 @@ from drivers import cia402 as p
 from sim.cia402_od import DriveFaults, SdoServer, object_dictionary
 
 Frame = tuple[int, bytes]
+
+CYCLIC = (p.MODE_CSP, p.MODE_CSV)
+SYNC_LOSS_CYCLES = 3.5          # stop when the 3rd SYNC after the last one is half a period overdue
+HOMING_TRAVEL = 250_000         # counts searched for the home switch before a homing error
 
 
 class SimDrive:
@@ -36,9 +45,11 @@ class SimDrive:
         self.window = target_window
         self._t = now_s
         self.velocity = 0.0                # counts/s, actual
-        self.position = float(self.faults.position_offset)
+        self.position = float(self.faults.position_offset)    # physical (the steering angle, the wheel travel)
+        self._enc = float(self.faults.encoder_offset)          # position actual - physical (homing moves it)
         self._demand_v = 0.0               # ramped velocity demand
         self.emcy_sent: list[int] = []
+        self.syncs = 0
         self._boot(now_s)
 
     # -- state -----------------------------------------------------------------------
@@ -55,6 +66,13 @@ class SimDrive:
         self._tpdo_next = [now_s] * 4
         self._last_sw: list[int | None] = [None] * 4
         self._sync_count = [0] * 4
+        self._rpdo_pending: dict[int, bytes] = {}     # synchronous RPDOs: acted on at the next SYNC
+        self._sync_last: float | None = None
+        self._cyclic_since: float | None = None       # entered OPERATION ENABLED in CSP / CSV
+        self._csp = (self.position, self.position, now_s, 0.0)   # from, to (physical), t0, period
+        self._csv_target = 0.0
+        self._homing = "idle"                         # idle | running | attained | error
+        self._homing_start = 0.0
         self._out: list[Frame] = [(p.HEARTBEAT + self.node_id, b"\x00")]
         if self.faults.start_in_fault:
             self._enter_fault(self.faults.start_in_fault)
@@ -68,15 +86,26 @@ class SimDrive:
 
     def statusword(self) -> int:
         sw = p.STATE_BITS[self.state] | 0x0200 | self.faults.vendor_bits          # bit 9 remote
+        mode = self.mode
+        if mode == p.MODE_HOMING:
+            sw |= p.SW_HOMING_ATTAINED if self._homing == "attained" else 0
+            sw |= p.SW_HOMING_ERROR if self._homing == "error" else 0
+        elif mode in CYCLIC and self.state == p.OPERATION_ENABLED:
+            sw |= 0x1000                                                          # follows the command value
         if self.state in (p.OPERATION_ENABLED, p.QUICK_STOP_ACTIVE, p.FAULT, p.FAULT_REACTION_ACTIVE):
             sw |= 0x0010                                                          # voltage enabled
         if self.state in (p.READY_TO_SWITCH_ON, p.SWITCHED_ON, p.OPERATION_ENABLED):
             sw |= 0x0020                                                          # quick stop (active low)
         if self.state not in (p.FAULT, p.FAULT_REACTION_ACTIVE) and self._target_reached():
             sw |= 0x0400
-        if self.mode == p.MODE_PP and self._setpoint_ack:
+        if mode == p.MODE_PP and self._setpoint_ack:
             sw |= 0x1000
         return sw
+
+    @property
+    def position_actual(self) -> int:
+        """0x6064 as the drive reports it (encoder counts: physical + offset), wrapped to int32."""
+        return (int(round(self.position + self._enc)) + 2**31) % 2**32 - 2**31
 
     @property
     def mode(self) -> int:
@@ -85,6 +114,10 @@ class SimDrive:
     def _target_reached(self) -> bool:
         if self.state != p.OPERATION_ENABLED:
             return abs(self.velocity) < self.window
+        if self.mode == p.MODE_HOMING:
+            return self._homing != "running"
+        if self.mode in CYCLIC:
+            return True
         if self.mode == p.MODE_PP:
             return self._pp_target is None or (abs(self.position - self._pp_target) < self.window
                                                and abs(self.velocity) < 10 * self.window)
@@ -104,7 +137,8 @@ class SimDrive:
         self._emcy(code, 0x01)
 
     def reboot(self, now_s: float) -> None:
-        """A power glitch: the drive restarts (boot-up, default configuration, motor unpowered)."""
+        """A power glitch: the drive restarts (boot-up, default configuration, motor unpowered, not homed)."""
+        self._enc = float(self.faults.encoder_offset)
         self._boot(now_s)
 
     def inject_fault(self, code: int = 0x2310) -> None:
@@ -146,17 +180,35 @@ class SimDrive:
         elif cw & 0x8F == 0x0F and s in (p.SWITCHED_ON, p.OPERATION_ENABLED):
             if s == p.SWITCHED_ON:
                 self._pp_target = None                    # no stale move on enable
+                self._csp = (self.position, self.position, self._t, 0.0)    # CSP holds until a SYNC says more
+                self._csv_target = 0.0
             self.state = p.OPERATION_ENABLED
+        if self.state == p.OPERATION_ENABLED and self.mode == p.MODE_HOMING:
+            self._homing_control(cw, prev)
         if self.state == p.OPERATION_ENABLED and self.mode == p.MODE_PP:
             if cw & p.CW_NEW_SET_POINT and not prev & p.CW_NEW_SET_POINT:
-                self._pp_target = float(self._get(p.TARGET_POSITION))
+                self._pp_target = float(self._get(p.TARGET_POSITION)) - self._enc
                 self._setpoint_ack = True
             elif not cw & p.CW_NEW_SET_POINT:
                 self._setpoint_ack = False
 
-    def _on_sdo_write(self, key: tuple[int, int], value: int) -> None:
+    def _homing_control(self, cw: int, prev: int) -> None:
+        """Bit 4 rising starts homing with method 0x6098; bit 4 low (or halt) interrupts a run."""
+        if cw & p.CW_HOMING_START and not prev & p.CW_HOMING_START:
+            if self._get(p.HOMING_METHOD) in (35, 37):        # here is home
+                self._enc = self._get(p.HOME_OFFSET) - self.position
+                self._homing = "attained"
+            else:
+                self._homing, self._homing_start = "running", self.position
+        elif (not cw & p.CW_HOMING_START or cw & p.CW_HALT) and self._homing == "running":
+            self._homing = "idle"
+
+    def _on_sdo_write(self, key: tuple[int, int], value: int | bytes) -> None:
         if key == (p.CONTROLWORD, 0):
-            self._apply_controlword(value)
+            self._apply_controlword(int(value))  # type: ignore[arg-type]
+        elif key == (0x1023, 1):                 # OS command: executed at once, the reply says what was run
+            self._set(0x1023, b"ok: " + bytes(value), 3)  # type: ignore[arg-type]
+            self._set(0x1023, 1, 2)                       # completed, no error, reply available
 
     def _live_value(self, key: tuple[int, int]) -> int | None:
         return self.statusword() if key == (p.STATUSWORD, 0) else None
@@ -171,8 +223,9 @@ class SimDrive:
         fn = arbitration_id & 0x780
         if arbitration_id == p.NMT and len(data) >= 2 and data[1] in (0, self.node_id):
             self._nmt(data[0], now_s)
-        elif arbitration_id == p.SYNC:
-            self._on_sync()
+        elif arbitration_id == self._get(p.COB_ID_SYNC) & 0x7FF:
+            if not self.faults.sync_deaf:
+                self._on_sync(now_s)
         elif arbitration_id == p.SDO_RX + self.node_id and self.nmt != "STOPPED":
             self._out.extend((p.SDO_TX + self.node_id, r) for r in self.sdo.handle(data))
         elif fn == p.HEARTBEAT and self._get(0x1016, 1) >> 16 & 0x7F == arbitration_id & 0x7F:
@@ -181,7 +234,10 @@ class SimDrive:
             for i in range(4):
                 cob = self._get(0x1400 + i, 1)
                 if not cob & 0x80000000 and arbitration_id == cob & 0x7FF:
-                    self._write_mapped(0x1600 + i, data)
+                    if self._get(0x1400 + i, 2) <= 240:
+                        self._rpdo_pending[i] = data          # synchronous: acted on at the next SYNC
+                    else:
+                        self._write_mapped(0x1600 + i, data)
         return self._flush()
 
     def _nmt(self, cs: int, now_s: float) -> None:
@@ -229,7 +285,7 @@ class SimDrive:
             self._integrate(dt)
         self._set(p.MODES_DISPLAY, self.mode)
         self._set(p.STATUSWORD, self.statusword())
-        self._set(p.POSITION_ACTUAL, (int(round(self.position)) + 2**31) % 2**32 - 2**31)
+        self._set(p.POSITION_ACTUAL, self.position_actual)
         self._set(p.VELOCITY_ACTUAL, int(round(self.velocity)))
         period = self._get(0x1017) / 1000.0
         if period > 0 and now_s >= self._hb_next:
@@ -240,6 +296,7 @@ class SimDrive:
             self._master_hb = None
             if self.state in (p.OPERATION_ENABLED, p.QUICK_STOP_ACTIVE):
                 self._enter_fault(0x8130)             # master lost: stop on the fault ramp
+        self._sync_watchdog(now_s)
         if self.nmt == "OPERATIONAL":
             for i in range(4):
                 if self._get(0x1800 + i, 2) >= 0xFE and not self._get(0x1800 + i, 1) & 0x80000000:
@@ -249,9 +306,40 @@ class SimDrive:
                         self._tpdo_next[i] = now_s + timer
                         self._send_tpdo(i)
 
-    def _on_sync(self) -> None:
+    def _sync_watchdog(self, now_s: float) -> None:
+        """CSP / CSV: no SYNC for three communication cycles -> EMCY 0x8700 and quick stop."""
+        if self.state != p.OPERATION_ENABLED or self.mode not in CYCLIC:
+            self._cyclic_since = None
+            return
+        if self._cyclic_since is None:
+            self._cyclic_since = now_s
+        period = self._get(p.COMM_CYCLE_PERIOD) * 1e-6
+        last = max(self._cyclic_since, self._sync_last if self._sync_last is not None else -math.inf)
+        if period > 0 and now_s - last > SYNC_LOSS_CYCLES * period:
+            self._set(0x1001, self._get(0x1001) | 0x10)      # error register: communication
+            self._emcy(0x8700, self._get(0x1001))
+            self.state = p.QUICK_STOP_ACTIVE
+
+    def _interpolation_period(self) -> float:
+        """Seconds between cyclic set-points: 0x60C2, else 0x1006, else the last SYNC interval."""
+        value, exponent = self._get(p.INTERPOLATION_PERIOD, 1), self._get(p.INTERPOLATION_PERIOD, 2)
+        if value:
+            return value * 10.0 ** ((exponent + 128) % 256 - 128)
+        return self._get(p.COMM_CYCLE_PERIOD) * 1e-6
+
+    def _on_sync(self, now_s: float) -> None:
         if self.nmt != "OPERATIONAL":
             return
+        self.syncs += 1
+        self._sync_last = now_s
+        for i, data in sorted(self._rpdo_pending.items()):
+            self._write_mapped(0x1600 + i, data)
+        self._rpdo_pending.clear()
+        if self.state == p.OPERATION_ENABLED and self.mode == p.MODE_CSP:
+            start = self._csp_demand(now_s)[0]
+            self._csp = (start, self._get(p.TARGET_POSITION) - self._enc, now_s, self._interpolation_period())
+        elif self.state == p.OPERATION_ENABLED and self.mode == p.MODE_CSV:
+            self._csv_target = self._target_velocity()
         for i in range(4):
             n = self._get(0x1800 + i, 2)
             if 1 <= n <= 240 and not self._get(0x1800 + i, 1) & 0x80000000:
@@ -272,13 +360,51 @@ class SimDrive:
         self._last_sw[i] = self._get(p.STATUSWORD)
         self._out.append((self._get(0x1800 + i, 1) & 0x7FF, data[:8]))
 
+    def _csp_demand(self, t: float) -> tuple[float, float]:
+        """CSP position demand (physical counts) and its rate at ``t``: linear over the period, then held."""
+        start, end, t0, period = self._csp
+        if period <= 0 or t >= t0 + period:
+            return end, 0.0
+        u = max(0.0, (t - t0) / period)
+        return start + u * (end - start), (end - start) / period
+
+    def _homing_goal(self) -> float:
+        """Velocity toward the home switch edge (fast speed 0x6099:1, accel 0x609A); ends the run there."""
+        edge, method = self.faults.home_switch, self._get(p.HOMING_METHOD)
+        fast = float(self._get(p.HOMING_SPEEDS, 1))
+        if edge is None:                                  # no switch: search the method's way, then give up
+            if abs(self.position - self._homing_start) > HOMING_TRAVEL:
+                self._homing = "error"
+                return 0.0
+            return fast if method in (19, 20) else -fast
+        error = edge - self.position
+        if abs(error) < self.window and abs(self.velocity) < 10 * self.window:
+            self._enc = self._get(p.HOME_OFFSET) - edge
+            self._homing = "attained"
+            return 0.0
+        accel = float(self._get(p.HOMING_ACCEL))
+        return math.copysign(min(fast, math.sqrt(2 * accel * abs(error)), abs(error) / self.tau), error)
+
     def _integrate(self, dt: float) -> None:
-        s = self.state
-        if s == p.OPERATION_ENABLED and self.mode == p.MODE_PV and not self._cw & p.CW_HALT:
+        s, mode = self.state, self.mode
+        if s == p.OPERATION_ENABLED and mode in CYCLIC:
+            # The drive's own loops: velocity demand at once (CSV), or the interpolated position's
+            # rate plus a critically damped position loop around the first-order motor (CSP).
+            if mode == p.MODE_CSV:
+                goal = self._csv_target
+            else:
+                demand, rate = self._csp_demand(self._t)
+                goal = rate + (demand - self.position) / (4.0 * self.tau)
+            self._demand_v = max(-self.vmax, min(self.vmax, goal))
+            self._lag(dt)
+            return
+        if s == p.OPERATION_ENABLED and mode == p.MODE_HOMING and self._homing == "running":
+            goal, accel = self._homing_goal(), float(self._get(p.HOMING_ACCEL))
+        elif s == p.OPERATION_ENABLED and mode == p.MODE_PV and not self._cw & p.CW_HALT:
             goal, accel = self._target_velocity(), float(self._get(p.PROFILE_ACCEL))
             if abs(goal) < abs(self._demand_v) or goal * self._demand_v < 0:
                 accel = float(self._get(p.PROFILE_DECEL))
-        elif s == p.OPERATION_ENABLED and self.mode == p.MODE_PP and self._pp_target is not None:
+        elif s == p.OPERATION_ENABLED and mode == p.MODE_PP and self._pp_target is not None:
             error = self._pp_target - self.position
             vprof, accel = float(self._get(p.PROFILE_VELOCITY)), float(self._get(p.PROFILE_ACCEL))
             # Brake in time: v^2 = 2 a d, and never faster than the profile velocity.
@@ -287,13 +413,17 @@ class SimDrive:
             goal, accel = 0.0, float(self._get(p.QUICK_STOP_DECEL))
         step = accel * dt
         self._demand_v += max(-step, min(step, goal - self._demand_v))
-        alpha = 1.0 - math.exp(-dt / self.tau)
-        self.velocity += alpha * (self._demand_v - self.velocity)
-        self.position += self.velocity * dt
+        self._lag(dt)
         if s != p.OPERATION_ENABLED and self._demand_v == 0.0 and abs(self.velocity) < 0.5:
             self.velocity = 0.0                       # at rest (below half a count per second)
             if s == p.FAULT_REACTION_ACTIVE:
                 self.state = p.FAULT
+
+    def _lag(self, dt: float) -> None:
+        """First-order motor: the velocity follows the demand with time constant tau."""
+        alpha = 1.0 - math.exp(-dt / self.tau)
+        self.velocity += alpha * (self._demand_v - self.velocity)
+        self.position += self.velocity * dt
 
     def _flush(self) -> list[Frame]:
         out, self._out = self._out, []

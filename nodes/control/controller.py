@@ -54,7 +54,11 @@ def _finite(*values: float) -> bool:
 
 
 class DoubleAckermannController(Node):
-    """Inputs ``reference``, ``state`` (latest only) and timer ``tick``; output ``cmd`` every tick.
+    """Inputs ``reference``, ``state``, ``measured`` (latest only) and timer ``tick``; output ``cmd`` every tick.
+
+    The pose comes from ``state``; the wheels (speeds and steer angles the law starts from
+    and linearises about) from ``measured`` -- the drives' own actuals, e.g. ``can/measured``
+    at the control rate -- while it is fresh, else from ``state``.
 
     The command is always finite.  Nothing is commanded before the first state (the
     steering to hold is unknown: the drives stay disabled).  Until a reference has arrived
@@ -65,7 +69,8 @@ class DoubleAckermannController(Node):
     """
 
     Config = Config
-    inputs = {"reference": Input(TrajectoryPoint, latest=True), "state": Input(VehicleState, latest=True)}
+    inputs = {"reference": Input(TrajectoryPoint, latest=True), "state": Input(VehicleState, latest=True),
+              "measured": Input(WheelCommand, latest=True)}
     outputs = {"cmd": WheelCommand}
     timers = {"tick": "rate_hz"}
 
@@ -73,6 +78,7 @@ class DoubleAckermannController(Node):
         self.ctrl = make_controller(self.config)
         self._ref: tuple[int, TrajectoryPoint] | None = None
         self._state: tuple[int, VehicleState] | None = None
+        self._measured: tuple[int, Wheels] | None = None
         self.bad_inputs = self.stale_ticks = self.singular_ticks = self.ticks = 0
         self._was_stale = self._was_fresh = False
 
@@ -89,6 +95,13 @@ class DoubleAckermannController(Node):
             self._bad("state", msg)
             return
         self._state = (self.now_ns(), msg)
+
+    def on_measured(self, msg: WheelCommand) -> None:
+        w = Wheels(msg.v_front_mps, msg.delta_front_rad, msg.v_rear_mps, msg.delta_rear_rad)
+        if not _finite(*w):
+            self._bad("measured wheels", msg)
+            return
+        self._measured = (self.now_ns(), w)
 
     def _bad(self, what: str, msg: object) -> None:
         self.bad_inputs += 1
@@ -121,6 +134,8 @@ class DoubleAckermannController(Node):
         return {"cmd": self._msg(cmd, now)}
 
     def _wheels(self) -> Wheels | None:
+        if self._measured is not None and self.now_ns() - self._measured[0] <= self.config.stale_s * 1e9:
+            return self._measured[1]
         if self._state is None:
             return None
         st = self._state[1]

@@ -232,12 +232,13 @@ def test_drive_rebooting_in_service_trips_and_is_reconfigured():
 def test_object_dictionaries_from_the_shared_eds_and_dcf(shared_data):
     from drivers.canopen402 import check_object_dictionary
     eds = canopen.import_od(str(shared_data / "can" / "ros2_canopen_cia402_slave.eds"), node_id=1)
-    for role in ("wheel", "steer"):
-        assert check_object_dictionary(eds, role) == ([], set())
+    for role in ("wheel", "steer"):       # no 0x1006: such a drive is not told the SYNC period (warned, skipped)
+        assert check_object_dictionary(eds, role) == ([], {p.COMM_CYCLE_PERIOD})
     dcf = canopen.import_od(str(shared_data / "can" / "pilz_prbt_0_1.dcf"), node_id=1)
     problems, missing = check_object_dictionary(dcf, "wheel")
     assert problems == ["0x60FF missing"]                       # a joint module: no profile velocity target
-    assert check_object_dictionary(dcf, "steer") == ([], {p.PROFILE_DECEL, p.QUICK_STOP_DECEL})
+    assert check_object_dictionary(dcf, "steer") == ([], {p.PROFILE_DECEL, p.QUICK_STOP_DECEL, p.COMM_CYCLE_PERIOD,
+                                                         p.HOMING_SPEEDS, p.HOMING_ACCEL})
     with pytest.raises(ValueError, match="0x60FF missing"):
         Cia402Master(open_bus("virtual", "dcf-check"), Config(interface="virtual", channel="dcf-check",
                                                               eds=str(shared_data / "can" / "pilz_prbt_0_1.dcf")))
