@@ -106,26 +106,39 @@ def sdo_write(d: Drive, index: int, sub: int, value: int, size: int) -> None:
         raise DriverError(f"write 0x{index:04X}:{sub:02X}: {exc}") from None
 
 
+SdoError = (canopen.SdoAbortedError, canopen.SdoCommunicationError)
+
+
+def first_sdo_error(exc: BaseException) -> BaseException:
+    """The SDO error that ended a transfer. canopen's stream, closed by ``with`` after an abort or a
+    timeout half-way, sends one more segment, which the server (its transfer gone) answers with
+    0x05040001: that answer masks the real cause, which stays in ``__context__``."""
+    while isinstance(exc.__context__, SdoError):
+        exc = exc.__context__
+    return exc
+
+
+def _sdo_failure(what: str, exc: BaseException) -> DriverError:
+    exc = first_sdo_error(exc)
+    if isinstance(exc, canopen.SdoAbortedError):
+        return DriverError(f"{what} aborted: 0x{exc.code:08X} {p.SDO_ABORT_CODES.get(exc.code, '')}".rstrip())
+    return DriverError(f"{what}: {exc}")
+
+
 def sdo_read_bytes(d: Drive, index: int, sub: int) -> bytes:
     """Upload an object of any length (segmented when longer than 4 bytes); DriverError on abort or timeout."""
     try:
         return bytes(d.node.sdo.upload(index, sub))
-    except canopen.SdoAbortedError as exc:
-        raise DriverError(f"read 0x{index:04X}:{sub:02X} aborted: 0x{exc.code:08X} "
-                          f"{p.SDO_ABORT_CODES.get(exc.code, '')}") from None
-    except canopen.SdoCommunicationError as exc:
-        raise DriverError(f"read 0x{index:04X}:{sub:02X}: {exc}") from None
+    except SdoError as exc:
+        raise _sdo_failure(f"read 0x{index:04X}:{sub:02X}", exc) from None
 
 
 def sdo_write_bytes(d: Drive, index: int, sub: int, data: bytes) -> None:
-    """Download a byte string of any length (segmented when longer than 4 bytes)."""
+    """Download a byte string of any length (segmented when longer than 4 bytes); DriverError with the first cause."""
     try:
         d.node.sdo.download(index, sub, bytes(data))
-    except canopen.SdoAbortedError as exc:
-        raise DriverError(f"write 0x{index:04X}:{sub:02X} ({len(data)} bytes) aborted: 0x{exc.code:08X} "
-                          f"{p.SDO_ABORT_CODES.get(exc.code, '')}") from None
-    except canopen.SdoCommunicationError as exc:
-        raise DriverError(f"write 0x{index:04X}:{sub:02X} ({len(data)} bytes): {exc}") from None
+    except SdoError as exc:
+        raise _sdo_failure(f"write 0x{index:04X}:{sub:02X} ({len(data)} bytes)", exc) from None
 
 
 def _write_optional(d: Drive, index: int, sub: int, value: int, size: int, skip: set[int], what: str) -> None:
