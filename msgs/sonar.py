@@ -70,3 +70,10 @@ class IcpResult(Message, tag="sonar.IcpResult"):
     inlier_ratio: float = 0.0
     iterations: int = 0
     cloud_size: int = 0
+    # appended (issue 22): the near-equal corrections of the yaw search, one row each
+    # (x_m, y_m, yaw_rad of the correction, cost), best first (> 1 row: ambiguous), and the
+    # navigation-prior gate: squared Mahalanobis distance, and whether it rejected the correction
+    # (then ``ambiguous`` is set too, so that no reader trusts it)
+    hypotheses: np.ndarray = const(np.zeros((0, 4), np.float64))
+    prior_mahalanobis2: float = float("nan")
+    gated: bool = False

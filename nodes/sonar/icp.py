@@ -21,10 +21,13 @@ rejection), and:
   A flat seafloor leaves x, y and yaw free, one vertical cylinder its axis translation and the
   rotation about it. Updates are confined to the observable subspace, so free directions stay at
   the prior instead of wandering, and get a huge variance in the covariance.
-* **ambiguity**: restarts over yaw about the model's vertical axis compare robust residuals. When a
-  distinct pose near the prior fits as well as the chosen one (a 3-fold symmetric tripod seen 60 deg
-  off), the result says so instead of claiming one with confidence. The final, refined pose must
-  still lie inside the prior window (and, when a restart won, next to the restart that was checked).
+* **ambiguity**: restarts over the whole circle of yaw about the model's vertical axis, and at the
+  twins of the first fit under the model's own symmetries (found when the model is built,
+  :mod:`nodes.sonar.symmetry`), compare robust residuals. When two distinct poses fit about as well
+  (a four-fold pier, the tripod seen without its pylons) the result is ambiguous and lists both
+  (``hypotheses``, with their costs) instead of claiming one. The final, refined pose must lie
+  inside the prior window (the whole circle by default) and, when a restart won, next to the
+  restart that was checked.
 
 Transforms are 4x4, cloud frame -> model frame. Covariance order (x, y, z, roll, pitch, yaw), a
 left perturbation about the model-frame origin; the world is z-up.
@@ -65,14 +68,14 @@ class IcpSettings:
     polish_exact: bool = False               # after converging on the nearest grid, iterate on the KD-tree
     degeneracy_threshold: float = 0.02       # smallest normalised eigenvalue for a well-posed direction
     min_inliers: int = 12
-    yaw_hypotheses: int = 6                  # restarts over yaw (0 or 1: none)
+    yaw_hypotheses: int = 8                  # restarts over the whole circle of yaw (0 or 1: none)
     hypothesis_points: int = 200
     hypothesis_iterations: int = 8
     refine_ratio: float = 2.5                # restarts scoring within this factor of the best are finished
     ambiguity_ratio: float = 1.25            # another pose within this factor of the best score is "as good"
     distinct_yaw_rad: float = np.deg2rad(10.0)
     distinct_m: float = 0.5
-    prior_window_rad: float = np.deg2rad(90.0)   # alternatives further than this from the prior are dismissed
+    prior_window_rad: float = np.pi          # only poses this close to the prior's yaw can be chosen
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -103,7 +106,8 @@ class IcpOutcome:
     iterations: int
     cloud_size: int
     score: float = float("nan")
-    hypotheses: list[tuple[float, np.ndarray]] = field(default_factory=list)   # (score, transform) per restart
+    # near-equal distinct optima of the yaw search (score, transform), best first; > 1: ambiguous
+    hypotheses: list[tuple[float, np.ndarray]] = field(default_factory=list)
     reason: str = ""
 
 
@@ -363,11 +367,12 @@ def align(cloud: np.ndarray, model: IcpModel, init: np.ndarray | None = None,
     best, iters, converged, sys_ = _iterate(src, model, t0, cfg, cfg.max_iterations)
     if sys_ is None:
         return _failed(t0, len(pts), "no model point within the correspondence gate of the cloud")
+    first = best
     hypotheses: list[tuple[float, np.ndarray]] = []
     ambiguous = False
     if cfg.yaw_hypotheses > 1:
         best, ambiguous, hypotheses = _resolve_yaw(src, model, t0, best, cfg, rng)
-        if hypotheses and best is not hypotheses[0][1]:      # a restart won: refine it on the full sample
+        if best is not first:                                # a restart won: refine it on the full sample
             chosen = best
             best, iters, converged, sys_ = _iterate(src, model, best, cfg, cfg.max_iterations)
             if sys_ is None:
@@ -386,18 +391,24 @@ def align(cloud: np.ndarray, model: IcpModel, init: np.ndarray | None = None,
 
 def _resolve_yaw(src: np.ndarray, model: IcpModel, prior: np.ndarray, first: np.ndarray, cfg: IcpSettings,
                  rng: np.random.Generator) -> tuple[np.ndarray, bool, list[tuple[float, np.ndarray]]]:
-    """Restart at yaw offsets about the model's vertical axis; pick the best fit nearest the prior.
+    """Search the whole circle of yaw; keep every distinct local optimum near the best.
 
-    Only poses within ``prior_window_rad`` of the prior's yaw can be chosen. Returns the chosen
-    transform (``first`` itself if it stays), whether it is ambiguous (a distinct pose within the
-    window fits as well, or one outside it fits clearly better), and every (score, transform).
+    Restarts at ``yaw_hypotheses`` evenly spaced yaws about the model's vertical axis and at every
+    twin of ``first`` under the model's own symmetries (``model.symmetry``), each refined and
+    scored; distinct optima whose score is within ``ambiguity_ratio`` of the best are the
+    near-equal hypotheses. More than one makes the fit ambiguous. Among them the one nearest the
+    prior is returned (``first`` itself if it is one); only poses within ``prior_window_rad`` of the
+    prior's yaw can be chosen (default: the whole circle), and if none is, the fit is ambiguous too.
+    Returns the chosen transform, whether ambiguous, and the near-equal (score, transform), best first.
     """
     small = _subsample(src, cfg.hypothesis_points, rng)
     gate = 2.0 * cfg.min_correspondence_m
     pivot = model.centroid
+    starts = [yaw_about(first, 2 * np.pi * k / cfg.yaw_hypotheses, pivot) for k in range(1, cfg.yaw_hypotheses)]
+    if model.symmetry is not None:
+        starts += [twin.transform @ first for twin in model.symmetry.twins]
     hyps = [(_score(small, model, first, gate), first)]
-    for k in range(1, cfg.yaw_hypotheses):
-        start = yaw_about(first, 2 * np.pi * k / cfg.yaw_hypotheses, pivot)
+    for start in starts:
         t, _, _, _ = _iterate(small, model, start, cfg, cfg.hypothesis_iterations, polish=False)
         hyps.append((_score(small, model, t, gate), t))
     floor = (0.02 * cfg.min_correspondence_m) ** 2          # scores this small are all "perfect"
@@ -407,20 +418,16 @@ def _resolve_yaw(src: np.ndarray, model: IcpModel, prior: np.ndarray, first: np.
         if score <= cfg.refine_ratio * max(top, floor):
             t, _, _, _ = _iterate(small, model, t, cfg, cfg.max_iterations, polish=False)
             hyps[i] = (_score(small, model, t, gate), t)
-    def off_prior(t: np.ndarray) -> float:
-        return _off_prior(t, prior)
-
-    inside = [(sc, t) for sc, t in hyps if off_prior(t) <= cfg.prior_window_rad]
+    optima: list[tuple[float, np.ndarray]] = []
+    for score, t in sorted(hyps, key=lambda h: h[0]):
+        if all(_distinct(t, o, cfg, pivot) for _, o in optima):
+            optima.append((score, t))
+    top = optima[0][0]
+    near = [(sc, t) for sc, t in optima if sc <= cfg.ambiguity_ratio * max(top, floor)]
+    inside = [(sc, t) for sc, t in near if _off_prior(t, prior) <= cfg.prior_window_rad]
     if not inside:
-        return first, True, hyps
-    top = min(sc for sc, _ in inside)
-    good = [(sc, t) for sc, t in inside if sc <= cfg.ambiguity_ratio * max(top, floor)]
-    chosen = min(good, key=lambda h: (off_prior(h[1]), h[0]))[1]
-    if any(h[1] is first for h in good) and not _distinct(first, chosen, cfg, pivot):
+        return first, True, near
+    chosen = min(inside, key=lambda h: (_off_prior(h[1], prior), h[0]))[1]
+    if not _distinct(first, chosen, cfg, pivot):
         chosen = first
-    rivals = [t for _, t in good if _distinct(t, chosen, cfg, pivot)]
-    # A pose the prior rules out is never chosen; but if one fits clearly better than anything the
-    # prior allows, the data contradict the prior (or fit the model almost anywhere): not trusted.
-    conflict = top > floor and any(sc * cfg.ambiguity_ratio < top for sc, t in hyps
-                                   if off_prior(t) > cfg.prior_window_rad)
-    return chosen, bool(rivals) or conflict, hyps
+    return chosen, len(near) > 1, near

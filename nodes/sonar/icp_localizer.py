@@ -10,6 +10,13 @@ Two sources (``source``):
   (:mod:`nodes.sonar.arcs`); ICP registers the arcs, so no elevation is guessed. A sliding window
   (``window_s``) keeps the arcs whose navigation drift is close to the current one.
 
+The model's own yaw symmetries are found when it is loaded (:mod:`nodes.sonar.symmetry`, logged);
+each alignment searches the whole circle of yaw and, where distinct poses fit about as well, says
+"ambiguous" and lists them with their costs (``hypotheses``) instead of choosing. A correction that
+is otherwise trusted must also pass a Mahalanobis gate against the navigation prior
+(``gate_sigma_m``, ``gate_sigma_yaw_deg`` at ``gate_confidence``, :mod:`nodes.sonar.icp_gate`); one
+that fails it is published with ``gated`` and ``ambiguous`` set, and counted.
+
 ``dof`` restricts the correction: ``xy_yaw`` (default) for a vehicle whose depth sensor and AHRS
 give z, roll and pitch; the held directions have zero variance in the 6x6 covariance.
 """
@@ -29,6 +36,7 @@ from msgs.sensor import PointCloud
 from msgs.sonar import IcpResult
 from nodes.sonar.arcs import arcs_from_scan
 from nodes.sonar.icp import IcpModel, IcpSettings, align
+from nodes.sonar.icp_gate import gate_threshold, mahalanobis_to_prior
 from nodes.sonar.model import load_mesh, sample_mesh, sample_seabed, sample_structures, tripod_model
 from tether import Input, Node
 from tether.yamlsafe import load_yaml_file
@@ -52,8 +60,12 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     max_iterations: int = 30
     max_points: int = 800                   # points (or arcs) ICP samples from the cloud
     degeneracy_threshold: float = 0.02
-    yaw_hypotheses: int = 6
-    prior_window_deg: float = 90.0
+    yaw_hypotheses: int = 8                 # restarts over the whole circle (plus the model's twins)
+    prior_window_deg: float = 180.0         # only corrections this close to the prior's yaw can be chosen
+    symmetry: bool = True                   # find the model's yaw twins when it is loaded
+    gate_sigma_m: float = 2.0               # navigation prior: position (at the structure) ...
+    gate_sigma_yaw_deg: float = 15.0        # ... and heading standard deviations
+    gate_confidence: float = 0.99           # a trusted correction lies inside this chi-square quantile
     min_points: int = 50                    # fewer points (arcs) are not aligned: the result says converged=False
     track: bool = True                      # start from the last trusted correction
     recheck_every: int = 4                  # while tracking a checked pose, yaw restarts every n-th alignment only
@@ -72,6 +84,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
         if self.recheck_every < 1 or self.arc_samples < 1 or self.align_every < 1 or self.window_s < 0 or self.max_arcs < self.min_points:
             raise ValueError("need arc_samples >= 1, align_every >= 1, window_s >= 0 and max_arcs >= min_points")
         IcpSettings(**_settings_kwargs(self))           # raises ValueError on inconsistent tuning
+        if not (self.gate_sigma_m > 0 and self.gate_sigma_yaw_deg > 0 and 0 < self.gate_confidence < 1):
+            raise ValueError("need gate_sigma_m > 0, gate_sigma_yaw_deg > 0 and 0 < gate_confidence < 1")
 
 
 def _settings_kwargs(cfg: Config) -> dict:
@@ -104,6 +118,12 @@ def load_model(cfg: Config) -> tuple[np.ndarray, np.ndarray]:
     return pts, nrm
 
 
+def _hypothesis_rows(hypotheses: list[tuple[float, np.ndarray]]) -> np.ndarray:
+    """(H, 4) rows (x_m, y_m, yaw_rad, cost) of the near-equal corrections, best first."""
+    rows = [(t[0, 3], t[1, 3], math.atan2(t[1, 0], t[0, 0]), score) for score, t in hypotheses]
+    return np.array(rows, np.float64).reshape(-1, 4)
+
+
 def _moved(a: np.ndarray, b: np.ndarray, pivot: np.ndarray, cfg: IcpSettings) -> bool:
     """Whether two corrections differ by a distinct pose (yaw or displacement at ``pivot``)."""
     dyaw = abs(math.remainder(math.atan2(a[1, 0], a[0, 0]) - math.atan2(b[1, 0], b[0, 0]), 2 * math.pi))
@@ -131,7 +151,11 @@ class IcpLocalizer(Node):
         return inputs, cls.outputs, cls.timers
 
     def setup(self) -> None:
-        self._model = IcpModel.build(*load_model(self.config), grid_m=self.config.grid_m)
+        self._model = IcpModel.build(*load_model(self.config), grid_m=self.config.grid_m,
+                                     symmetry=self.config.symmetry)
+        if self._model.symmetry is not None:
+            self.log.info("model %s: %s", self.config.model, self._model.symmetry.describe())
+        self._gate = gate_threshold(self.config.gate_confidence)
         self._settings = IcpSettings(**_settings_kwargs(self.config))
         self._tracking = IcpSettings(**{**_settings_kwargs(self.config), "yaw_hypotheses": 0})
         self._last = np.eye(4)
@@ -139,7 +163,7 @@ class IcpLocalizer(Node):
         self._since_check = 0
         self.runs = 0
         self.scans = 0
-        self.flags = {"waiting": 0, "failed": 0, "degenerate": 0, "ambiguous": 0, "no_pose": 0}
+        self.flags = {"waiting": 0, "failed": 0, "degenerate": 0, "ambiguous": 0, "gated": 0, "no_pose": 0}
         self._warned: set[str] = set()
         self._poses: deque[tuple[int, np.ndarray]] = deque(maxlen=256)
         self._pending: deque[PointCloud] = deque()
@@ -224,8 +248,17 @@ class IcpLocalizer(Node):
             self._count("degenerate", "degenerate geometry: some directions are not observable and were held "
                                       "at the prior (see covariance)")
         if out.ambiguous:
-            self._count("ambiguous", "ambiguous fit: a distinct pose near the prior fits as well (symmetry), "
-                                     "or one the prior rules out fits clearly better")
+            self._count("ambiguous", "ambiguous fit: distinct poses fit about as well (symmetry); published "
+                                     "untrusted, with every near-equal hypothesis and its cost")
+        d2, gated = float("nan"), False
+        if out.converged and not out.degenerate and np.all(np.isfinite(out.transform)):
+            d2 = mahalanobis_to_prior(out.transform, out.covariance, self._model.centroid, sigma_m=cfg.gate_sigma_m,
+                                      sigma_yaw_rad=math.radians(cfg.gate_sigma_yaw_deg))
+            gated = not out.ambiguous and not d2 <= self._gate
+            if gated:
+                self._count("gated", f"correction inconsistent with the navigation prior (squared Mahalanobis "
+                                     f"distance above {self._gate:.1f}, see prior_mahalanobis2): not trusted")
+                out.ambiguous = True
         # Only a trusted result becomes the tracked pose (the next prior and the centre of the
         # ambiguity check's prior window). A degenerate one moved its observable directions on too
         # little structure (a leg or a mat seen alone fits at many yaws): adopting it let a later,
@@ -239,7 +272,8 @@ class IcpLocalizer(Node):
             correction=Pose3D.from_matrix(out.transform, frame_id=cfg.model_frame),
             covariance=out.covariance, converged=out.converged, degenerate=out.degenerate,
             ambiguous=out.ambiguous, min_eigenvalue=out.min_eigenvalue, rmse_m=out.rmse_m,
-            inlier_ratio=out.inlier_ratio, iterations=out.iterations, cloud_size=out.cloud_size)
+            inlier_ratio=out.inlier_ratio, iterations=out.iterations, cloud_size=out.cloud_size,
+            hypotheses=_hypothesis_rows(out.hypotheses), prior_mahalanobis2=d2, gated=gated)
 
     def _solve(self, src: np.ndarray):
         """Align with the yaw-restart ambiguity check, or (tracking a checked pose) without it.
