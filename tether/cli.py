@@ -66,10 +66,10 @@ def _pairs(items: Sequence[str] | None, flag: str) -> dict[str, str]:
 
 # -- launch / check / graph / run -------------------------------------------------------
 def cmd_launch(args: argparse.Namespace) -> int:
-    from tether.launch import load_launch, parse_overrides
+    from tether.launch import load_launch, parse_launch_args, parse_overrides
     from tether.supervisor import Supervisor
 
-    launch = load_launch(args.file, parse_overrides(args.param))
+    launch = load_launch(args.file, parse_overrides(args.param), args=parse_launch_args(args.arg))
     sup = Supervisor(launch, machine=args.machine, record=args.record,
                      record_topics=_flat(args.record_topics), record_exclude=_flat(args.record_exclude), keys=args.keys,
                      record_max_bytes=args.record_max_size or 0, record_max_duration_s=args.record_max_duration or 0.0)
@@ -79,7 +79,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from tether.launch import load_launch, parse_overrides
+    from tether.launch import load_launch, parse_launch_args, parse_overrides
 
     files: list[str] = []
     for item in args.files:
@@ -91,7 +91,7 @@ def cmd_check(args: argparse.Namespace) -> int:
         else:
             files.append(item)
     for path in files:
-        launch = load_launch(path, parse_overrides(args.param))
+        launch = load_launch(path, parse_overrides(args.param), args=parse_launch_args(args.arg))
         unconnected = [f"{n.id}.{name}" for n in launch.nodes for name in n.ports.inputs
                        if name not in n.inputs and name not in n.ports.timers]
         print(f"{path}: ok ({len(launch.nodes)} nodes, {len(launch.edges())} connections"
@@ -100,9 +100,9 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_graph(args: argparse.Namespace) -> int:
-    from tether.launch import load_launch, to_dot, to_text
+    from tether.launch import load_launch, parse_launch_args, to_dot, to_text
 
-    launch = load_launch(args.file)
+    launch = load_launch(args.file, args=parse_launch_args(args.arg))
     print(to_dot(launch) if args.format == "dot" else to_text(launch))
     return 0
 
@@ -646,7 +646,7 @@ def _version() -> str:
 
 
 EXAMPLES = {
-    "launch": "tether launch launch/counter.yaml --duration 10 --param counter.rate_hz=20 --record run.mcap",
+    "launch": "tether launch launch/two_sonars.yaml --arg range_m=10 --duration 10 --record run.mcap",
     "keys": "tether keys init sonar-localize --machines boat,shore",
     "check": "tether check launch/",
     "graph": "tether graph launch/sonar_localize.yaml --format dot | dot -Tpng -o graph.png",
@@ -672,10 +672,16 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"tether {_version()}")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("launch", help="run a pipeline file")
+    p = sub.add_parser("launch", help="run a pipeline file",
+                       description="Run a launch file: its nodes, and those of the files it includes (ids "
+                                   "'NS.NODE', topics 'NS.NODE/OUTPUT'). --arg NAME=VALUE sets one of the file's "
+                                   "'args' (used as $(arg NAME)); an arg the file does not declare is an error.")
     p.add_argument("file", help="the launch file (YAML)")
+    p.add_argument("--arg", action="append", metavar="NAME=VALUE",
+                   help="set a launch argument declared under 'args' (repeatable; VALUE read as YAML: 20, true, text)")
     p.add_argument("--duration", type=float, help="stop after S seconds")
-    p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE", help="override a node parameter")
+    p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE",
+                   help="override a node parameter (a namespaced node: NS.NODE.KEY=VALUE)")
     p.add_argument("--record", metavar="FILE", help="record the graph's topics to an MCAP log")
     p.add_argument("--record-topics", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
                    help="with --record: only these (e.g. 'sim/*,nav/pose'; repeatable)")
@@ -699,11 +705,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check", help="validate pipeline files without starting anything")
     p.add_argument("files", nargs="+", help="launch files, or directories of them")
     p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE", help="check with this override")
+    p.add_argument("--arg", action="append", metavar="NAME=VALUE", help="check with this launch argument")
     p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("graph", help="print a pipeline's graph (text or Graphviz dot)")
     p.add_argument("file", help="the launch file (YAML)")
     p.add_argument("--format", choices=("text", "dot"), default="text", help="text listing or Graphviz dot")
+    p.add_argument("--arg", action="append", metavar="NAME=VALUE", help="a launch argument (see launch --help)")
     p.set_defaults(func=cmd_graph)
 
     p = sub.add_parser("run", help="run one node alone")

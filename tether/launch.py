@@ -15,6 +15,10 @@
         node: nodes.sonar.polar_imager:PolarImager
         inputs: {ping: sonar/ping, tick: timer/hz/10}
 
+Files compose (:mod:`tether.launch_compose`): ``args`` with defaults and ``$(arg NAME)``,
+``include`` of other files under a namespace (``ns.node`` ids, ``ns.node/output`` topics),
+``remap`` per node or include, and ``params_file`` merged under ``params``.
+
 Validation raises :class:`ConfigError` with one line naming the file, line, node and key.
 The file is read with :func:`tether.yamlsafe.load_yaml` (aliases bounded before they
 expand, nesting bounded, duplicate keys refused); unknown keys are errors at every level,
@@ -30,6 +34,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from tether.errors import ConfigError
+from tether.launch_compose import Draft, compose
 from tether.link import LinkModel, parse_link
 from tether.node import MAX_TIMER_HZ, Node, Ports, Tick
 from tether.runner import load_node_class
@@ -39,10 +44,10 @@ from tether.transport import ipc_endpoint, runtime_dir
 from tether.yamlsafe import Located, load_yaml, load_yaml_file
 
 ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
+NODE_ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*(\.[A-Za-z][A-Za-z0-9_\-]*)*$")   # ns.ns.id
 TIMER_RE = re.compile(r"^timer/(hz|ms)/([0-9]*\.?[0-9]+)$")
 RESTART_POLICIES = ("never", "on-failure")
-NODE_KEYS = {"id", "node", "params", "inputs", "restart", "max_restarts", "machine", "env"}
-TOP_KEYS = {"name", "nodes", "machines", "description", "links"}
+NODE_KEYS = {"id", "node", "params", "inputs", "restart", "max_restarts", "machine", "env", "remap", "params_file"}
 ENV_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MAX_RESTARTS = 1000
 
@@ -61,6 +66,7 @@ class NodeEntry:
     env: dict[str, str] = field(default_factory=dict)
     cls: type[Node] | None = None
     ports: Ports | None = None
+    renamed: dict[str, str] = field(default_factory=dict)    # output -> the name its remap gives it
 
 
 @dataclass
@@ -111,12 +117,25 @@ def parse_value(text: str) -> Any:
         return text
 
 
+def parse_launch_args(items: list[str] | None) -> dict[str, Any]:
+    """``--arg NAME=VALUE`` strings -> {name: value} (values read like ``--param``)."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise ConfigError(f"--arg {item!r}: expected NAME=VALUE")
+        if name in out:
+            raise ConfigError(f"--arg {name} is given twice")
+        out[name] = parse_value(value)
+    return out
+
+
 def parse_overrides(items: list[str] | None) -> dict[str, dict[str, Any]]:
-    """``NODE.KEY=VALUE`` strings -> {node: {key: value}}."""
+    """``NODE.KEY=VALUE`` strings -> {node: {key: value}} (a namespaced node: ``ns.node.KEY=VALUE``)."""
     out: dict[str, dict[str, Any]] = {}
     for item in items or []:
         key, sep, value = item.partition("=")
-        node_id, dot, param = key.partition(".")
+        node_id, dot, param = key.rpartition(".")
         if not sep or not dot or not node_id or not param:
             raise ConfigError(f"--param {item!r}: expected NODE.KEY=VALUE")
         if param in out.get(node_id, {}):
@@ -126,9 +145,10 @@ def parse_overrides(items: list[str] | None) -> dict[str, dict[str, Any]]:
 
 
 def _at(where: str, mapping: Any, key: Any = None) -> str:
-    """``FILE:LINE`` of ``key`` in a mapping read by :func:`load_yaml` (of the mapping itself without a key)."""
+    """``FILE:LINE`` of ``key`` in a mapping read by :func:`load_yaml` (of the mapping itself without a key);
+    the file is the one the mapping (or that key, in a merged mapping) was read from."""
     if isinstance(mapping, Located):
-        return f"{where}:{mapping.line_of(key) if key is not None else mapping.line}"
+        return f"{mapping.where_of(key) or where}:{mapping.line_of(key) if key is not None else mapping.line}"
     return where
 
 
@@ -147,8 +167,10 @@ def _int_in(at: str, raw: Any, key: str, default: int, lo: int, hi: int, what: s
     return value
 
 
-def load_launch(path: str | Path, overrides: Mapping[str, Mapping[str, Any]] | None = None) -> LaunchFile:
-    """Read and validate a launch file; ``overrides`` are {node: {param: value}}.
+def load_launch(path: str | Path, overrides: Mapping[str, Mapping[str, Any]] | None = None, *,
+                args: Mapping[str, Any] | None = None) -> LaunchFile:
+    """Read and validate a launch file and what it includes; ``overrides`` are {node: {param: value}},
+    ``args`` the file's args (``--arg NAME=VALUE``).
 
     Every error is one :class:`ConfigError` line naming the file, the line and the key.
     """
@@ -156,37 +178,69 @@ def load_launch(path: str | Path, overrides: Mapping[str, Mapping[str, Any]] | N
     where = str(path)
     if not path.exists():
         raise ConfigError(f"{where}: no such launch file")
-    doc = load_yaml_file(path)
-    if not isinstance(doc, dict):
-        raise ConfigError(f"{where}: a launch file is a mapping with 'name' and 'nodes'")
-    _unknown_keys(where, doc, TOP_KEYS, "")
+    composed = compose(path, args)
+    doc = composed.doc
     name = doc.get("name", path.stem)
     if not isinstance(name, str) or not ID_RE.match(name):
         raise ConfigError(f"{_at(where, doc, 'name')}: name {name!r} must be letters, digits, '-' or '_'")
     if not isinstance(doc.get("description", ""), str):
         raise ConfigError(f"{_at(where, doc, 'description')}: description must be text")
-    machines = _machines(where, doc, doc.get("machines") or {})
-    raw_nodes = doc.get("nodes")
-    if not isinstance(raw_nodes, list) or not raw_nodes:
-        raise ConfigError(f"{_at(where, doc, 'nodes')}: 'nodes' must be a non-empty list")
+    machines = _machines(where, doc, composed.machines)
     overrides = dict(overrides or {})
-    nodes = [_node_entry(where, i, raw, machines, overrides) for i, raw in enumerate(raw_nodes)]
+    raws = [_flat_node(d) for d in composed.nodes]
+    nodes = [_node_entry(d.where, d.index, raw, machines, overrides) for d, raw in zip(composed.nodes, raws)]
     seen: dict[str, NodeEntry] = {}
-    for raw, entry in zip(raw_nodes, nodes):
+    for draft, raw, entry in zip(composed.nodes, raws, nodes):
         if entry.id in seen:
-            raise ConfigError(f"{_at(where, raw, 'id')}: node id {entry.id!r} is used twice")
+            raise ConfigError(f"{_at(draft.where, raw, 'id')}: node id {entry.id!r} is used twice")
         seen[entry.id] = entry
     for node_id in overrides:
         if node_id not in seen:
             raise ConfigError(f"{where}: --param for unknown node {node_id!r} (nodes: {sorted(seen)})")
-    raw_links = doc.get("links") or []
-    if not isinstance(raw_links, list):
-        raise ConfigError(f"{_at(where, doc, 'links')}: 'links' must be a list")
+    _rename_outputs(composed.nodes, nodes, raws)
     names = set(seen) | set(machines)
-    links = [parse_link(f"{_at(where, raw_links, k)}: links[{k}]", raw, names) for k, raw in enumerate(raw_links)]
+    links = [parse_link(link_at, raw, names) for link_at, raw in composed.links]
     launch = LaunchFile(path=path, name=name, nodes=nodes, machines=machines, links=links)
-    _check_wiring(where, launch, dict(zip((n.id for n in nodes), raw_nodes)))
+    remapped = {(n.id, inp): why for d, n in zip(composed.nodes, nodes) for inp, why in d.remapped.items()}
+    _check_wiring(where, launch, dict(zip((n.id for n in nodes), raws)), remapped)
     return launch
+
+
+def _flat_node(draft: Draft) -> Any:
+    """The node mapping as the validator reads it: namespaced id, sources resolved across files."""
+    raw = draft.raw
+    if not isinstance(raw, Located) or not draft.rel_id:
+        return raw
+    out = raw.derive()
+    out["id"] = draft.rel_id
+    if isinstance(raw.get("inputs"), Located):
+        out["inputs"] = raw["inputs"].derive({k: draft.resolved.get(k, v) for k, v in raw["inputs"].items()})
+    return out
+
+
+def _rename_outputs(drafts: list[Draft], nodes: list[NodeEntry], raws: list[Any]) -> None:
+    """Output remaps: check the names, then point every source at the class's own output name."""
+    by_id = {}
+    for draft, entry in zip(drafts, nodes):
+        for alias, real in draft.aliases.items():
+            if real not in entry.ports.outputs:
+                raise ConfigError(f"{draft.alias_at[alias]}: node {entry.id!r}: remap of output {real!r}: no such "
+                                  f"output (outputs: {sorted(entry.ports.outputs) or 'none'})")
+            entry.renamed[real] = alias
+        if draft.aliases:
+            by_id[entry.id] = (draft, entry)
+    for entry, raw in zip(nodes, raws):
+        for name, src in entry.inputs.items():
+            src_id, slash, output = src.partition("/")
+            if src_id not in by_id:
+                continue
+            draft, source = by_id[src_id]
+            if output in draft.aliases:
+                entry.inputs[name] = f"{src_id}/{draft.aliases[output]}"
+            elif output in source.renamed:
+                raise ConfigError(f"{_at('', raw.get('inputs'), name)}: node {entry.id!r}: input {name!r}: "
+                                  f"{src_id}'s output {output!r} is remapped to {source.renamed[output]!r} "
+                                  f"({draft.alias_at[source.renamed[output]]})")
 
 
 def _machines(where: str, doc: Any, raw: Any) -> dict[str, Machine]:
@@ -214,7 +268,7 @@ def _node_entry(where: str, index: int, raw: Any, machines: dict[str, Machine],
     if not isinstance(raw, dict):
         raise ConfigError(f"{where}: nodes[{index}] must be a mapping with id and node")
     node_id = raw.get("id")
-    if not isinstance(node_id, str) or not ID_RE.match(node_id):
+    if not isinstance(node_id, str) or not NODE_ID_RE.match(node_id):
         raise ConfigError(f"{_at(where, raw, 'id')}: nodes[{index}]: id {node_id!r} must start with a letter "
                           "and use letters, digits, '-' or '_'")
     what = f"node {node_id!r}: "
@@ -276,12 +330,14 @@ def _env(where: str, raw: Any, what: str) -> dict[str, str]:
     return out
 
 
-def _check_wiring(where: str, launch: LaunchFile, raws: Mapping[str, Any]) -> None:
+def _check_wiring(where: str, launch: LaunchFile, raws: Mapping[str, Any],
+                  remapped: Mapping[tuple[str, str], str]) -> None:
     by_id = {n.id: n for n in launch.nodes}
     for entry in launch.nodes:
         raw_inputs = raws[entry.id].get("inputs")
         for name, src in entry.inputs.items():
-            at = f"{_at(where, raw_inputs, name)}: node {entry.id!r}"
+            # a remapped source is blamed on the remap that set it
+            at = f"{remapped.get((entry.id, name)) or _at(where, raw_inputs, name)}: node {entry.id!r}"
             port = entry.ports.inputs.get(name)
             if port is None:
                 raise ConfigError(f"{at}: unknown input {name!r} (inputs: {sorted(entry.ports.inputs) or 'none'})")
@@ -320,6 +376,12 @@ def plan(launch: LaunchFile, *, token: str, curve: dict[str, Any] | None = None,
     """A RunSpec per node: where it binds, where each input connects, who will subscribe.
     ``epoch_ns``: when the launch started (the clock of the links' outage schedules)."""
     local_ep = {n.id: ipc_endpoint(launch.name, n.id, token) for n in launch.nodes}
+    clash: dict[str, str] = {}
+    for node_id, ep in local_ep.items():       # socket names are cut short: long namespaced ids may meet
+        if ep in clash:
+            raise ConfigError(f"{launch.path}: nodes {clash[ep]!r} and {node_id!r} get the same socket name "
+                              f"({ep.rsplit('/', 1)[-1]}): shorten the graph name, a namespace or an id")
+        clash[ep] = node_id
     tcp_ep: dict[str, str] = {}
     port_next = {m: launch.machines[m].port_base for m in launch.machines}
     for n in launch.nodes:
@@ -401,5 +463,6 @@ def to_text(launch: LaunchFile) -> str:
             src = n.inputs.get(name) or ("(timer)" if name in n.ports.timers else "(unconnected)")
             out.append(f"    <- {name:14s} {port.type.type_name():24s} {src}")
         for name, tp in n.ports.outputs.items():
-            out.append(f"    -> {name:14s} {tp.type_name():24s} {n.id}/{name}")
+            alias = f"  (remapped: the launch file calls it {n.id}/{n.renamed[name]})" if name in n.renamed else ""
+            out.append(f"    -> {name:14s} {tp.type_name():24s} {n.id}/{name}{alias}")
     return "\n".join(out)

@@ -30,14 +30,34 @@ MERGE_TAG = "tag:yaml.org,2002:merge"
 
 
 class Located(dict):
-    """A mapping read from YAML: ``line`` is where it starts, ``line_of(key)`` where a key is (1-based)."""
+    """A mapping read from YAML: ``line`` is where it starts, ``line_of(key)`` where a key is (1-based),
+    ``where`` the file (``where_of(key)`` when a mapping was merged from several files)."""
 
     line: int = 0
+    where: str = ""
     key_lines: dict
+    key_where: dict | None = None
 
     def line_of(self, key: Any, default: int | None = None) -> int:
         lines = getattr(self, "key_lines", None) or {}
         return lines.get(key, self.line if default is None else default)
+
+    def where_of(self, key: Any = None) -> str:
+        return (self.key_where or {}).get(key, self.where) if key is not None else self.where
+
+    def derive(self, items: Any = None) -> "Located":
+        """A copy (or ``items`` in its place) that still says where this mapping and its keys are."""
+        out = Located(self if items is None else items)
+        out.line, out.where, out.key_lines = self.line, self.where, dict(getattr(self, "key_lines", None) or {})
+        out.key_where = dict(self.key_where) if self.key_where else None
+        return out
+
+    def merged_over(self, base: "Located") -> "Located":
+        """``base`` updated with this mapping, every key remembering the file and line it came from."""
+        out = self.derive({**base, **self})
+        out.key_where = {k: base.where_of(k) for k in base} | {k: self.where_of(k) for k in self}
+        out.key_lines = {k: base.line_of(k) for k in base} | {k: self.line_of(k) for k in self}
+        return out
 
 
 class _Limit(yaml.YAMLError):
@@ -49,10 +69,11 @@ class _Limit(yaml.YAMLError):
 class _Loader(yaml.SafeLoader):
     """SafeLoader with a nesting bound while composing (the C loader cannot be hooked)."""
 
-    def __init__(self, stream: str, max_depth: int) -> None:
+    def __init__(self, stream: str, max_depth: int, where: str = "") -> None:
         super().__init__(stream)
         self._depth = 0
         self._max_depth = max_depth
+        self._where = where
 
     def compose_node(self, parent: Node | None, index: Any) -> Node:
         self._depth += 1
@@ -67,6 +88,7 @@ class _Loader(yaml.SafeLoader):
     def construct_located_map(self, node: MappingNode):
         data = Located()
         data.line = node.start_mark.line + 1
+        data.where = self._where
         data.key_lines = {}
         yield data
         seen: dict[Any, int] = {}
@@ -129,7 +151,7 @@ def load_yaml(text: str | bytes, *, where: str, max_depth: int = MAX_DEPTH, max_
     """Parse one YAML document with the limits above; :class:`ConfigError` ``"WHERE:LINE: why"`` otherwise."""
     if len(text) > MAX_BYTES:
         raise ConfigError(f"{where}: {len(text)} bytes is larger than a configuration file can be ({MAX_BYTES})")
-    loader = _Loader(text, max_depth)
+    loader = _Loader(text, max_depth, where)
     try:
         root = loader.get_single_node()
         if root is None:
