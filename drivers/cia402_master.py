@@ -274,7 +274,7 @@ class Cia402Master:
             return
         if self._next_sync is None:
             self._next_sync = now_s
-        if now_s < self._next_sync - 1e-6 / hz:
+        if now_s < self._next_sync - 0.5 / self.cfg.rate_hz:      # a step a little early still serves its SYNC
             return
         self._next_sync = max(self._next_sync + 1.0 / hz, now_s + 0.5 / hz)
         if self._send(p.SYNC, b""):

@@ -1,7 +1,7 @@
 """Simulated CiA 402 drives that answer on a CAN bus as real ones do: the node.
 
 :class:`Cia402DriveSim` runs one :class:`sim.cia402_device.SimDrive` per configured drive
-(wheels in profile velocity, steer motors in profile position, first-order motor dynamics,
+(wheels in profile velocity or CSV, steer motors in profile position or CSP, homing; first-order motor dynamics,
 the CiA 301 / 402 protocol stack with injectable faults) on a python-can bus, and publishes
 the speeds and steer angles the motors actually achieve (``achieved``, a
 ``control.WheelCommand`` for the vehicle simulator) at ``publish_hz``.
@@ -40,6 +40,11 @@ class SimDriveConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     position_offset: int = 0
     sdo_abort: dict[str, int] = {}        # "0x1017:0" -> abort code
     sdo_silent: list[str] = []            # "0x1017:0"
+    segment_fault: str = ""               # segmented SDO half-way: 'abort' | 'silent' | 'toggle'
+    segment_fault_at: int = 2
+    sync_deaf: bool = False               # misses every SYNC
+    encoder_offset: int = 0               # position actual - physical position until homed (counts)
+    home_switch: int | None = 0           # physical position of the home switch (counts; None: none)
 
 
 def _object_key(text: str) -> tuple[int, int]:
@@ -65,7 +70,9 @@ def make_drive(spec: DriveConfig, knobs: SimDriveConfig | None, now_s: float, ti
     faults = DriveFaults(start_in_fault=k.start_in_fault, vendor_bits=k.vendor_bits, junk=bytes.fromhex(k.junk_hex),
                          position_offset=k.position_offset,
                          sdo_abort={_object_key(key): code for key, code in k.sdo_abort.items()},
-                         sdo_silent={_object_key(key) for key in k.sdo_silent})
+                         sdo_silent={_object_key(key) for key in k.sdo_silent}, segment_fault=k.segment_fault,
+                         segment_fault_at=k.segment_fault_at, sync_deaf=k.sync_deaf,
+                         encoder_offset=k.encoder_offset, home_switch=k.home_switch)
     return SimDrive(spec.node_id, role=spec.role, time_constant_s=k.time_constant_s, faults=faults, now_s=now_s)
 
 
