@@ -86,7 +86,7 @@ class Draft:
 class Composed:
     """A launch file with its includes flattened: node mappings ready for validation."""
 
-    doc: Located
+    doc: Located                                        # the top file, args substituted
     nodes: list[Draft]
     machines: Located                                   # name -> spec, each remembering its file
     links: list[tuple[str, Any]]                        # ("FILE:LINE: links[k]", raw link)
@@ -146,7 +146,7 @@ def _compose(path: Path, given: dict[str, Any], given_at: Located | None, stack:
         for name, text in list(draft.pending.items()):
             if TIMER_RE.match(text) or text.partition("/")[0] in scope:
                 draft.resolved[name] = draft.pending.pop(name)
-    return Composed(doc=doc, nodes=drafts, machines=machines, links=links)
+    return Composed(doc=body, nodes=drafts, machines=machines, links=links)
 
 
 def _list(body: Located, key: str, where: str) -> list:
@@ -194,7 +194,15 @@ def _arguments(where: str, doc: Located, given: dict[str, Any], given_at: Locate
 def _substitute(value: Any, args: dict[str, Any], line: str) -> Any:
     """``$(arg NAME)`` in every string of ``value``; a string that is only that keeps the arg's type."""
     if isinstance(value, Located):
-        return value.derive({k: _substitute(v, args, at(value, k, line)) for k, v in value.items()})
+        out = value.derive({})
+        for k, v in value.items():
+            here = at(value, k, line)
+            key = _substitute(k, args, here) if isinstance(k, str) else k     # a remap's topic may be an arg
+            if isinstance(key, (dict, list)):
+                raise ConfigError(f"{here}: the key {k!r} becomes a {type(key).__name__}: a key is a name")
+            out[key] = _substitute(v, args, here)
+            out.key_lines[key] = value.line_of(k)
+        return out
     if isinstance(value, dict):
         return {k: _substitute(v, args, line) for k, v in value.items()}
     if isinstance(value, list):

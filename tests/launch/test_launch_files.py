@@ -17,3 +17,19 @@ def test_launch_file_validates(path: Path) -> None:
     for entry in launch.nodes:
         for name, src in entry.inputs.items():
             assert name in entry.ports.inputs
+
+
+def test_included_files_appear_under_their_namespaces() -> None:
+    """A file that includes others holds each included node once per include, as NAMESPACE.ID."""
+    from tether.launch_compose import compose
+
+    for path in sorted(LAUNCH.glob("*.yaml")):
+        top = compose(path)
+        includes = top.doc.get("include") or []
+        if not includes:
+            continue
+        ids = {n.id for n in load_launch(path).nodes}
+        for inc in includes:
+            inner = load_launch(path.parent / inc["file"], args=inc.get("args"))
+            prefix = f"{inc['namespace']}." if inc.get("namespace") else ""
+            assert {prefix + n.id for n in inner.nodes} <= ids, (path.name, inc["file"])

@@ -137,15 +137,17 @@ def test_a_name_an_included_file_does_not_define_is_the_includers(tmp_path):
 
 def test_include_remap_points_an_included_input_at_the_includers_topic(tmp_path):
     path = _files(tmp_path, top="""
-    name: top
+    name: top-$(arg instance)
+    args: {instance: 1, feed: counter/value, which: pipe}
     include:
-      - file: pipe.yaml
+      - file: $(arg which).yaml
         namespace: p
-        remap: {counter/value: mine/value}
+        remap: {$(arg feed): mine/value}
     nodes: [{id: mine, node: nodes.std.demo:Counter}]
     """, pipe=PIPE)
     launch = load_launch(path)
-    assert launch.node("p.scale").inputs == {"value": "mine/value"}
+    assert launch.node("p.scale").inputs == {"value": "mine/value"} and launch.name == "top-1"
+    assert load_launch(path, args={"instance": "b"}).name == "top-b"     # two copies of a graph on one host
 
 
 INCLUDE_ERRORS = [

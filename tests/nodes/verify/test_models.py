@@ -64,7 +64,7 @@ def predicted(spec: GraphSpec, focus: str | None, formula: str, faults: int) -> 
         return faults == 0 or any(n.restart != "never" and n.max_restarts > 0 for n in spec.nodes)
     if formula.startswith("AG has_publisher"):
         return True
-    sub = formula.split("handled(")[1].split(".")[0]
+    sub = formula.split("handled(")[1].split(")")[0].rsplit(".", 1)[0]     # ids may be ns.node
     node = spec.node(sub)
     return faults == 0 or (node.restart != "never" and node.max_restarts > 0)
 
