@@ -183,11 +183,20 @@ def _arguments(where: str, doc: Located, given: dict[str, Any], given_at: Locate
         if name not in declared:
             src = "--arg" if given_at is None else at(given_at, name)
             raise ConfigError(f"{src}: {where} declares no arg {name!r} ({_hint(str(name), declared)})")
-    values = {**declared, **given}
-    for name, value in values.items():
-        if value is _REQUIRED:
+    values: dict[str, Any] = {}
+    for name, default in declared.items():            # a default may use the args declared before it
+        if name in given:
+            values[name] = given[name]
+        elif default is _REQUIRED:
             how = f"--arg {name}=VALUE" if given_at is None else f"nor by the include at {at(given_at)}"
             raise ConfigError(f"{at(raw, name, where)}: arg {name!r} has no default and is not given ({how})")
+        else:
+            for m in SUBST_RE.finditer(default) if isinstance(default, str) else ():
+                later = m.group(1).strip().partition(" ")[2].strip()
+                if later in declared and later not in values:
+                    raise ConfigError(f"{at(raw, name, where)}: arg {name!r}: its default uses {later!r}, declared "
+                                      "after it (a default uses the args above it)")
+            values[name] = _substitute(default, values, at(raw, name, where))
     return values
 
 

@@ -88,6 +88,19 @@ def test_arg_errors_name_file_and_line(tmp_path, body, message):
     assert re.search(message, _error(path)), _error(path)
 
 
+def test_a_default_may_use_the_args_declared_before_it(tmp_path):
+    path = _files(tmp_path, g="""
+    name: g
+    args: {site: pier, tag: "$(arg site)-left", late: "$(arg later)", later: 1}
+    nodes: [{id: a, node: nodes.std.demo:Counter, env: {TAG: $(arg tag)}}]
+    """)
+    assert "g.yaml:3: arg 'late': its default uses 'later', declared after it" in _error(path)
+    path.write_text(path.read_text().replace(', late: "$(arg later)"', ""))
+    assert load_launch(path).node("a").env == {"TAG": "pier-left"}
+    assert load_launch(path, args={"site": "dock"}).node("a").env == {"TAG": "dock-left"}
+    assert load_launch(path, args={"tag": "x"}).node("a").env == {"TAG": "x"}
+
+
 def test_an_arg_the_file_does_not_declare_is_refused(tmp_path):
     path = _files(tmp_path, g=PIPE)
     assert _error(path, args={"rat": 3}).startswith(f"--arg: {path} declares no arg 'rat' (did you mean 'rate'?)")
@@ -314,3 +327,25 @@ def test_the_two_sonar_file_includes_one_pipeline_twice():
     assert port["stamp"] == "device" and port["ping_rate"] == "high"               # from params/oculus_m1200d.yaml
     assert launch.node("port.sim").params["scene"] == "pier4"
     assert launch.node("starboard.imager").inputs == {"ping": "starboard.sonar/ping"}
+
+
+def test_an_included_pipeline_runs_under_its_namespace(tmp_path, runtime_env):
+    """The runtime takes namespaced ids as they are: sockets, registry and recorded topics."""
+    _files(tmp_path, pipe=PIPE)
+    path = _files(tmp_path, top="""
+    name: top
+    include:
+      - {file: pipe.yaml, namespace: left, args: {rate: 20}}
+      - {file: pipe.yaml, namespace: right, args: {rate: 20, gain: 3}}
+    """)
+    log = tmp_path / "run.mcap"
+    res = subprocess.run([sys.executable, "-m", "tether.cli", "launch", str(path), "--duration", "2", "--record",
+                          str(log)], cwd=REPO, env=runtime_env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    from tether.log import LogReader
+
+    reader = LogReader(log)
+    assert {"left.counter/value", "left.scale/value", "right.scale/value"} <= set(reader.info().topics)
+    right = [reader.decode(r).data for r in reader.messages(["right.scale/value"])]
+    left = [reader.decode(r).data for r in reader.messages(["left.scale/value"])]
+    assert right and left and all(v % 3 == 0 for v in right) and all(v % 2 == 0 for v in left)
