@@ -41,7 +41,7 @@ from tether.runner import load_node_class
 from tether.runtime import RunSpec, Source
 from tether.stats import NodeStats
 from tether.transport import ipc_endpoint, runtime_dir
-from tether.yamlsafe import Located, load_yaml, load_yaml_file
+from tether.yamlsafe import Located, load_yaml
 
 ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 NODE_ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*(\.[A-Za-z][A-Za-z0-9_\-]*)*$")   # ns.ns.id
