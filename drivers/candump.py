@@ -20,7 +20,7 @@ import re
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, TextIO
+from typing import TYPE_CHECKING, Callable, Iterable, Iterator, TextIO
 
 import can
 import msgspec
@@ -29,6 +29,9 @@ from drivers.can_bus import frame_from_message, message_from_frame, open_bus
 from drivers.cia402 import describe_frame
 from msgs.can import CanFrame
 from tether import Node
+
+if TYPE_CHECKING:
+    from tether.imports import ImportResult
 
 log = logging.getLogger(__name__)
 

@@ -20,7 +20,7 @@ import mmap
 import struct
 import zlib
 from pathlib import Path
-from typing import BinaryIO, Callable, Iterator
+from typing import TYPE_CHECKING, BinaryIO, Callable, Iterator
 
 import msgspec
 import numpy as np
@@ -29,6 +29,9 @@ from drivers.oculus import sonar_ping_from
 from drivers.oculus_protocol import MSG_PING, Header, ProtocolError, decode_ping
 from drivers.oculus_stream import Frame, StreamParser
 from msgs.sonar import SonarPing
+
+if TYPE_CHECKING:
+    from tether.imports import ImportResult
 
 log = logging.getLogger("tether.oculus_file")
 

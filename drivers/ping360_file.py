@@ -9,11 +9,14 @@ Stamps: the file has none, so beam k is stamped ``start_ns + k * period_s``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 from drivers import ping_protocol as pp
 from drivers.ping360 import beam_ping
 from msgs.sonar import SonarPing
+
+if TYPE_CHECKING:
+    from tether.imports import ImportResult
 
 CHUNK = 1 << 16
 
