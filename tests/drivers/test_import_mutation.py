@@ -237,6 +237,10 @@ def test_skip_bad_on_the_real_candump_log(tmp_path, shared_data):
     assert res.returncode == 0 and "imported 30 messages" in res.stdout and "skipped 1 bad records" in res.stdout
 
 
-def test_unreadable_input_is_one_line(tmp_path):
+def test_unreadable_input_or_unwritable_output_is_one_line(tmp_path):
     res = _cli("can", str(tmp_path), "-o", str(tmp_path / "o.mcap"))
     assert res.returncode == 2 and "a directory" in res.stderr and "Traceback" not in res.stderr
+    src = tmp_path / "ok.log"
+    src.write_bytes(_candump_text(3))
+    res = _cli("can", str(src), "-o", str(src / "o.mcap"))            # a file where a folder should be
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, res.stderr
