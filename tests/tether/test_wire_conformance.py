@@ -168,3 +168,69 @@ def test_c_client_publishes_into_and_subscribes_from_a_graph(runtime_env: dict, 
     assert client.returncode == 0, err
     check_lines(out, 5)
     check_relay(stats)
+
+
+class Collect(Node):
+    """Keeps what it receives."""
+
+    inputs = {"image": Image}
+
+    def setup(self) -> None:
+        self.got: list[Image] = []
+
+    def on_image(self, msg: Image) -> None:
+        self.got.append(msg)
+
+
+def test_a_tether_subscriber_reads_what_the_spec_allows_and_counts_what_it_forbids(runtime_env: dict) -> None:
+    """docs/wire.md 3-5, 7, from raw frames: inline arrays and a missing tag are accepted; a wrong
+    tag, a size mismatch and a one-frame message are decode errors; seq jumps are counted."""
+    import msgpack
+    import zmq
+
+    endpoint = ipc_endpoint("raw", "peer", uuid.uuid4().hex[:8])
+    pub = zmq.Context.instance().socket(zmq.XPUB)
+    pub.bind(endpoint)
+    runtime = NodeRuntime(RunSpec(graph="raw", node_id="collect", node="test_wire_conformance:Collect",
+                                  inputs={"image": Source(topic="peer/image", endpoint=endpoint)}), Collect)
+    thread = threading.Thread(target=runtime.serve, daemon=True)
+    thread.start()
+    try:
+        assert pub.poll(10_000), "the node never subscribed"
+        assert pub.recv() == b"\x01peer/image"                     # a subscription: 0x01 + the topic
+
+        def body(seq: int, **fields) -> bytes:
+            return msgpack.packb({"type": "sensor.Image", "stamp_ns": 5, "frame_id": "cam", "seq": seq,
+                                  "encoding": "mono8", **fields})
+
+        pixels = bytes(range(6))
+        sent = [
+            [body(1, data={"dtype": "|u1", "shape": [2, 3], "frame": 0}), pixels],     # frame form
+            [body(2, data={"dtype": "|u1", "shape": [2, 3], "data": pixels})],         # inline form
+            [msgpack.packb({"data": {"dtype": "<u2", "shape": [3], "frame": 0}, "seq": 5}), pixels],  # no tag; 2 lost
+            [body(6, type="sensor.DepthImage")],                                     # wrong tag
+            [body(7, data={"dtype": "|u1", "shape": [4, 3], "frame": 0}), pixels],     # 12 bytes announced, 6 sent
+            [],                                                                        # the topic frame alone
+            [body(3, data={"dtype": "|u1", "shape": [1], "frame": 0}), b"\x09"],       # seq went back: a reset
+        ]
+        for frames in sent:
+            pub.send_multipart([b"peer/image", *frames])
+            pub.send_multipart([b"peer/image_raw", *frames])           # a longer topic: must not be delivered
+        deadline = time.monotonic() + 20
+        while runtime.stats().inputs[0].received < 7:
+            assert time.monotonic() < deadline, runtime.stats()
+            time.sleep(0.02)
+        deadline = time.monotonic() + 20
+        while len(runtime.node.got) < 4 and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        runtime.stop()
+        thread.join(10)
+        pub.close(linger=0)
+    got = runtime.node.got
+    assert [m.seq for m in got] == [1, 2, 5, 3]
+    np.testing.assert_array_equal(got[0].data, np.arange(6, dtype=np.uint8).reshape(2, 3))
+    np.testing.assert_array_equal(got[1].data, got[0].data)
+    assert got[2].data.dtype == np.dtype("<u2") and got[2].frame_id == "" and got[0].frame_id == "cam"
+    (inp,) = msgspec.to_builtins(runtime.stats())["inputs"]
+    assert (inp["received"], inp["decode_errors"], inp["dropped_seq_gap"], inp["seq_resets"]) == (7, 3, 2, 1)
