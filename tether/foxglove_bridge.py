@@ -25,6 +25,7 @@ import msgspec
 import zmq
 
 from tether.codec import Codec, wire_to_inline
+from tether.errors import TetherError
 from tether.foxglove_convert import convert, json_schema
 
 log = logging.getLogger("tether.foxglove")
@@ -124,7 +125,11 @@ class LiveView:
         self.patterns, self.exclude = list(patterns), list(exclude)
         self.context = foxglove.Context()
         self.sink = FoxgloveSink(self.context)
-        self.server = foxglove.start_server(name="tether", host=host, port=port, context=self.context)
+        try:
+            self.server = foxglove.start_server(name="tether", host=host, port=port, context=self.context)
+        except RuntimeError as exc:            # the SDK's error for a port in use, an unknown host, ...
+            raise TetherError(f"cannot serve Foxglove on {host}:{port}: {str(exc).removeprefix('FoxgloveError: ')}"
+                              f"; choose another --port (0: any free one)") from None
         self.port = self.server.port
         self.ctx = ctx or zmq.Context.instance()
         self._codec = Codec()
@@ -177,9 +182,12 @@ class LiveView:
                 except zmq.Again:
                     break
                 topic = frames[0].bytes.decode(errors="replace")
-                if topic not in self._types or len(frames) < 2:
-                    continue                   # another topic sharing a prefix, or not a message
+                if topic not in self._types:
+                    continue                   # another topic sharing our prefix
                 self.sink.counters.received += 1
+                if len(frames) < 2:
+                    self.sink.error(f"dropped a message on {topic} with no body (1 frame)")
+                    continue
                 if sum(len(f.buffer) for f in frames[1:]) > LATEST_ONLY_BYTES:
                     if topic in latest:
                         batch[latest[topic]] = ("", [])

@@ -297,3 +297,67 @@ def test_clients_connecting_and_disconnecting_20_times_leave_it_serving(tmp_path
     finally:
         view.stop()
         _stop(replay)
+
+
+def test_a_port_in_use_is_one_line_not_a_traceback(runtime_env: dict):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        res = subprocess.run([sys.executable, "-m", "tether.cli", "foxglove", "--port", str(taken.getsockname()[1]),
+                              "--duration", "1"], cwd=REPO, env=runtime_env, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert "cannot serve Foxglove on 127.0.0.1:" in res.stderr and "choose another --port" in res.stderr
+
+
+def test_malformed_messages_are_counted_and_the_topic_keeps_serving(runtime_env: dict):
+    """A peer publishing garbage among good messages: each bad one dropped and counted, the good ones served."""
+    import msgpack
+    import zmq
+
+    from tether import registry
+    from tether.foxglove_bridge import LiveView
+    from tether.transport import ipc_endpoint
+
+    endpoint = ipc_endpoint("bad", "peer", "t0")
+    pub = zmq.Context.instance().socket(zmq.PUB)
+    pub.bind(endpoint)
+    entry = registry.register({"name": "bad", "machine": "", "nodes": {},
+                               "topics": {"peer/value": {"type": "std.Float64", "endpoint": endpoint}}})
+    view = LiveView(port=0)
+    try:
+        view.refresh()
+        client = WsClient(view.port)
+        good = [b"peer/value", msgpack.packb({"type": "std.Float64", "data": 2.5, "seq": 1})]
+        bad = [[b"peer/value", b"\xc1"], [b"peer/value", msgpack.packb({"type": "std.Float64", "data": "x"})],
+               [b"peer/value"], [b"peer/value", msgpack.packb([1, 2])]]
+        deadline = time.monotonic() + 20
+        while not client.channels:
+            assert time.monotonic() < deadline
+            pub.send_multipart(good)
+            view.step(50)
+            client.sock.settimeout(0.05)
+            try:
+                client.recv()
+            except socket.timeout:
+                pass
+        client.subscribe(list(client.channels))
+        for frames in bad:
+            pub.send_multipart(frames)
+        got: list[bytes] = []
+        while len(got) < 3:
+            assert time.monotonic() < deadline
+            pub.send_multipart(good)
+            view.step(50)
+            try:
+                kind, data = client.recv()
+            except socket.timeout:
+                continue
+            if kind == "binary" and data[0] == 1:
+                got.append(data[13:])
+        assert all(json.loads(g)["data"] == 2.5 for g in got)
+        assert view.sink.counters.errors == 4
+        client.close()
+    finally:
+        view.stop()
+        registry.unregister(entry)
+        pub.close(linger=0)
