@@ -77,3 +77,4 @@ class IcpResult(Message, tag="sonar.IcpResult"):
     hypotheses: np.ndarray = const(np.zeros((0, 4), np.float64))
     prior_mahalanobis2: float = float("nan")
     gated: bool = False
+    poor_fit: bool = False        # residual RMS above the localizer's max_rmse_m: not trusted (ambiguous set)

@@ -267,15 +267,24 @@ def _score(src: np.ndarray, model: IcpModel, transform: np.ndarray, gate: float)
     """Truncated mean squared distance to the model: a fit measure comparable across restarts.
 
     Points: distance to the nearest model point. Arcs: distance of the sample that represents the arc.
+    The distance is to the surface: its along-surface part counts only beyond the model's sample
+    spacing, so that the score does not depend on how the samples fall (a model's symmetric twin,
+    sampled with another phase on a brace, must score as the original does).
     """
     exact = model.grid is None          # the grid's match is on the same surface patch: good enough to rank
     if src.shape[1] == 1:
-        d, _ = model.nearest(src[:, 0] @ transform[:3, :3].T + transform[:3, 3], gate, exact)
+        p = src[:, 0] @ transform[:3, :3].T + transform[:3, 3]
+        dist, idx = model.nearest(p, gate, exact)
+        ok = np.isfinite(dist)
+        p, idx = p[ok], idx[ok]
     else:
         p, idx, ok = _match(src, model, transform, gate, exact)
-        d = np.full(len(src), gate)
-        d[ok] = np.linalg.norm(p - model.points[idx], axis=1)
-    return float(np.mean(np.minimum(np.nan_to_num(d, posinf=gate), gate) ** 2))
+    e = p - model.points[idx]
+    normal = np.abs(np.einsum("ij,ij->i", e, model.normals[idx]))
+    along = np.sqrt(np.maximum(np.einsum("ij,ij->i", e, e) - normal ** 2, 0.0))
+    d = np.full(len(src), gate)
+    d[ok] = np.hypot(normal, np.maximum(along - model.spacing_m, 0.0))
+    return float(np.mean(np.minimum(d, gate) ** 2))
 
 
 def yaw_of(transform: np.ndarray) -> float:
@@ -424,10 +433,19 @@ def _resolve_yaw(src: np.ndarray, model: IcpModel, prior: np.ndarray, first: np.
             optima.append((score, t))
     top = optima[0][0]
     near = [(sc, t) for sc, t in optima if sc <= cfg.ambiguity_ratio * max(top, floor)]
+    # An exact twin of the model fits exactly as well as the original whatever the view: scoring it
+    # would only measure how the model's samples happen to fall (up to 2x on a braced square pier).
+    exact = model.symmetry.exact if model.symmetry is not None else ()
+    for sc, t in list(near):
+        for twin in exact:
+            mirror = twin.transform @ t
+            if all(_distinct(mirror, o, cfg, pivot) for _, o in near):
+                near.append((sc, mirror))
     inside = [(sc, t) for sc, t in near if _off_prior(t, prior) <= cfg.prior_window_rad]
     if not inside:
         return first, True, near
     chosen = min(inside, key=lambda h: (_off_prior(h[1], prior), h[0]))[1]
     if not _distinct(first, chosen, cfg, pivot):
         chosen = first
-    return chosen, len(near) > 1, near
+    continuous = model.symmetry is not None and model.symmetry.continuous
+    return chosen, len(near) > 1 or continuous, near

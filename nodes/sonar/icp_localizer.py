@@ -66,6 +66,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     gate_sigma_m: float = 2.0               # navigation prior: position (at the structure) ...
     gate_sigma_yaw_deg: float = 15.0        # ... and heading standard deviations
     gate_confidence: float = 0.99           # a trusted correction lies inside this chi-square quantile
+    max_rmse_m: float = 0.08                # a fit with a larger residual RMS is not trusted (0: no limit)
     min_points: int = 50                    # fewer points (arcs) are not aligned: the result says converged=False
     track: bool = True                      # start from the last trusted correction
     recheck_every: int = 4                  # while tracking a checked pose, yaw restarts every n-th alignment only
@@ -163,7 +164,7 @@ class IcpLocalizer(Node):
         self._since_check = 0
         self.runs = 0
         self.scans = 0
-        self.flags = {"waiting": 0, "failed": 0, "degenerate": 0, "ambiguous": 0, "gated": 0, "no_pose": 0}
+        self.flags = {"waiting": 0, "failed": 0, "degenerate": 0, "ambiguous": 0, "gated": 0, "poor_fit": 0, "no_pose": 0}
         self._warned: set[str] = set()
         self._poses: deque[tuple[int, np.ndarray]] = deque(maxlen=256)
         self._pending: deque[PointCloud] = deque()
@@ -250,7 +251,14 @@ class IcpLocalizer(Node):
         if out.ambiguous:
             self._count("ambiguous", "ambiguous fit: distinct poses fit about as well (symmetry); published "
                                      "untrusted, with every near-equal hypothesis and its cost")
-        d2, gated = float("nan"), False
+        d2, gated, poor = float("nan"), False, False
+        if out.converged and not out.degenerate and not out.ambiguous and cfg.max_rmse_m > 0 \
+                and not out.rmse_m <= cfg.max_rmse_m:
+            # Arcs that fit a good pose lie within a few range cells of the model (2-4 cm here); a fit
+            # at 10 cm is the structure half seen, dragged by seabed returns (1.2 m off on a slope).
+            poor = True
+            self._count("poor_fit", f"fit residual above max_rmse_m ({cfg.max_rmse_m} m): not trusted")
+            out.ambiguous = True
         if out.converged and not out.degenerate and np.all(np.isfinite(out.transform)):
             d2 = mahalanobis_to_prior(out.transform, out.covariance, self._model.centroid, sigma_m=cfg.gate_sigma_m,
                                       sigma_yaw_rad=math.radians(cfg.gate_sigma_yaw_deg))
@@ -273,7 +281,7 @@ class IcpLocalizer(Node):
             covariance=out.covariance, converged=out.converged, degenerate=out.degenerate,
             ambiguous=out.ambiguous, min_eigenvalue=out.min_eigenvalue, rmse_m=out.rmse_m,
             inlier_ratio=out.inlier_ratio, iterations=out.iterations, cloud_size=out.cloud_size,
-            hypotheses=_hypothesis_rows(out.hypotheses), prior_mahalanobis2=d2, gated=gated)
+            hypotheses=_hypothesis_rows(out.hypotheses), prior_mahalanobis2=d2, gated=gated, poor_fit=poor)
 
     def _solve(self, src: np.ndarray):
         """Align with the yaw-restart ambiguity check, or (tracking a checked pose) without it.

@@ -66,6 +66,7 @@ class IcpModel:
     centroid: np.ndarray
     grid: NearestGrid | None = None
     symmetry: "ModelSymmetry | None" = None
+    spacing_m: float = 0.0                 # median distance between neighbouring samples
 
     @classmethod
     def build(cls, points: np.ndarray, normals: np.ndarray, *, grid_m: float = 0.0,
@@ -79,7 +80,9 @@ class IcpModel:
         p, n = p[ok], n[ok] / np.linalg.norm(n[ok], axis=1, keepdims=True)
         tree = cKDTree(p, leafsize=16, balanced_tree=False)
         grid = NearestGrid.build(p, tree, grid_m, grid_margin_m) if grid_m > 0 else None
-        model = cls(p, n, tree, p.mean(axis=0), grid)
+        probe = p[:: max(1, len(p) // 2000)]
+        spacing = float(np.median(tree.query(probe, k=2)[0][:, 1]))
+        model = cls(p, n, tree, p.mean(axis=0), grid, spacing_m=spacing)
         if symmetry:
             from nodes.sonar.symmetry import find_symmetries
 
