@@ -297,7 +297,7 @@ def _vehicle(m: Any) -> Converted:
 
 
 def _icp(m: Any) -> Converted:
-    return [("", as_json(m)), ("/correction", _pose_in_frame(_pose3(m.correction), m))]
+    return [("", as_json(m)), ("/pose", _pose_in_frame(_pose3(m.correction), m))]
 
 
 def _poses(rows: np.ndarray, m: Any) -> fm.PosesInFrame:
