@@ -26,7 +26,7 @@ import pytest
 foxglove = pytest.importorskip("foxglove")
 pytest.importorskip("google.protobuf")
 
-from conftest import REPO, free_port, wait_for_topic  # noqa: E402
+from conftest import REPO, free_port, two_machines, wait_for_topic  # noqa: E402
 
 SUBPROTOCOLS = "foxglove.sdk.v1, foxglove.websocket.v1"
 
@@ -361,3 +361,29 @@ def test_malformed_messages_are_counted_and_the_topic_keeps_serving(runtime_env:
         view.stop()
         registry.unregister(entry)
         pub.close(linger=0)
+
+
+def test_a_curve_secured_topic_is_served_with_the_machine_keys(tmp_path: Path, runtime_env: dict):
+    """The boat's counter publishes over tcp + CurveZMQ (its subscriber is on the shore): the live
+    view dials it with the keystore's keys, as tether record does."""
+    from tether import registry
+    from tether.foxglove_bridge import LiveView
+
+    path = two_machines(tmp_path, "foxcurve")
+    boat = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", str(path), "--machine", "boat",
+                             "--duration", "60"], cwd=REPO, env=runtime_env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    view = LiveView(port=0, patterns=["counter/value"])
+    try:
+        wait_for_topic("counter/value", runtime_env, alive=boat)
+        info = registry.topics()["counter/value"]
+        assert info.secure                          # a Curve server on all its endpoints, ipc included
+        view.refresh()
+        deadline = time.monotonic() + 30
+        while view.sink.counters.by_topic.get("counter/value", 0) < 1:   # unwatched after the first: converted once
+            assert time.monotonic() < deadline, view.sink.counters
+            view.step(100)
+        assert view.sink.counters.errors == 0 and view.sink.topics == ["counter/value"]
+    finally:
+        view.stop()
+        _stop(boat)
