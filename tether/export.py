@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable
 
-import foxglove
-
 from tether.errors import DecodeError
 from tether.foxglove_bridge import Counters, FoxgloveSink
+from tether.foxglove_convert import foxglove
 from tether.log import LogReader
 from tether.message import message_type
 

@@ -20,13 +20,12 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
-import foxglove
 import msgspec
 import zmq
 
 from tether.codec import Codec, wire_to_inline
 from tether.errors import TetherError
-from tether.foxglove_convert import convert, json_schema
+from tether.foxglove_convert import convert, foxglove, json_schema
 
 log = logging.getLogger("tether.foxglove")
 

@@ -20,7 +20,14 @@ from typing import Any, Callable
 
 import msgspec
 import numpy as np
-from foxglove import messages as fm
+
+from tether.errors import TetherError
+
+try:
+    import foxglove
+    from foxglove import messages as fm
+except ImportError:            # an optional extra: say how to get it, in one line
+    raise TetherError("the Foxglove live view and export need foxglove-sdk: pip install 'tether[foxglove]'") from None
 
 DEFAULT_FRAME = "world"
 #: Arrays up to this many elements become JSON lists (plottable); larger ones stay one base64 blob.
