@@ -426,7 +426,7 @@ def cmd_foxglove(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     print(f"serving running graphs to Foxglove at ws://{args.host}:{view.port} (Open connection -> Foxglove "
-          f"WebSocket); Ctrl-C stops", flush=True)
+          f"WebSocket, or open {view.server.app_url()}); Ctrl-C stops", flush=True)
     progress = _Progress()
     t_end = time.monotonic() + args.duration if args.duration else None
     while not stop.wait(1.0) and (t_end is None or time.monotonic() < t_end):
