@@ -310,7 +310,8 @@ def test_a_port_in_use_is_one_line_not_a_traceback(runtime_env: dict):
 
 
 def test_malformed_messages_are_counted_and_the_topic_keeps_serving(runtime_env: dict):
-    """A peer publishing garbage among good messages: each bad one dropped and counted, the good ones served."""
+    """A peer publishing garbage among good messages: each bad one dropped and counted, the good ones
+    served; when its registry entry goes, its channel is unadvertised."""
     import msgpack
     import zmq
 
@@ -356,6 +357,15 @@ def test_malformed_messages_are_counted_and_the_topic_keeps_serving(runtime_env:
                 got.append(data[13:])
         assert all(json.loads(g)["data"] == 2.5 for g in got)
         assert view.sink.counters.errors == 4
+        registry.unregister(entry)                  # the graph went away: its channels are unadvertised
+        view.refresh()
+        while client.channels:
+            assert time.monotonic() < deadline
+            try:
+                client.recv()
+            except socket.timeout:
+                pass
+        assert view.sink.topics == []
         client.close()
     finally:
         view.stop()
