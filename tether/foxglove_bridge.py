@@ -32,6 +32,9 @@ log = logging.getLogger("tether.foxglove")
 ERROR_LOG_PERIOD_S = 5.0
 LATEST_ONLY_BYTES = 256 << 10       # messages larger than this are sampled (newest per round), not queued
 REGISTRY_PERIOD_S = 1.0
+#: Messages the server queues per client before dropping its oldest (the SDK's default, 1024, is counted
+#: in messages: 1024 RGB-D frames for a stalled browser tab would be gigabytes).
+CLIENT_BACKLOG = 128
 
 
 @dataclass
@@ -124,8 +127,12 @@ class LiveView:
         self.patterns, self.exclude = list(patterns), list(exclude)
         self.context = foxglove.Context()
         self.sink = FoxgloveSink(self.context)
+        # Clients coming and going are logged once each (foxglove.websocket.server); the per-client errors
+        # after a tab closes or a client resets come once per message still queued for it: not shown.
+        logging.getLogger("foxglove.websocket.connected_client").setLevel(logging.CRITICAL)
         try:
-            self.server = foxglove.start_server(name="tether", host=host, port=port, context=self.context)
+            self.server = foxglove.start_server(name="tether", host=host, port=port, context=self.context,
+                                                message_backlog_size=CLIENT_BACKLOG)
         except RuntimeError as exc:            # the SDK's error for a port in use, an unknown host, ...
             raise TetherError(f"cannot serve Foxglove on {host}:{port}: {str(exc).removeprefix('FoxgloveError: ')}"
                               f"; choose another --port (0: any free one)") from None
