@@ -8,7 +8,9 @@ started later appear, graphs that stop are unadvertised), subscribes to them lik
 ``tether record`` does (CurveZMQ keys from the keystore for secured topics), and converts
 on one thread. It keeps up rather than queues: per round it converts every message of a
 topic up to 256 KiB and only the newest of larger ones (images, clouds), counting the
-ones it skipped.
+ones it skipped; a topic no Foxglove client subscribes to is converted once, to advertise
+its channels, and then only received. Undecodable messages are counted and logged (at most
+one line per 5 s), never raised.
 """
 from __future__ import annotations
 
