@@ -24,7 +24,7 @@ import numpy as np
 from tether.errors import TetherError
 
 try:
-    import foxglove
+    import foxglove  # noqa: F401 - the bridge and the export import it from here (one install hint)
     from foxglove import messages as fm
 except ImportError:            # an optional extra: say how to get it, in one line
     raise TetherError("the Foxglove live view and export need foxglove-sdk: pip install 'tether[foxglove]'") from None
