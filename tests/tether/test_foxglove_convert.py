@@ -220,3 +220,28 @@ def test_export_writes_foxglove_schemas_and_counts_bad_records(tmp_path: Path, c
     assert json.loads(seen["x/value"][2][2].data)["data"] == 2.0
     assert json.loads(seen["odd/thing"][0][2].data) == {"a": 1}
     assert "dropped a message on cam/image" in caplog.text
+
+
+def test_real_oculus_pings_export_as_the_images_they_are(tmp_path: Path, runtime_env: dict, shared_data: Path):
+    """Three real Oculus M1200d pings (../shared/data), imported, exported: each a mono8 image of the
+    ping's ranges x beams, far ranges on top."""
+    from mcap.reader import make_reader
+
+    from conftest import tether
+    from tether.export import export_foxglove
+    from tether.log import LogReader
+
+    log, out = tmp_path / "pings.mcap", tmp_path / "fox.mcap"
+    res = tether("import", "oculus", str(shared_data / "sonar" / "oculus-m1200d" / "three_pings_8bit.raw"),
+                 "-o", str(log), env=runtime_env)
+    assert res.returncode == 0, res.stderr
+    pings = [LogReader(log).decode(r) for r in LogReader(log).messages()]
+    assert export_foxglove(log, out).converted == 3
+    with open(out, "rb") as fh:
+        images = [decoder(foxglove.messages.RawImage.get_schema()).FromString(m.data)
+                  for _, _, m in make_reader(fh).iter_messages()]
+    assert len(images) == 3
+    for ping, img in zip(pings, images):
+        assert (img.height, img.width, img.encoding) == (*ping.intensities.shape, "mono8")
+        np.testing.assert_array_equal(_pixels(img), ping.intensities[::-1])
+        assert img.timestamp.seconds * 10**9 + img.timestamp.nanos == ping.stamp_ns
