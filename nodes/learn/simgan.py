@@ -54,6 +54,8 @@ class SimGANConfig:
     pretrain_d: int = 50           # D-only steps against the identity refiner
     win_prob: float = 0.02         # D wins when P(real|refined) < this and P(real|real) > 1 - this
     collapse_ratio: float = 0.3    # refined diversity / input diversity below this = collapse
+    space_to_depth: int = 1        # refiner works on s x s pixel blocks as channels (s = 1: per pixel)
+    residual: str = "tanh"         # "tanh": tanh(atanh(x) + d); "add": clip(x + d, -1, 1) (see Refiner)
 
 
 def to_signed(images: np.ndarray) -> np.ndarray:
@@ -77,17 +79,46 @@ class _Block(nn.Module):
 
 
 class Refiner(nn.Module):
-    """(B, H, W, C) in [-1, 1] -> same shape in (-1, 1); the identity at initialisation."""
+    """(B, H, W, C) in [-1, 1] -> same shape in (-1, 1); the identity at initialisation.
+
+    With ``space_to_depth`` s > 1 the ResNet runs on s x s pixel blocks stacked as channels (the
+    image padded by edge replication to a multiple of s, then cropped back) and writes a per-pixel
+    correction: s^2 fewer positions with wider layers, which XLA's CPU convolutions run far
+    faster than one-channel full-resolution layers (a 1024 x 512 sonar image: 12 ms instead of
+    105 ms at equal receptive field in pixels).
+
+
+    ``residual`` "tanh" writes ``tanh(atanh(x) + d)``, smooth and bounded, but its gradient
+    vanishes on saturated pixels (black in a sonar image: the derivative at x = -0.999 is 0.002,
+    so a refiner cannot learn to lift a black shadow to a real sonar's noise floor); "add" writes
+    ``clip(x + d, -1, 1)``, whose gradient is 1 wherever the result is inside the range.
+    """
 
     features: int = 16
     blocks: int = 2
+    space_to_depth: int = 1
+    residual: str = "tanh"
 
     @nn.compact
     def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
-        h = nn.relu(nn.Conv(self.features, (3, 3))(x))
+        s = self.space_to_depth
+        b, h0, w0, c = x.shape
+        z = x
+        if s > 1:
+            z = jnp.pad(x, ((0, 0), (0, -h0 % s), (0, -w0 % s), (0, 0)), mode="edge")
+            hh, ww = z.shape[1] // s, z.shape[2] // s
+            z = z.reshape(b, hh, s, ww, s, c).transpose(0, 1, 3, 2, 4, 5).reshape(b, hh, ww, s * s * c)
+        h = nn.relu(nn.Conv(self.features, (3, 3))(z))
         for _ in range(self.blocks):
             h = _Block(self.features)(h)
-        delta = nn.Conv(x.shape[-1], (1, 1), kernel_init=nn.initializers.zeros)(h)
+        delta = nn.Conv(z.shape[-1], (1, 1), kernel_init=nn.initializers.zeros)(h)
+        if s > 1:
+            delta = delta.reshape(b, hh, ww, s, s, c).transpose(0, 1, 3, 2, 4, 5).reshape(b, hh * s, ww * s, c)
+            delta = delta[:, :h0, :w0]
+        if self.residual == "add":
+            return jnp.clip(x + delta, -1.0, 1.0)
+        if self.residual != "tanh":
+            raise ValueError(f"residual must be 'tanh' or 'add', got {self.residual!r}")
         return jnp.tanh(jnp.arctanh(jnp.clip(x, -0.999, 0.999)) + delta)
 
 
@@ -106,7 +137,7 @@ class PatchDiscriminator(nn.Module):
 @functools.lru_cache(maxsize=8)
 def _compiled(cfg: SimGANConfig) -> dict[str, Callable[..., Any]]:
     """The jitted refiner and discriminator updates for ``cfg``: compiled once per process."""
-    r_net, d_net = Refiner(cfg.features, cfg.blocks), PatchDiscriminator(cfg.disc_features)
+    r_net, d_net = Refiner(cfg.features, cfg.blocks, cfg.space_to_depth, cfg.residual), PatchDiscriminator(cfg.disc_features)
     tx_r = optax.adam(cfg.lr_r, b1=0.5)
     tx_d = optax.adam(cfg.lr_d, b1=0.5)
 
@@ -284,3 +315,28 @@ def refine_images(params_r: Any, images: np.ndarray, cfg: SimGANConfig, *, batch
         raise ValueError(f"expected (N, H, W, C) images, got shape {x.shape}")
     f = _compiled(cfg)["refine"]
     return np.concatenate([np.asarray(f(params_r, x[i:i + batch])) for i in range(0, len(x), batch)]) if len(x) else x
+
+
+def save_refiner(path: str | Path, params_r: Any, cfg: SimGANConfig, *, meta: dict[str, Any] | None = None) -> int:
+    """The refiner alone (what a node serves), with the config that rebuilds it."""
+    return save_checkpoint(path, params_r, meta={**(meta or {}), "config": _jsonable(asdict(cfg)), "kind": "simgan-refiner"})
+
+
+def load_refiner(path: str | Path) -> tuple[Any, SimGANConfig, dict[str, Any]]:
+    """``(params, config, meta)`` of a :func:`save_refiner` file; ``ValueError`` naming what does not fit."""
+    from flax import serialization
+
+    doc = serialization.msgpack_restore(Path(path).read_bytes())
+    meta = doc.get("meta", {}) if isinstance(doc, dict) else {}
+    if meta.get("kind") != "simgan-refiner":
+        raise ValueError(f"{path}: not a SimGAN refiner checkpoint (kind {meta.get('kind')!r})")
+    raw = dict(meta["config"])
+    raw["disc_features"] = tuple(raw.get("disc_features", SimGANConfig.disc_features))
+    try:
+        cfg = SimGANConfig(**raw)
+    except TypeError as exc:
+        raise ValueError(f"{path}: refiner config does not fit this version: {exc}") from None
+    like = Refiner(cfg.features, cfg.blocks, cfg.space_to_depth, cfg.residual).init(
+        jax.random.PRNGKey(0), jnp.zeros((1, 8, 8, int(meta.get("channels", 1))), jnp.float32))
+    params, meta = load_checkpoint(path, like)
+    return params, cfg, meta
