@@ -196,7 +196,9 @@ class Controller:
             self._fresh = (ref_speed if ref_speed is not None else _speed(desired[0])) < self.limits.v_gate_mps
         # branches follow the path itself: feedback on a small error never swings a wheel half a turn
         s_path = way if ref_speed is not None else None
-        self._aim = steer_targets(desired[0], desired[1], aim, self.limits, s_path=s_path)
+        # a law that plans the steering itself (the MPC) says which angles; else they follow s
+        self._aim = desired[2] if len(desired) > 2 else steer_targets(desired[0], desired[1], aim, self.limits,
+                                                                       s_path=s_path)
         cmd = shape_command(desired[0], desired[1], self.prev, self.limits, dt, targets=self._aim)
         if not _finite(cmd):
             return self.stop(wheels, "non-finite output")
@@ -229,7 +231,8 @@ class Controller:
         return self.prev
 
     def desired(self, ref: RefPoint, pose: Vec3, wheels: Wheels, dt: float):
-        """``(s_cmd, s_hint)`` for this tick, or None when the law has no answer."""
+        """``(s_cmd, s_hint)`` for this tick (optionally ``(s_cmd, s_hint, (delta_f, delta_b))`` when the
+        law chose the steer angles itself), or None when the law has no answer."""
         raise NotImplementedError
 
 

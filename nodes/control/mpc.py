@@ -2,14 +2,18 @@
 
 Model: pose ``p = (x, y, theta)`` driven by the seed's singularity-free body velocities
 ``s = (v_tan, v_lat_f, v_lat_b)`` through ``p_dot = A(theta) s`` (1/L fix, see kinematics).
-The drives take setpoints held over a control period, so the decision variables are the
-setpoints themselves, piecewise constant over ``horizon`` intervals of ``step_s`` (one RK4
-step each); the seed's inputs ``u`` are their rates, bounded as
-``|s_k - s_{k-1}| <= wheel_accel * step_s`` (linear constraints, relative to the setpoint
-already sent for k = 0), with ``|s| <= wheel_speed``.  Cost: squared pose error (heading
-against a reference unwrapped around the current heading, so +-pi is no jump), setpoint
-error against ``A^-1 p_dot_ref`` and setpoint-rate effort.  Steer rates are nonlinear in s
-and left to the command shaping every controller shares.
+The drives take per-axle setpoints ``w = (v_f, delta_f, v_b, delta_b)`` held over a
+control period, so those are the decision variables, piecewise constant over ``horizon``
+intervals of ``step_s`` (one RK4 step each), with ``s(w) = ((v_f cos d_f + v_b cos d_b) / 2,
+v_f sin d_f, v_b sin d_b)``.  The actuators are modelled by their rate limits: the steer
+angles move at most ``steer_rate * step_s`` and the wheel speeds ``wheel_accel * step_s``
+per interval (relative to the setpoint already sent for k = 0), within the steer range and
+top speed, and every setpoint satisfies the rigid-body constraint
+``v_f cos d_f = v_b cos d_b``.  A plan is therefore one the wheels can follow: from rest,
+with the wheels pointing the wrong way, it turns them first instead of pushing a body
+velocity they cannot give yet.  Cost: squared pose error (heading against a reference
+unwrapped around the current heading, so +-pi is no jump), body-velocity error against
+``A^-1 p_dot_ref`` and setpoint-rate effort.
 
 The reference preview comes from a callable (the benchmark passes the exact trajectory);
 without one it is extrapolated from the current point at constant acceleration.
@@ -24,7 +28,7 @@ import casadi as ca
 import numpy as np
 
 from nodes.control.double_ackermann import Controller, RefPoint
-from nodes.control.kinematics import predict_pose, s_from_wheels
+from nodes.control.kinematics import choose_steer, predict_pose
 
 Preview = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -37,10 +41,16 @@ def _dynamics(wheelbase_m: float) -> ca.Function:
     return ca.Function("f", [p, s], [pdot])
 
 
+def _body(w: ca.SX) -> ca.SX:
+    """``s(w)``: body velocities of per-axle setpoints ``w = (v_f, d_f, v_b, d_b)``."""
+    return ca.vertcat(0.5 * (w[0] * ca.cos(w[1]) + w[2] * ca.cos(w[3])), w[0] * ca.sin(w[1]), w[2] * ca.sin(w[3]))
+
+
 def build_solver(*, horizon: int, step_s: float, wheelbase_m: float, accel_max: float, speed_max: float,
-                 q_pos: float = 1e4, q_theta: float = 1e3, q_s: float = 1.0, r_ds: float = 1.0,
-                 max_iter: int = 3) -> tuple[ca.Function, dict]:
-    """The NLP solver and its bounds. Parameters: p0 (3), s_prev (3), p_ref (3, N+1), s_ref (3, N)."""
+                 steer_rate_max: float = 3.0, steer_limit: float = 2.5, q_pos: float = 1e4, q_theta: float = 1e3,
+                 q_s: float = 1.0, r_dv: float = 1.0, r_ddelta: float = 0.01, max_iter: int = 3
+                 ) -> tuple[ca.Function, dict]:
+    """The NLP solver and its bounds. Parameters: p0 (3), w_prev (4), p_ref (3, N+1), s_ref (3, N)."""
     if horizon < 1 or step_s <= 0:
         raise ValueError("MPC needs horizon >= 1 and step_s > 0")
     f = _dynamics(wheelbase_m)
@@ -51,26 +61,30 @@ def build_solver(*, horizon: int, step_s: float, wheelbase_m: float, accel_max: 
     k3 = f(p + h / 2 * k2, s)
     k4 = f(p + h * k3, s)
     F = ca.Function("F", [p, s], [p + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
-    P, S = ca.SX.sym("P", 3, N + 1), ca.SX.sym("S", 3, N)
-    p0, sprev, pref, sref = ca.SX.sym("p0", 3), ca.SX.sym("sp", 3), ca.SX.sym("pr", 3, N + 1), ca.SX.sym("sr", 3, N)
-    cost, g_eq, g_rate = 0, [P[:, 0] - p0], []
+    P, W = ca.SX.sym("P", 3, N + 1), ca.SX.sym("W", 4, N)
+    p0, wprev, pref, sref = ca.SX.sym("p0", 3), ca.SX.sym("wp", 4), ca.SX.sym("pr", 3, N + 1), ca.SX.sym("sr", 3, N)
+    effort = ca.DM([r_dv, r_ddelta, r_dv, r_ddelta])
+    cost, g_eq, g_rigid, g_rate = 0, [P[:, 0] - p0], [], []
     for k in range(N):
-        g_eq.append(P[:, k + 1] - F(P[:, k], S[:, k]))
-        g_rate.append(S[:, k] - (sprev if k == 0 else S[:, k - 1]))
+        w = W[:, k]
+        g_eq.append(P[:, k + 1] - F(P[:, k], _body(w)))
+        g_rigid.append(w[0] * ca.cos(w[1]) - w[2] * ca.cos(w[3]))
+        g_rate.append(w - (wprev if k == 0 else W[:, k - 1]))
         e = P[:, k + 1]
         cost += q_pos * ca.sumsqr(e[:2] - pref[:2, k + 1]) + q_theta * (e[2] - pref[2, k + 1]) ** 2
-        cost += q_s * ca.sumsqr(S[:, k] - sref[:, k]) + r_ds * ca.sumsqr(g_rate[-1])
-    nlp = {"x": ca.veccat(P, S), "p": ca.veccat(p0, sprev, pref, sref), "f": cost,
-           "g": ca.vertcat(*g_eq, *g_rate)}
-    opts = {"qpsol": "qrqp", "max_iter": max_iter, "print_header": False, "print_iteration": False,
+        cost += q_s * ca.sumsqr(_body(w) - sref[:, k]) + ca.sumsqr(ca.sqrt(effort) * g_rate[-1])
+    nlp = {"x": ca.veccat(P, W), "p": ca.veccat(p0, wprev, pref, sref), "f": cost,
+           "g": ca.vertcat(*g_eq, *g_rigid, *g_rate)}
+    opts = {"qpsol": "qrqp", "max_iter": max_iter, "convexify_strategy": "regularize", "print_header": False, "print_iteration": False,
             "print_status": False, "print_time": False, "error_on_fail": False,
             "qpsol_options": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False}}
     solver = ca.nlpsol("mpc", "sqpmethod", nlp, opts)
     npose = 3 * (N + 1)
-    lbx = np.concatenate([np.full(npose, -np.inf), np.full(3 * N, -speed_max)])
-    dmax = accel_max * h
-    lbg = np.concatenate([np.zeros(npose), np.full(3 * N, -dmax)])
-    ubg = np.concatenate([np.zeros(npose), np.full(3 * N, dmax)])
+    wmax = np.tile([speed_max, steer_limit, speed_max, steer_limit], N)
+    dmax = np.tile([accel_max * h, steer_rate_max * h, accel_max * h, steer_rate_max * h], N)
+    lbx = np.concatenate([np.full(npose, -np.inf), -wmax])
+    lbg = np.concatenate([np.zeros(npose + N), -dmax])
+    ubg = np.concatenate([np.zeros(npose + N), dmax])
     return solver, {"lbx": lbx, "ubx": -lbx, "lbg": lbg, "ubg": ubg, "npose": npose}
 
 
@@ -105,7 +119,8 @@ class MpcController(Controller):
         if self._solver is None or abs(h - self._h) > 1e-3 * h:
             self._solver, self._bounds = build_solver(
                 horizon=self.horizon, step_s=h, wheelbase_m=self.wheelbase_m, accel_max=self.limits.wheel_accel_mps2,
-                speed_max=self.limits.wheel_speed_mps, max_iter=self.max_iter)
+                speed_max=self.limits.wheel_speed_mps, steer_rate_max=self.limits.steer_rate_radps,
+                steer_limit=self.limits.steer_limit_rad, max_iter=self.max_iter)
             self._h, self._warm = h, None
 
     def desired(self, ref, pose, wheels, dt):
@@ -126,15 +141,15 @@ class MpcController(Controller):
         vx, vy = c * mid_dp[:, 0] + s * mid_dp[:, 1], -s * mid_dp[:, 0] + c * mid_dp[:, 1]
         half = 0.5 * self.wheelbase_m * mid_dp[:, 2]
         sref = np.stack([vx, vy + half, vy - half])
-        sprev = np.asarray(s_from_wheels(self.prev if self.prev is not None else wheels))
+        wprev = np.asarray(self.prev if self.prev is not None else wheels, dtype=float)
         p0 = np.array([pose[0], pose[1], th])
         b = self._bounds
-        args = dict(p=np.concatenate([p0, sprev, pr.ravel(), sref.ravel(order="F")]),
+        args = dict(p=np.concatenate([p0, wprev, pr.ravel(), sref.ravel(order="F")]),
                     lbx=b["lbx"], ubx=b["ubx"], lbg=b["lbg"], ubg=b["ubg"])
-        args.update(self._warm_start(p0, sprev))
+        args.update(self._warm_start(p0, wprev, sref))
         sol = self._solver(**args)
         status = self._solver.stats().get("return_status", "")
-        if self._solver.stats().get("success", False) or status == "Maximum_iterations_exceeded":
+        if self._solver.stats().get("success", False) or status.lower() == "maximum_iterations_exceeded":
             self.solve_ok += 1          # a capped SQP (real-time iteration style) is the intended use
         else:
             self.solve_fail += 1
@@ -144,9 +159,13 @@ class MpcController(Controller):
             self._warm = None
             return None
         self._warm = {"x": x, "lam_x": np.asarray(sol["lam_x"]).ravel(), "lam_g": np.asarray(sol["lam_g"]).ravel()}
-        S = x[b["npose"]:].reshape(N, 3)
+        W = x[b["npose"]:].reshape(N, 4)
+        S = np.stack([0.5 * (W[:, 0] * np.cos(W[:, 1]) + W[:, 2] * np.cos(W[:, 3])),
+                      W[:, 0] * np.sin(W[:, 1]), W[:, 2] * np.sin(W[:, 3])], axis=1)
         rate = (S[1] - S[0]) / h if N > 1 else np.zeros(3)
-        return tuple(float(v) for v in S[0]), tuple(float(v) for v in rate)
+        # the plan's own steer angles: they respect the steer rate already, and at rest they are
+        # what the wheels must turn to before they roll
+        return tuple(float(v) for v in S[0]), tuple(float(v) for v in rate), (float(W[0, 1]), float(W[0, 3]))
 
     def _predict_through_sent(self, pose: tuple, lead: float, dt: float) -> tuple:
         """Dead-reckon ``lead`` s ahead through the setpoints already sent (sent at t - m dt, active from + lead)."""
@@ -161,13 +180,25 @@ class MpcController(Controller):
                 pose = predict_pose(pose, self._sent[m - 1], end - start, self.wheelbase_m)
         return pose
 
-    def _warm_start(self, p0: np.ndarray, sprev: np.ndarray) -> dict:
-        """Previous solution shifted one interval (last one repeated); cold: hold the pose and setpoint."""
+    def _warm_start(self, p0: np.ndarray, wprev: np.ndarray, sref: np.ndarray) -> dict:
+        """Previous solution shifted one interval (last one repeated); cold: hold the pose, and wheels
+        that realise the reference's body velocities on the branch nearest the current steering."""
         N, npose = self.horizon, self._bounds["npose"]
         if self._warm is None:
-            return {"x0": np.concatenate([np.tile(p0, N + 1), np.tile(sprev, N)])}
+            lim = self.limits.steer_limit_rad
+            guess = []
+            for k in range(N):
+                w = []
+                for lat, prev_delta in ((sref[1, k], wprev[1]), (sref[2, k], wprev[3])):
+                    if math.hypot(sref[0, k], lat) < 1e-9:
+                        w += [0.0, float(prev_delta)]
+                    else:
+                        delta, v = choose_steer(sref[0, k], lat, float(prev_delta), lim)
+                        w += [v, delta]
+                guess.append(w)
+            return {"x0": np.concatenate([np.tile(p0, N + 1), np.ravel(guess)])}
         x = self._warm["x"]
-        P, S = x[:npose].reshape(N + 1, 3), x[npose:].reshape(N, 3)
+        P, S = x[:npose].reshape(N + 1, 3), x[npose:].reshape(N, 4)
         P[:, 2] += 2 * np.pi * np.round((p0[2] - P[1, 2]) / (2 * np.pi))   # measured heading wrapped past +-pi
         P = np.vstack([P[1:], P[-1:]])
         P[0] = p0
