@@ -185,3 +185,23 @@ def test_a_homing_error_trips_the_master(rig):
 def test_bad_cyclic_configs_are_refused(config, match):
     with pytest.raises(ValueError, match=match):
         Cia402Master(SyncCanHub().bus("x"), Config(**config))
+
+
+def test_driver_node_publishes_measured_at_the_control_rate():
+    from drivers.canopen402 import Cia402Bus
+    from msgs.control import WheelCommand
+    from tether.testing import Harness
+    hub = SyncCanHub()
+    bank = LockstepDriveBank(hub.bus("drives"), {d.name: make_drive(d, None, 0.0) for d in DEFAULT_DRIVES})
+    node_cls = type("Cia402Bus", (Cia402Bus,), {"open_bus": lambda self: hub.bus("master")})
+    cmd = WheelCommand(v_front_mps=0.2, delta_front_rad=0.1, v_rear_mps=0.2, delta_rear_rad=-0.1)
+    with Harness(node_cls, params={"publish_frames": False, "measured_hz": 50.0, **CYCLIC}) as h:
+        for k in range(1, 1001):
+            t = k * 1e-3
+            hub.advance(t)
+            h.feed([(t, "cmd", cmd)] if k % 20 == 0 else [], until_s=t)
+        measured, states = h.of("measured"), h.of("drives")
+    bank.bus.shutdown()
+    assert 49 <= len(measured) <= 51 and 19 * 4 <= len(states) <= 21 * 4     # 50 Hz; drive states at 20 Hz
+    last = measured[-1]
+    assert (last.v_front_mps, last.delta_front_rad, last.delta_rear_rad) == pytest.approx((0.2, 0.1, -0.1), abs=2e-3)
