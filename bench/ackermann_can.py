@@ -66,7 +66,7 @@ def start_reference(ramp_s: float, align_s: float):
 
 
 def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: str, skip_s: float,
-            ramp_s: float, align_s: float) -> dict:
+            ramp_s: float, align_s: float, cyclic: bool = False) -> dict:
     """One real-time closed loop over the CAN stack, started as a real robot starts; error summaries and timings.
 
     The drives boot with the steering straight and the wheels at rest. The master brings
@@ -81,7 +81,8 @@ def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: s
     params = VehicleParams()
     channel = "239.74.163.2" if interface == "udp_multicast" else f"bench-{os.getpid()}-{master_hz}-{rate_hz}"
     opts = {"port": 46_000 + os.getpid() % 1000} if interface == "udp_multicast" else {}
-    cfg = BusConfig(interface=interface, channel=channel, rate_hz=master_hz, **opts)
+    modes = dict(sync_hz=master_hz, steer_mode="csp", wheel_mode="csv") if cyclic else {}
+    cfg = BusConfig(interface=interface, channel=channel, rate_hz=master_hz, **modes, **opts)
     sim_bus, master_bus = open_bus(interface, channel, **opts), open_bus(interface, channel, **opts)
     frames = [0]
     master_bus.tx_listeners.append(lambda m: frames.__setitem__(0, frames[0] + 1))
@@ -152,18 +153,23 @@ def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: s
         sim_bus.shutdown()
 
 
-def lockstep_run(*, duration_s: float) -> dict:
+def lockstep_run(*, duration_s: float, overrides: dict | None = None) -> dict:
     """launch/ackermann_can.yaml itself (every node, the CANopen master and the simulated drives on
-    a synchronous bus) in virtual time: deterministic, faster than real time; whole-run errors."""
+    a synchronous bus) in virtual time: deterministic, faster than real time; whole-run errors.
+    ``overrides``: ``{node: {param: value}}`` on top of the launch file's (e.g. the profile modes)."""
     from sim.lockstep import run_lockstep
     t0 = time.perf_counter()
-    run = run_lockstep(os.path.join(REPO, "launch", "ackermann_can.yaml"), duration_s=duration_s,
-                       overrides={"eval": {"png": ""}, "can": {"publish_frames": False}})
+    merged: dict = {"eval": {"png": ""}, "can": {"publish_frames": False}}
+    for node, params in (overrides or {}).items():
+        merged[node] = {**merged.get(node, {}), **params}
+    run = run_lockstep(os.path.join(REPO, "launch", "ackermann_can.yaml"), duration_s=duration_s, overrides=merged)
     wall = time.perf_counter() - t0
     s, ref, st, keep, pos = run.node("eval").evaluate(0.0)
     t = st[keep, 0] - ref[0, 0]
     rear = [c.v_rear_mps for c in run.of("controller/cmd")]
+    master = run.node("can").master
     return {"rms_mm": s["rms_mm"], "max_mm": s["max_mm"], "rms_deg": s["rms_heading_deg"], "wall_s": wall,
+            "tripped": master.latched, "syncs": master.syncs_sent,
             "rear_reversed_s": float(np.sum(np.array(rear) < -0.01) / 50.0),
             "log": np.column_stack([t, st[keep, 1:], np.interp(st[keep, 0], ref[:, 0], ref[:, 1]),
                                     np.interp(st[keep, 0], ref[:, 0], ref[:, 2])]), "err": pos}
@@ -219,7 +225,8 @@ def main() -> None:
     args = ap.parse_args()
     say = (lambda *a, **k: None) if args.json else print
     duration = 14.0 if args.quick else 43.0          # 43 s = one full lap of the figure-eight after align + ramp
-    settings = [("udp_multicast", 50.0, 100.0)] if args.quick else [
+    settings = [("udp_multicast", 50.0, 100.0), ("udp_multicast", 50.0, 100.0, "csp")] if args.quick else [
+        ("udp_multicast", 50.0, 100.0, "csp"),
         ("udp_multicast", 50.0, 50.0), ("udp_multicast", 50.0, 100.0), ("udp_multicast", 50.0, 200.0),
         ("udp_multicast", 100.0, 100.0), ("virtual", 50.0, 100.0)]
     say(f"figure-eight, {duration:.0f} s per run from rest (drives enabled, {args.align:g} s wheel alignment, "
@@ -228,10 +235,10 @@ def main() -> None:
     say(f"{'loop':>44s} {'rms mm':>8s} {'max mm':>8s} {'steady':>8s} {'head deg':>9s} {'ctrl us':>8s} "
         f"{'master us':>9s} {'tx fr/s':>8s} {'late p95':>8s} {'late max':>8s} {'wall s':>7s}")
     runs: dict[str, dict] = {}
-    for interface, rate, master_hz in settings:
-        name = f"CAN {interface} ctrl {rate:.0f} Hz, bus {master_hz:.0f} Hz"
+    for interface, rate, master_hz, *csp in settings:
+        name = f"CAN {interface} ctrl {rate:.0f} Hz, bus {master_hz:.0f} Hz" + (" CSP/CSV+SYNC" if csp else "")
         r = can_run(rate_hz=rate, master_hz=master_hz, duration_s=duration, interface=interface, skip_s=args.skip,
-                    ramp_s=args.ramp, align_s=args.align)
+                    ramp_s=args.ramp, align_s=args.align, cyclic=bool(csp))
         runs[name] = r
         say(f"{name:>44s} {r['rms_mm']:8.2f} {r['max_mm']:8.2f} {r['rms_mm_steady']:8.2f} {r['rms_deg']:9.3f} "
             f"{r['step_us']:8.0f} {r['master_step_us']:9.0f} {r['tx_frames_per_s']:8.0f} {r['tick_late_ms_p95']:7.2f}ms"
@@ -247,7 +254,8 @@ def main() -> None:
     for name, r in ref.items():
         say(f"{name + ' (50 Hz, starts at speed)':>44s} {r['rms_mm']:8.2f} {r['max_mm']:8.2f} {'':>8s} "
             f"{r['rms_deg']:9.3f}")
-    head = runs[next(n for n in runs if "bus 100 Hz" in n and "ctrl 50" in n and "udp" in n)]
+    head = runs[next(n for n in runs if "bus 100 Hz" in n and "ctrl 50" in n and "udp" in n and "CSP" not in n)]
+    csp_rt = next((r for n, r in runs.items() if "CSP" in n), None)
     ratio = head["rms_mm_steady"] / max(ref["model, no bus"]["rms_mm"], 1e-9)
     os.makedirs(os.path.join(REPO, "out"), exist_ok=True)
     png = os.path.join(REPO, "out", "ackermann_can.png")
@@ -270,6 +278,8 @@ def main() -> None:
             "fig8_rms_mm_model_nobus": ref["model, no bus"]["rms_mm"],
             "fig8_rms_mm_model_bus": ref["model, modelled bus"]["rms_mm"],
             "can_steady_vs_nobus_ratio": ratio, "can_tripped": head["tripped"],
+            "fig8_rms_mm_can_csp_realtime": csp_rt["rms_mm"] if csp_rt else None,
+            "can_csp_realtime_tripped": csp_rt["tripped"] if csp_rt else None,
             "can_rear_reversed_s": head["rear_reversed_s"], "master_step_us": head["master_step_us"],
             "step_us": head["step_us"], "lockstep_wall_s": lock["wall_s"], "duration_s": duration,
             "by_setting": {n: {"rms_mm": r["rms_mm"], "max_mm": r["max_mm"]} for n, r in runs.items()},
