@@ -458,6 +458,17 @@ def captcha(d: dict) -> list[Row]:
              f"({d['gain_points']:+.1f})")]
 
 
+def sonar_refiner(d: dict) -> list[Row]:
+    return [("`sonar_refiner.py` simulated 2 m pings against a held-out region of real M1200d pings",
+             f"histogram distance {d['gap_raw']:.1f} grey levels raw -> {d['gap_refined']:.1f} SimGAN-refined "
+             f"({d['gap_ratio']:.2f}x), speckle {d['speckle_gap_raw']:.3f} -> {d['speckle_gap_refined']:.3f}; "
+             f"a fresh discriminator still tells them apart (AUC {d['disc_auc_raw']:.3f} -> {d['disc_auc_refined']:.3f}); "
+             f"{d['ms_per_image']:.1f} ms per 1024 x 512 image; {d['train_minutes']:.1f} min training",
+             f"hand rule (histogram matching): {d['gap_histmatch']:.1f} grey levels, speckle "
+             f"{d['speckle_gap_histmatch']:.3f}, AUC {d['disc_auc_histmatch']:.3f}",
+             f"refined gap <= half the raw one at <= 20 ms: {_met(d['goal_met'])}")]
+
+
 #: bench name -> (arguments for --run, formatter)
 FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "rl_env": ([], rl_env),
@@ -466,6 +477,7 @@ FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "hand_gesture": ([], hand_gesture),
     "selfplay": ([], selfplay),
     "captcha": ([], captcha),
+    "sonar_refiner": ([], sonar_refiner),
     "set_localize": ([], set_localize),
     "winding": ([], winding),
     "ping360": ([], ping360),
