@@ -127,7 +127,10 @@ def test_launched_loop_tracks_from_rest_without_a_branch_flip(start):
     assert held and all(c.v_front_mps == 0.0 for c in held)            # enabled standing still, steering held
     if start != "straight":
         assert held[0].delta_front_rad == pytest.approx(-1.0, abs=1e-4)
-    assert not run.node("can").master.latched
+    master = run.node("can").master
+    assert not master.latched
+    # the launch file runs the cyclic synchronous modes: SYNC every 10 ms, steering CSP, wheels CSV
+    assert master.syncs_sent >= 1250 and {d.mode for d in master.drives.values()} == {8, 9}
 
 
 def test_the_old_start_is_caught_by_the_same_bounds():
