@@ -73,3 +73,63 @@ def save_cloud_png(path: str | Path, cloud: np.ndarray, model: np.ndarray, corre
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def surface_distances(points: np.ndarray, surface: np.ndarray) -> np.ndarray:
+    """Distance (m) from each of ``points`` (N, 3) to the nearest of the dense ``surface`` samples (M, 3).
+
+    Sample the surface finely (a few cm): the nearest-sample distance overstates the distance to the
+    surface by at most about half the sample spacing.
+    """
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, float).reshape(-1, 3)
+    if len(pts) == 0 or len(surface) == 0:
+        return np.full(len(pts), np.inf)
+    return cKDTree(np.asarray(surface, float)).query(pts, workers=1)[0]
+
+
+def visible_surface(surface: np.ndarray, hits: np.ndarray, within_m: float = 0.1) -> np.ndarray:
+    """The samples of ``surface`` (M, 3) that some true first hit (K, 3) of the run lands within ``within_m`` of."""
+    from scipy.spatial import cKDTree
+
+    surface = np.asarray(surface, float).reshape(-1, 3)
+    hits = np.asarray(hits, float).reshape(-1, 3)
+    if len(surface) == 0 or len(hits) == 0:
+        return surface[:0]
+    d, _ = cKDTree(hits).query(surface, distance_upper_bound=within_m, workers=1)
+    return surface[np.isfinite(d)]
+
+
+def cloud_metrics(cloud: np.ndarray, surface: np.ndarray, visible: np.ndarray | None = None) -> dict:
+    """Accuracy and completeness of a reconstructed cloud against a structure's surface.
+
+    Parameters
+    ----------
+    cloud : (N, 3) reconstructed points, world m.
+    surface : (M, 3) dense samples of the structures' surfaces (the truth for accuracy).
+    visible : (V, 3) samples of the surface the run saw (for completeness); None skips completeness.
+
+    Returns
+    -------
+    dict with ``points``, ``acc_median_m``, ``acc_p90_m``, ``acc_frac_0p1``, ``acc_frac_0p2`` (cloud
+    -> surface) and ``completeness_0p2`` (fraction of ``visible`` within 0.2 m of a cloud point).
+    """
+    from scipy.spatial import cKDTree
+
+    d = surface_distances(cloud, surface)
+    out = {"points": int(len(d)),
+           "acc_median_m": float(np.median(d)) if len(d) else float("nan"),
+           "acc_p90_m": float(np.percentile(d, 90)) if len(d) else float("nan"),
+           "acc_frac_0p1": float(np.mean(d <= 0.1)) if len(d) else 0.0,
+           "acc_frac_0p2": float(np.mean(d <= 0.2)) if len(d) else 0.0}
+    if visible is not None:
+        if len(visible) == 0:
+            out["completeness_0p2"] = float("nan")
+        elif len(cloud) == 0:
+            out["completeness_0p2"] = 0.0
+        else:
+            near, _ = cKDTree(np.asarray(cloud, float)).query(np.asarray(visible, float), distance_upper_bound=0.2,
+                                                              workers=1)
+            out["completeness_0p2"] = float(np.mean(np.isfinite(near)))
+    return out

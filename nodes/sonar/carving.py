@@ -1,0 +1,323 @@
+"""Elevation-resolving sonar reconstruction: free-space carving and arc intersection over a voxel grid.
+
+A forward-looking sonar measures range and bearing but not elevation: a return at range ``r`` in a
+beam comes from *somewhere* on the arc of elevations across the vertical aperture
+(``nodes.sonar.arcs``). Two facts hold for every ping whatever the elevation (Aykin & Negahdaripour
+2017, space carving; Westman & Kaess 2019, wide-aperture sonar):
+
+* the whole elevation arc at every range *before* a beam's first return (its highlight's front end)
+  is empty -- nothing echoed there and nothing nearer can shadow it: those voxels are **carved**;
+* some voxel on the arc of every return is occupied: each voxel the arc passes through gets a **hit**
+  (once per ping).
+
+Arc intersection then chooses the elevation: each arc, once ``settle_pings`` later pings have added
+their evidence, **votes** for its voxels of best score ``hits - miss_weight * misses`` (where the arcs
+of many poses cross and no ping carved). The elevation extent of the arc's near-best voxels (score
+>= ``near_best`` x best) is its elevation uncertainty: an arc no other view crosses (one ping, a pass
+that never changes the view) stays flat along its whole length, ``r s``, and says so; crossed by
+arcs of other poses it narrows to a few voxels. A voxel's ``sigma_m`` is the RMS over the arcs that
+voted for it of ``extent / sqrt(12)`` (a uniform spread), at least ``voxel / sqrt(12)``.
+
+Returns are every beam's front end (``nodes.sonar.highlight.detect_front_ends``, in the region before
+the seafloor's near edge ``r_emin``, eq. 8) and, with ``returns="all"``, every bright range block
+behind it in that region. Beams without a front end carve up to ``r_emin`` (less a guard), or their
+whole range when no seafloor is given. Frames: pings in the sonar FRD frame (x boresight, y
+starboard, z down), poses sonar -> world 4x4, grid and cloud in the world. Pure numpy/OpenCV; a dense
+grid over ``bounds`` (arc samples outside it are counted and ignored); carving projects only the
+*candidate* voxels (those ever hit) into each ping, so the work per ping follows the surface seen,
+not the volume of the fan.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from nodes.sonar.highlight import detect_front_ends, effective_region
+
+_U16 = np.iinfo(np.uint16).max
+
+
+@dataclass(frozen=True)
+class CarvingParams:
+    """Tuning of :class:`CarvingGrid` (lengths in m)."""
+
+    voxel_m: float = 0.1
+    margin_m: float = 0.15            # carve only this far in front of a front end (detection + voxel size)
+    arc_step_m: float = 0.07          # spacing of the hit samples along an arc (< voxel_m: no gaps)
+    miss_weight: float = 2.0          # score = hits - miss_weight * misses
+    min_hits: int = 3                 # an arc votes only when its best voxel was hit by this many pings
+    near_best: float = 0.8            # an arc's near-best voxels (its elevation extent): score >= this x best
+    settle_pings: int = 30            # an arc votes once this many later pings have added evidence
+    min_votes: int = 2                # a voxel is in the cloud when this many arcs voted for it
+    floor_margin_m: float = 0.15      # voxels this close to the seafloor are the seafloor, not the structure
+    returns: str = "all"              # "front": front ends only; "all": also the bright blocks behind them
+    return_level: float = 0.3         # a bright block: blurred level above this (full scale = 1)
+    return_step_m: float = 0.1        # range block of the bright returns
+    sigma_px: float = 1.5             # front-end detection (nodes.sonar.highlight.detect_front_ends)
+    sigma_beam_px: float = 0.5
+    threshold: float = 0.12
+    guard_px: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (self.voxel_m > 0 and self.margin_m >= 0 and 0 < self.arc_step_m <= self.voxel_m):
+            raise ValueError("need voxel_m > 0, margin_m >= 0 and 0 < arc_step_m <= voxel_m")
+        if not (self.min_hits >= 1 and self.min_votes >= 1 and self.settle_pings >= 0 and 0 < self.near_best <= 1):
+            raise ValueError("need min_hits >= 1, min_votes >= 1, settle_pings >= 0 and 0 < near_best <= 1")
+        if self.returns not in ("front", "all") or not (0 < self.return_level < 1 and self.return_step_m > 0):
+            raise ValueError("returns must be 'front' or 'all', 0 < return_level < 1, return_step_m > 0")
+
+
+@dataclass(frozen=True)
+class PingUpdate:
+    """What one ping did: beams with a front end, arcs (returns), voxels carved and hit, samples outside."""
+
+    detected_beams: int
+    arcs: int
+    carved: int
+    hit: int
+    outside: int
+
+
+@dataclass(frozen=True)
+class CarvedCloud:
+    """Voxels voted for: ``points_m`` (K, 3) world centres, ``sigma_m`` (K,) elevation 1-sigma (m),
+    ``votes`` (K,) arcs that chose each, ``hits`` (K,) pings whose arcs passed through it."""
+
+    points_m: np.ndarray
+    sigma_m: np.ndarray
+    votes: np.ndarray
+    hits: np.ndarray
+
+
+@dataclass(frozen=True)
+class _PingArcs:
+    """One ping's arc samples: voxel, arc (0..n-1 in the ping), elevation along the arc (m)."""
+
+    voxel: np.ndarray
+    arc: np.ndarray
+    along: np.ndarray
+
+
+class CarvingGrid:
+    """Carving and arc voting over the world box ``bounds_m = ((x0, y0, z0), (x1, y1, z1))``.
+
+    ``integrate(...)`` one ping at a time; ``cloud()`` the voxels voted for so far (``flush=True``
+    lets the arcs still settling vote with the evidence there is).
+    """
+
+    def __init__(self, bounds_m, params: CarvingParams = CarvingParams(), *, seafloor_z_m: float | None = None,
+                 max_voxels: int = 20_000_000) -> None:
+        lo, hi = (np.asarray(b, float).reshape(3) for b in bounds_m)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
+            raise ValueError(f"bounds must be finite ((x0, y0, z0), (x1, y1, z1)) with x1 > x0 etc., got {bounds_m}")
+        self.params, self.seafloor_z_m, self.origin = params, seafloor_z_m, lo
+        self.shape = tuple(int(np.ceil((h - l) / params.voxel_m)) for l, h in zip(lo, hi))
+        n = int(np.prod(self.shape))
+        if n > max_voxels:
+            raise ValueError(f"{self.shape} = {n} voxels exceeds {max_voxels}: shrink the bounds or grow voxel_m")
+        self.hits = np.zeros(n, np.uint16)
+        self.misses = np.zeros(n, np.uint16)
+        self._slot = np.full(n, -1, np.int32)           # voxel -> row of the candidate arrays
+        self._cand = np.zeros(0, np.int64)              # candidates (ever hit): voxel, centre, votes, sum extent^2
+        self._centre = np.zeros((0, 3), np.float32)
+        self._votes = np.zeros(0, np.int32)
+        self._extent2 = np.zeros(0, np.float64)
+        self._count = 0
+        self._pending: deque[_PingArcs] = deque()      # arcs still settling, oldest first
+        self.pings = 0
+
+    # -- one ping -------------------------------------------------------------------------
+    def integrate(self, intensities: np.ndarray, bearings_rad: np.ndarray, range_resolution_m: float,
+                  pose: np.ndarray, spread_rad: float) -> PingUpdate:
+        """Carve, hit and let the settled arcs vote, with one ping taken at ``pose``.
+
+        Parameters
+        ----------
+        intensities : (M, N) array, ranges x beams (row i at (i + 0.5) * range_resolution_m).
+        bearings_rad : (N,) ascending bearings (rad), positive to starboard.
+        range_resolution_m : float, > 0.
+        pose : (4, 4) sonar FRD -> world.
+        spread_rad : vertical aperture s (rad).
+        """
+        p = self.params
+        pose, b, img = np.asarray(pose, float), np.asarray(bearings_rad, float), np.asarray(intensities)
+        if img.ndim != 2 or img.shape[1] != b.size or b.size < 2 or img.shape[0] < 3:
+            raise ValueError(f"need ranges x beams intensities with one bearing per beam, got {img.shape}, {b.size}")
+        if not (np.all(np.isfinite(b)) and np.all(np.diff(b) > 0)):
+            raise ValueError("bearings must be finite and ascending")
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            raise ValueError("pose must be a finite 4x4 sonar -> world transform")
+        if not (range_resolution_m > 0 and 0 < spread_rad < np.pi):
+            raise ValueError(f"need range_resolution_m > 0 and 0 < spread < pi, got {range_resolution_m}, {spread_rad}")
+        rot, origin = pose[:3, :3], pose[:3, 3]
+        m_emin = self._seafloor_rows(b, img.shape[0], range_resolution_m, rot, origin, spread_rad)
+        rows, _ = detect_front_ends(img, m_emin, sigma_px=p.sigma_px, threshold=p.threshold, guard_px=p.guard_px,
+                                    sigma_beam_px=p.sigma_beam_px)
+        detected = np.isfinite(rows)
+        guard = 2.0 * p.sigma_px + 2.0 if p.guard_px is None else p.guard_px
+        r_front = (rows + 0.5) * range_resolution_m
+        free = np.where(detected, r_front, (m_emin - guard) * range_resolution_m) - p.margin_m
+        carved = self._carve(rot, origin, b, free, 0.5 * spread_rad)
+        r_hit, b_hit = r_front[detected], b[detected]
+        if p.returns == "all":
+            more_r, more_b = self._bright(img, b, m_emin - guard, rows, range_resolution_m)
+            r_hit, b_hit = np.concatenate([r_hit, more_r]), np.concatenate([b_hit, more_b])
+        hit, outside = self._hit(rot, origin, r_hit, b_hit, 0.5 * spread_rad)
+        self.pings += 1
+        while len(self._pending) > p.settle_pings:
+            self._vote(self._pending.popleft())
+        return PingUpdate(int(detected.sum()), int(r_hit.size), carved, hit, outside)
+
+    def _seafloor_rows(self, b: np.ndarray, m: int, dr: float, rot: np.ndarray, origin: np.ndarray,
+                       spread: float) -> np.ndarray:
+        """Fractional row of each beam's seafloor near edge (eq. 8-9); all rows without a seafloor."""
+        if self.seafloor_z_m is None:
+            return np.full(b.size, float(m))
+        altitude = float(origin[2] - self.seafloor_z_m)
+        if not altitude > 0:
+            raise ValueError(f"the sonar is not above the seafloor (altitude {altitude:.2f} m)")
+        down = rot.T @ np.array([0.0, 0.0, -1.0])
+        return effective_region(b, altitude, spread, tilt_rad=float(np.arcsin(np.clip(down[0], -1, 1))), n_ranges=m,
+                                range_resolution_m=dr, down_frd=down).m_emin
+
+    def _bright(self, img: np.ndarray, bearings: np.ndarray, limit_rows: np.ndarray, front_rows: np.ndarray,
+                dr: float) -> tuple[np.ndarray, np.ndarray]:
+        """Ranges and bearings of the bright range blocks behind each front end, before ``limit_rows``."""
+        p = self.params
+        step = max(1, int(round(p.return_step_m / dr)))
+        k = int(min(img.shape[0], max(float(np.nanmax(limit_rows, initial=0.0)), 0.0))) // step * step
+        if k < step:
+            return np.zeros(0), np.zeros(0)
+        if img.dtype.kind in "ui":
+            level = img[:k].astype(np.float32) * np.float32(1.0 / np.iinfo(img.dtype).max)
+        else:
+            level = np.nan_to_num(img[:k].astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+        if p.sigma_px > 0:
+            level = cv2.GaussianBlur(level, (1, 2 * int(np.ceil(3 * p.sigma_px)) + 1), sigmaX=0.0, sigmaY=p.sigma_px)
+        block = level.reshape(k // step, step, -1).max(axis=1)                  # (blocks, beams)
+        centre = (np.arange(k // step) + 0.5) * step
+        front = np.where(np.isfinite(front_rows), front_rows, np.inf)
+        bright = ((block > p.return_level) & (centre[:, None] < limit_rows[None, :])
+                  & (centre[:, None] > front[None, :] + step))
+        bright[:, 1::2] = False          # every other beam: neighbours lie a few cm apart, well inside a voxel
+        blk, beam = np.nonzero(bright)
+        return centre[blk] * dr, bearings[beam]
+
+    def _carve(self, rot: np.ndarray, origin: np.ndarray, bearings: np.ndarray, free_m: np.ndarray,
+               half: float) -> int:
+        """Count a miss on the candidates inside the fan nearer than their beam's free range."""
+        n = self._count
+        if n == 0:
+            return 0
+        local = (self._centre[:n] - origin.astype(np.float32)) @ rot.astype(np.float32)   # world -> sonar FRD
+        r2 = np.einsum("ij,ij->i", local, local)
+        reach = float(max(free_m.max(initial=0.0), 0.0))
+        near = np.flatnonzero((local[:, 0] > 0) & (r2 < reach * reach))
+        if near.size == 0:
+            return 0
+        loc = local[near]
+        rr = np.sqrt(r2[near])
+        theta = np.arctan2(loc[:, 1], loc[:, 0])
+        half_beam = 0.5 * float(np.median(np.diff(bearings)))
+        beam = np.clip(np.rint(np.interp(theta, bearings, np.arange(bearings.size))), 0, bearings.size - 1).astype(int)
+        inside = ((np.abs(loc[:, 2]) < np.sin(half) * rr) & (theta > bearings[0] - half_beam)
+                  & (theta < bearings[-1] + half_beam) & (rr < free_m[beam]))
+        idx = self._cand[near[inside]]
+        self.misses[idx] = np.minimum(self.misses[idx].astype(np.int32) + 1, _U16)
+        return int(idx.size)
+
+    def _hit(self, rot: np.ndarray, origin: np.ndarray, ranges: np.ndarray, bearings: np.ndarray,
+             half: float) -> tuple[int, int]:
+        """A hit on every voxel each return's elevation arc passes through (once per ping per voxel)."""
+        if ranges.size == 0:
+            return 0, 0
+        p = self.params
+        per_arc = np.maximum(2, np.ceil(2 * half * ranges / p.arc_step_m).astype(np.int64) + 1)
+        arc = np.repeat(np.arange(ranges.size), per_arc)
+        start = np.cumsum(per_arc) - per_arc
+        phi = (-half + (np.arange(arc.size) - start[arc]) * (2 * half / (per_arc - 1))[arc]).astype(np.float32)
+        r = ranges.astype(np.float32)[arc]
+        cb, sb = np.cos(bearings).astype(np.float32)[arc], np.sin(bearings).astype(np.float32)[arc]
+        cp, sp = np.cos(phi), np.sin(phi)
+        cols = rot.astype(np.float32)
+        rel = origin - self.origin
+        cell = np.empty((arc.size, 3), np.int64)
+        for axis in range(3):                          # world = origin + r (cp cb x + cp sb y + sp z) of the sonar
+            c = cols[axis]
+            w = r * (cp * (cb * c[0] + sb * c[1]) + sp * c[2]) + np.float32(rel[axis])
+            cell[:, axis] = np.floor(w * np.float32(1.0 / p.voxel_m))
+        ok = np.all((cell >= 0) & (cell < np.array(self.shape)), axis=1)
+        flat = np.ravel_multi_index(cell[ok].T, self.shape)
+        self._pending.append(_PingArcs(flat.astype(np.int64), arc[ok].astype(np.int32), (phi * r)[ok]))
+        voxels = np.unique(flat)                                               # one hit per voxel per ping
+        self.hits[voxels] = np.minimum(self.hits[voxels].astype(np.int32) + 1, _U16)
+        self._slots_for(voxels)
+        return int(voxels.size), int((~ok).sum())
+
+    def _slots_for(self, voxels: np.ndarray) -> np.ndarray:
+        """Candidate rows of the (unique) ``voxels``, adding the new ones."""
+        new = voxels[self._slot[voxels] < 0]
+        if new.size:
+            need = self._count + new.size
+            if need > self._cand.size:
+                cap = max(need, 2 * self._cand.size, 4096)
+                self._cand, self._centre = np.resize(self._cand, cap), np.resize(self._centre, (cap, 3))
+                self._votes = np.concatenate([self._votes, np.zeros(cap - self._votes.size, np.int32)])
+                self._extent2 = np.concatenate([self._extent2, np.zeros(cap - self._extent2.size)])
+            rows = np.arange(self._count, need)
+            self._cand[rows], self._centre[rows] = new, self.centres(new)
+            self._slot[new] = rows
+            self._count = need
+        return self._slot[voxels]
+
+    def _vote(self, arcs: _PingArcs) -> None:
+        """Each arc of one ping votes for its best-scoring voxels, with the extent of its near-best ones."""
+        p = self.params
+        if arcs.voxel.size == 0:
+            return
+        score = self.hits[arcs.voxel].astype(np.float32) - np.float32(p.miss_weight) * self.misses[arcs.voxel]
+        starts = np.flatnonzero(np.r_[True, arcs.arc[1:] != arcs.arc[:-1]])
+        counts = np.diff(np.r_[starts, arcs.arc.size])
+        best = np.repeat(np.maximum.reduceat(score, starts), counts)
+        near = score >= p.near_best * best
+        lo = np.minimum.reduceat(np.where(near, arcs.along, np.inf), starts)
+        hi = np.maximum.reduceat(np.where(near, arcs.along, -np.inf), starts)
+        extent = np.repeat(hi - lo + p.arc_step_m, counts)
+        win = (score >= best) & (best >= p.min_hits)
+        slots = self._slot[arcs.voxel[win]]
+        np.add.at(self._votes, slots, 1)
+        np.add.at(self._extent2, slots, extent[win].astype(np.float64) ** 2)
+
+    # -- results --------------------------------------------------------------------------
+    def centres(self, voxels: np.ndarray) -> np.ndarray:
+        """World centres (K, 3) of the voxels with flat indices ``voxels``."""
+        ijk = np.stack(np.unravel_index(voxels, self.shape), axis=1)
+        return ((ijk + 0.5) * self.params.voxel_m + self.origin).astype(np.float32)
+
+    @property
+    def candidates(self) -> int:
+        """Voxels ever hit (those carving tests in each ping)."""
+        return self._count
+
+    def cloud(self, *, flush: bool = False, max_sigma_m: float = np.inf) -> CarvedCloud:
+        """Voxels with >= ``min_votes`` votes, off the seafloor, elevation sigma <= ``max_sigma_m``.
+
+        ``flush`` first lets every arc still settling vote (the end of a run; or a single ping).
+        """
+        if flush:
+            while self._pending:
+                self._vote(self._pending.popleft())
+        p = self.params
+        rows = np.flatnonzero(self._votes[:self._count] >= p.min_votes)
+        pts = self._centre[rows]
+        if self.seafloor_z_m is not None:
+            above = pts[:, 2] > self.seafloor_z_m + p.floor_margin_m
+            rows, pts = rows[above], pts[above]
+        votes = self._votes[rows]
+        sigma = np.maximum(np.sqrt(self._extent2[rows] / votes / 12.0), p.voxel_m / np.sqrt(12.0)).astype(np.float32)
+        keep = sigma <= max_sigma_m
+        return CarvedCloud(points_m=pts[keep].copy(), sigma_m=sigma[keep], votes=votes[keep].astype(np.int32),
+                           hits=self.hits[self._cand[rows[keep]]].astype(np.int32))
