@@ -388,7 +388,11 @@ class Cia402Master:
             self._thread = None
         if self.network.bus is None:
             return
+        stopping = False
         for d in self.drives.values():
             if d.configured and d.state in (p.OPERATION_ENABLED, p.QUICK_STOP_ACTIVE):
                 self._rpdo(d, p.CW_QUICK_STOP, 0 if d.spec.role == "wheel" else d.target)
+                stopping = True
+        if stopping and self.cfg.sync_hz > 0:
+            self._send(p.SYNC, b"")          # synchronous RPDOs act at SYNC: this one delivers the quick stop
         self.network.disconnect()

@@ -205,3 +205,11 @@ def test_driver_node_publishes_measured_at_the_control_rate():
     assert 49 <= len(measured) <= 51 and 19 * 4 <= len(states) <= 21 * 4     # 50 Hz; drive states at 20 Hz
     last = measured[-1]
     assert (last.v_front_mps, last.delta_front_rad, last.delta_rear_rad) == pytest.approx((0.2, 0.1, -0.1), abs=2e-3)
+
+
+def test_closing_the_master_quick_stops_cyclic_drives_at_once(rig):
+    r = rig()
+    r.run(1.0)
+    r.master.close()                 # its last RPDOs are synchronous: it sends the SYNC that delivers them
+    assert {d.state for d in r.bank.drives.values()} == {p.QUICK_STOP_ACTIVE}
+    assert all(codes == [] for codes in r.emcy().values())          # stopped by command, not by the watchdog
