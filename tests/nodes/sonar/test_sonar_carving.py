@@ -1,0 +1,110 @@
+"""Carving and arc voting (nodes.sonar.carving): ground truth from the FLS simulator and a synthetic point target.
+
+Hard cases: one view only (nothing crosses its arcs: the sigma is the arc's own spread and nothing is
+published), a structure seen from one side, the flat seafloor (no point invented in the water), bad input.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from nodes.sonar.carving import CarvingGrid, CarvingParams
+from nodes.sonar.evaluation import cloud_metrics
+from sim.fls import PingSettings, load_scene, render_ping, sample_structures, sonar_frame
+
+SPREAD = math.radians(20.0)
+BEARINGS = np.radians(np.linspace(-30.0, 30.0, 121))
+DR, ROWS = 0.02, 600
+
+
+def _target_ping(pose: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """A dark ping with one bright return where ``target`` (world) falls, if inside the fan."""
+    local = (target - pose[:3, 3]) @ pose[:3, :3]
+    r = float(np.linalg.norm(local))
+    img = np.full((ROWS, BEARINGS.size), 5, np.uint8)
+    theta, phi = math.atan2(local[1], local[0]), math.asin(local[2] / r)
+    if abs(phi) < SPREAD / 2 and BEARINGS[0] <= theta <= BEARINGS[-1]:
+        j = int(np.argmin(np.abs(BEARINGS - theta)))
+        i = int(r / DR)
+        img[i:i + 4, max(j - 1, 0):j + 2] = 250
+    return img
+
+
+def _grid(**kw) -> CarvingGrid:
+    return CarvingGrid(((-6, -2, -8), (6, 14, 0)), CarvingParams(returns="front", **kw))
+
+
+def test_arcs_from_different_heights_cross_at_the_target_and_pin_it() -> None:
+    target = np.array([0.3, 8.0, -3.0])
+    grid = _grid(settle_pings=100, min_votes=1)          # every arc votes at the end, with all the evidence
+    for z in np.linspace(-0.5, -5.5, 21):                 # a vertical baseline: arcs cross at wide angles
+        pose = sonar_frame(np.array([0.0, 0.0, z]), math.pi / 2, 0.0)
+        grid.integrate(_target_ping(pose, target), BEARINGS, DR, pose, SPREAD)
+    cloud = grid.cloud(flush=True)
+    best = cloud.points_m[np.argmax(cloud.votes)]
+    assert np.linalg.norm(best - target) < 0.2
+    assert cloud.sigma_m[np.argmax(cloud.votes)] < 0.15
+    assert np.all(np.linalg.norm(grid.cloud(flush=True, max_sigma_m=0.15).points_m - target, axis=1) < 0.3)
+
+
+def test_a_single_view_keeps_the_whole_arc_as_its_uncertainty() -> None:
+    target = np.array([0.0, 8.0, -3.0])
+    pose = sonar_frame(np.array([0.0, 0.0, -1.5]), math.pi / 2, math.radians(10.0))
+    grid = _grid(settle_pings=0, min_hits=3, min_votes=1)
+    for _ in range(5):                                    # the same view five times: no revisit, no new angle
+        grid.integrate(_target_ping(pose, target), BEARINGS, DR, pose, SPREAD)
+    cloud = grid.cloud(flush=True)
+    r = np.linalg.norm(target - pose[:3, 3])
+    assert len(cloud.points_m) > 10                         # every voxel along the arc ties
+    assert np.all(cloud.sigma_m > 0.8 * r * SPREAD / math.sqrt(12))   # and says it cannot tell the elevation
+    assert len(grid.cloud(flush=True, max_sigma_m=0.25).points_m) == 0
+
+
+def _run(scene, times, n_beams: int = 256, range_m: float = 15.0, **kw):
+    grid = CarvingGrid(((-8, -8, -6.5), (8, 10, 0)), CarvingParams(**kw), seafloor_z_m=-6.0)
+    rng = np.random.default_rng(0)
+    for t in times:
+        pose = scene.sonar_pose(t)
+        ping = render_ping(scene, pose, PingSettings(n_beams=n_beams, range_m=range_m), rng=rng)
+        grid.integrate(ping.intensities, ping.bearings_rad, ping.range_resolution_m, pose, ping.vertical_aperture_rad)
+    return grid
+
+
+def test_flat_seafloor_gives_no_point_in_the_water() -> None:
+    scene = load_scene("flat")
+    grid = _run(scene, np.arange(0.0, 6.0, 0.25))
+    assert len(grid.cloud(flush=True).points_m) == 0         # at any sigma
+    assert len(grid.cloud(flush=True, max_sigma_m=np.inf).points_m) == 0
+
+
+def test_a_block_seen_from_one_side_lands_on_its_faces() -> None:
+    scene = load_scene({"name": "block", "seafloor": {"type": "plane", "z_m": -6.0},
+                        "structures": [{"type": "box", "center_m": [0.5, 4.0, -4.75], "size_m": [2.0, 2.0, 2.5]}],
+                        "sonar": {"tilt_deg": 15}, "platform": {"start_m": [0.0, -8.0], "end_m": [0.0, 1.0],
+                                                                "depth_m": 1.0, "speed_mps": 1.5}})
+    grid = _run(scene, np.arange(0.0, 6.0, 0.15))           # south to north, never past it: one side only
+    surface, _ = sample_structures(scene, 0.03)
+    cloud = grid.cloud(flush=True, max_sigma_m=0.25)
+    m = cloud_metrics(cloud.points_m, surface)
+    assert m["points"] >= 30 and m["acc_frac_0p2"] >= 0.85, m
+    assert np.all(cloud.sigma_m > 0) and np.all(np.isfinite(cloud.sigma_m))
+    assert np.all(cloud.points_m[:, 1] < 5.2)                # nothing invented beyond the unseen back face
+
+
+def test_bad_input_is_refused_with_a_reason() -> None:
+    grid = _grid()
+    pose = sonar_frame(np.array([0.0, 0.0, -1.0]), 0.0, 0.2)
+    img = np.zeros((ROWS, BEARINGS.size), np.uint8)
+    with pytest.raises(ValueError, match="pose"):
+        grid.integrate(img, BEARINGS, DR, np.full((4, 4), np.nan), SPREAD)
+    with pytest.raises(ValueError, match="ascending"):
+        grid.integrate(img, BEARINGS[::-1], DR, pose, SPREAD)
+    with pytest.raises(ValueError, match="one bearing per beam"):
+        grid.integrate(img[:, :5], BEARINGS, DR, pose, SPREAD)
+    with pytest.raises(ValueError, match="bounds"):
+        CarvingGrid(((0, 0, 0), (1, 1, np.nan)))
+    with pytest.raises(ValueError, match="seafloor"):
+        CarvingGrid(((-6, -2, -8), (6, 14, 0)), seafloor_z_m=0.0).integrate(img, BEARINGS, DR, pose, SPREAD)
+    assert grid.pings == 0 and len(grid.cloud(flush=True).points_m) == 0
