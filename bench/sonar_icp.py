@@ -275,7 +275,7 @@ def registration(quick: bool, say) -> tuple[list[dict], dict]:
         dof="xy_yaw")
     add("ours+yaw", "arcs xy_yaw + whole-circle check", run_ours(windows, model, IcpSettings(dof="xy_yaw"), "arcs"),
         dof="xy_yaw")
-    builds: dict[str, float] = {"ours": build_ms, "ours_without_symmetry": no_sym_ms}
+    builds: dict[str, float] = {"ours": build_ms, "ours_without_symmetry": no_sym_ms, "windows": len(windows)}
     try:
         resolutions = (0.1, 0.25, 0.5) if quick else (0.05, 0.1, 0.25, 0.5)
         targets = small_gicp_targets(pts, resolutions)
@@ -379,7 +379,7 @@ def main() -> None:
         icp_arcs_check_wrong=next(r for r in rows if r["family"] == "ours+yaw")["wrong"],
         kiss_icp_ms=kiss["ms"] if kiss else None, kiss_icp_err_m=kiss["err_m"] if kiss else None,
         kiss_icp_err_deg=kiss["err_deg"] if kiss else None,
-        model_build_ms=builds["ours"], build_ms=builds,
+        model_build_ms=builds["ours"],
         ratio_icp_vs_small_gicp_best=ours["ms"] / best["ms"] if best else None,
         sources="simulated pings (tripod, 512 beams, speckle), lower-edge points / elevation arcs, 4 s windows",
         # the README formatter's keys, now from the fair measurement (ours 6 DOF on the same points as
@@ -391,7 +391,8 @@ def main() -> None:
         cpu_ms_small_gicp_plane=fastest["ms"] if fastest else None,
         rot_err_deg_small_gicp_plane=fastest["err_deg"] if fastest else None,
         trans_err_m_small_gicp_plane=fastest["err_m"] if fastest else None,
-        trials=len(passes), goal_rot_deg=0.5, goal_trans_m=0.03, plot=str(out_dir / "sonar_icp.png"))
+        trials=int(builds.pop("windows")), goal_rot_deg=0.5, goal_trans_m=0.03, plot=str(out_dir / "sonar_icp.png"))
+    headline["build_ms"] = builds
     if args.json:
         print(json.dumps(headline))
         return
@@ -402,6 +403,7 @@ def main() -> None:
         print(f"{r['family'] + ' ' + r['label']:<46} {r['dof']:<7} {r['ms']:7.1f} {r['err_m']:7.3f} {r['err_deg']:8.2f} "
               f"{r['err_m_max']:7.3f} {r['err_deg_max']:8.2f} {judged:>16}")
     print("\nbuilt once: " + ", ".join(f"{k} {v:.0f} ms" for k, v in builds.items()))
+    print(f"{headline['trials']} windows")
     print(f"\n{'structure @ heading error':<26} {'trusted':>7} {'wrong':>5} {'ambig':>5} {'gated':>5} {'final m':>8} "
           f"{'nav m':>7}")
     for k, v in passes.items():

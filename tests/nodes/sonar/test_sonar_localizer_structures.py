@@ -64,13 +64,15 @@ def _pass(scene_name: str, model: str, yaw_deg: float, *, bad_pings: bool = Fals
             if e_m > 0.5 or e_deg > 5.0:
                 wrong.append((e_m, e_deg))
     end = max(truth_at)
-    return dict(trusted=trusted, wrong=wrong, flags=loc.node.flags, gains=cloud.node.gain_problems,
+    rows = max((len(res.hypotheses) for res in loc.of("correction")), default=0)
+    return dict(trusted=trusted, wrong=wrong, flags=loc.node.flags, hypotheses=rows, gains=cloud.node.gain_problems,
                 final=_error(last @ nav_at[end], truth_at[end])[0], nav=_error(nav_at[end], truth_at[end])[0])
 
 
 def test_square_pier_with_a_20_deg_heading_error_is_ambiguous_never_wrong() -> None:
     out = _pass("pier4", "sim/scenes/fls_pier4.yaml", 20.0)
     assert not out["wrong"] and out["trusted"] == 0 and out["flags"]["ambiguous"] >= 5, out
+    assert out["hypotheses"] >= 4                    # every corner published with its cost, for a filter to choose
     assert out["final"] == pytest.approx(out["nav"])
 
 

@@ -9,7 +9,6 @@ import pytest
 from nodes.sonar.icp import IcpModel, IcpSettings, align
 from nodes.sonar.icp_gate import gate_threshold, mahalanobis_to_prior
 from nodes.sonar.icp_localizer import Config, load_model
-from nodes.sonar.model import tripod_model
 
 SCENES = "sim/scenes/fls_{}.yaml"
 
