@@ -218,6 +218,8 @@ class Cia402Master:
         for d in self.drives.values():
             d.fault_resets = 0
             d.was_enabled = False
+            if d.homing == "running":
+                d.homing = "pending"            # a homing run that tripped starts over
             if d.state not in (p.FAULT, p.FAULT_REACTION_ACTIVE):
                 d.fault, d.emcy_code = "", 0
 

@@ -335,6 +335,7 @@ class SimDrive:
         for i, data in sorted(self._rpdo_pending.items()):
             self._write_mapped(0x1600 + i, data)
         self._rpdo_pending.clear()
+        self._set(p.STATUSWORD, self.statusword())    # the TPDOs of this SYNC show the controlword it applied
         if self.state == p.OPERATION_ENABLED and self.mode == p.MODE_CSP:
             start = self._csp_demand(now_s)[0]
             self._csp = (start, self._get(p.TARGET_POSITION) - self._enc, now_s, self._interpolation_period())
@@ -393,7 +394,7 @@ class SimDrive:
             if mode == p.MODE_CSV:
                 goal = self._csv_target
             else:
-                demand, rate = self._csp_demand(self._t)
+                demand, rate = self._csp_demand(self._t - 0.5 * dt)      # mid-step: the rate of this interval
                 goal = rate + (demand - self.position) / (4.0 * self.tau)
             self._demand_v = max(-self.vmax, min(self.vmax, goal))
             self._lag(dt)

@@ -174,6 +174,10 @@ def test_a_homing_error_trips_the_master(rig):
     r.run(3.0)
     assert "rear_steer: homing error (method 19" in r.master.latched
     assert not r.master.enabled() and all(v == 0.0 for n, v in r.actuals().items() if "wheel" in n)
+    r.bank.drives["rear_steer"].faults.home_switch = 0             # the switch wired back: reset homes again
+    r.master.reset()
+    r.run(8.0, stop=r.master.enabled)
+    assert r.master.enabled() and not r.master.latched
 
 
 @pytest.mark.parametrize("config, match", [
