@@ -24,6 +24,7 @@ from typing import Any, Iterable
 
 from tether.message import Message
 from tether.stats import InputStats
+from tether.transport import check_private_dir
 
 #: Largest forward ``seq`` jump still counted as loss; beyond it the jump is a counted reset.
 #: 2^32 messages is more than a day at 40 kHz: no real outage loses that many.
@@ -122,6 +123,7 @@ class SeqStore:
         self.slots = {name: i for i, name in enumerate(self.names)}
         size = 8 * max(len(self.names), 1)
         path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        check_private_dir(path.parent)         # a planted folder would let another user rewrite our counts
         layout = "\n".join(self.names).encode()[:4095]
         fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o600)
         try:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Iterable, Mapping
 
 import msgspec
+import numpy as np
 
 from tether.errors import ConfigError
 from tether.message import Message
@@ -83,6 +84,10 @@ class Context:
 
     def now_ns(self) -> int:  # pragma: no cover - interface
         raise NotImplementedError
+
+    def loan(self, node: "Node", output: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+        """A writable array for ``output`` (plain memory here; the live runtime's is shared)."""
+        return np.empty(shape, dtype)
 
 
 class Node:
@@ -168,6 +173,17 @@ class Node:
         if output not in self.ports.outputs:
             raise KeyError(f"{type(self).__name__} has no output {output!r} (declared: {sorted(self.ports.outputs)})")
         self._context.publish(self, output, msg)
+
+    def loan(self, output: str, shape: tuple[int, ...], dtype: Any = np.uint8) -> np.ndarray:
+        """A writable array to fill and publish on ``output`` without a copy (optional; any array publishes).
+
+        In a live graph it lies in ``output``'s shared-memory pool, so publishing it costs no
+        copy at all; once published it belongs to the subscribers: do not write to it again.
+        Elsewhere (tests, replay, small arrays, shared memory off) it is an ordinary array.
+        """
+        if output not in self.ports.outputs:
+            raise KeyError(f"{type(self).__name__} has no output {output!r} (declared: {sorted(self.ports.outputs)})")
+        return self._context.loan(self, output, tuple(int(n) for n in shape), dtype)
 
     def now_ns(self) -> int:
         """Current time on the runtime's clock (virtual under tether.testing and lockstep replay)."""

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from tether.errors import TetherError
-from tether.transport import runtime_dir
+from tether.transport import private_subdir
 
 
 @dataclass(frozen=True)
@@ -37,9 +37,7 @@ class TopicInfo:
 
 
 def _dir() -> Path:
-    path = runtime_dir() / "graphs"
-    path.mkdir(exist_ok=True, mode=0o700)
-    return path
+    return private_subdir("graphs")
 
 
 def register(entry: dict[str, Any]) -> Path:

@@ -18,9 +18,12 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
+import numpy as np
 import zmq
 
+from tether import shm
 from tether.codec import Codec
+from tether.errors import DecodeError
 from tether.inputs import InputState, SeqStore, saturate
 from tether.link import LinkModel
 from tether.message import Message
@@ -34,6 +37,7 @@ log = logging.getLogger("tether.runtime")
 STATS_PERIOD_NS = 1_000_000_000
 LINK_CHECK_NS = 100_000_000
 ERROR_LOG_PERIOD_NS = 5_000_000_000
+SUBSCRIPTIONS_PERIOD_NS = 20_000_000      # how stale a publisher's view of who subscribes (plain or @shm/) may be
 READ_AHEAD = 16
 # Plain ints: pyzmq's flag enums cost an enum construction per operation on the hot path.
 _SNDMORE, _NOBLOCK, _RCVMORE, _EVENTS, _POLLIN = (int(zmq.SNDMORE), int(zmq.NOBLOCK), int(zmq.RCVMORE),
@@ -93,10 +97,21 @@ class NodeRuntime(Context):
         self._stats_error_logged_ns = -ERROR_LOG_PERIOD_NS
         self._largest_sent = 0
         self._sndhwm = HWM_MAX
+        self._shm = shm.Settings.from_env()
+        self._pools: dict[str, shm.Pool] = {}
+        self._reader = shm.Reader() if self._shm.enabled else None
+        self._shm_refused: set[str] = set()       # topics whose segments we cannot map: ordinary frames
+        self._shm_seen: set[bytes] = set()        # @shm/ topics a message arrived on (a Tether publisher)
+        self._shm_dupes: set[bytes] = set()       # their plain topics: what arrives there is a copy for others
+        self._shm_resolved: set[bytes] = set()    # @shm/ topics whose slot tables resolved at least once
+        self._sub_topics: dict[bytes, int] = collections.Counter()   # subscriptions (as asked for) -> subscribers
+        self._sub_routes: dict[bytes, tuple[bool, bool]] = {}
+        self._subs_read_ns = 0
         config = node_cls.make_config(spec.params)
         self.node = node_cls(config, node_id=spec.node_id, context=self)
         self._topics = {name: f"{spec.node_id}/{name}".encode() for name in self.node.ports.outputs}
         self._stats_topic = f"{spec.node_id}/_stats".encode()
+        self._shm_topics = {t: shm.shm_topic(t) for t in [*self._topics.values(), self._stats_topic]}
         self.pub = make_pub(self.ctx, spec.binds, self.curve if secure_pub else None) if spec.binds else None
         self._build_inputs()
         self._open_seq_store()
@@ -120,7 +135,9 @@ class NodeRuntime(Context):
             if src.link:
                 state.link = LinkModel.from_json(src.link)
             self.inputs[name] = state
-            self.routes.setdefault(src.topic.encode(), []).append(state)
+            states = self.routes.setdefault(src.topic.encode(), [])
+            states.append(state)
+            self.routes[shm.shm_topic(src.topic.encode())] = states
         self.subs: list[zmq.Socket] = []
         self._links: LinkWatch | None = None
         self._resubscribe_due = False
@@ -134,7 +151,14 @@ class NodeRuntime(Context):
         for name in self.inputs:
             src = self.spec.inputs.get(name)
             if src is not None and src.topic and name not in self.timers:
-                self._socket_of[name] = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
+                wants = self._wants_shm(src)
+                if wants:
+                    sock = subs.add(shm.shm_topic(src.topic.encode()).decode(), src.endpoint)
+                if not wants or src.topic.encode() not in self._shm_dupes:
+                    if wants:   # also plain, for publishers that are not Tether nodes; the marker says why
+                        subs.add((shm.DUAL_PREFIX + src.topic.encode()).decode(), src.endpoint)
+                    sock = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
+                self._socket_of[name] = sock
         old = self.subs
         if self._links is not None:
             self._links.close()
@@ -146,6 +170,10 @@ class NodeRuntime(Context):
         self._poller: zmq.Poller | None = None
         for sock in old:
             sock.close(linger=0)
+
+    def _wants_shm(self, src: Source) -> bool:
+        """Same host (ipc) and shared memory usable: subscribe to ``@shm/<topic>`` (slot tables)."""
+        return self._reader is not None and src.endpoint.startswith("ipc://") and src.topic not in self._shm_refused
 
     def _open_seq_store(self) -> None:
         """Seq numbers kept across restarts: what this node missed while down is counted on return."""
@@ -185,19 +213,79 @@ class NodeRuntime(Context):
             frames = self._codec.encode(msg)
             if self.pub is not None:
                 nbytes = sum(map(len, frames))
-                if nbytes > self._largest_sent:
-                    self._largest_sent = nbytes
-                    hwm = hwm_for(PUB_QUEUE_BYTES, nbytes)
+                topic = self._topics[output]
+                plain, to_shm = self._routes_of(topic)
+                placed = self._place(output, frames) if to_shm and len(frames) > 1 else None
+                wire = nbytes if placed is None or plain else nbytes - placed[2] + len(placed[0])
+                if wire > self._largest_sent:
+                    self._largest_sent = wire
+                    hwm = hwm_for(PUB_QUEUE_BYTES, wire)
                     if hwm != self._sndhwm:
                         # Changing a live socket's HWM races ZeroMQ's I/O thread (see make_sub): only when
                         # the value changes -- messages over 64 KiB, so in practice once, at the first large one.
                         self._sndhwm = hwm
                         self.pub.setsockopt(zmq.SNDHWM, hwm)
-                _send(self.pub, self._topics[output], frames)
-                self._published_bytes[output] += nbytes + len(self._topics[output])
+                if to_shm:
+                    _send(self.pub, self._shm_topics[topic], frames if placed is None else [placed[0], *placed[1]])
+                if plain or not to_shm:
+                    _send(self.pub, topic, frames)
+                self._published_bytes[output] += nbytes + len(topic)
             self._published[output] += 1
             if self._seq_store is not None:
                 self._seq_store.set(self._out_slots[output], seq)
+
+    def _place(self, output: str, frames: list[Any]) -> tuple[bytes, list[Any], int] | None:
+        """Large buffers of ``frames`` into ``output``'s shared-memory pool, or None (send frames)."""
+        if not self._shm.enabled:
+            return None
+        pool = self._pools.get(output)
+        if pool is None:
+            pool = self._pools[output] = shm.Pool(f"{self.spec.graph}.{self.spec.node_id}.{output}", self._shm)
+        if time.monotonic_ns() - self._subs_read_ns > 1_000_000:
+            self._read_subscriptions()          # a subscriber that just joined must be known before a slot is reused
+        try:
+            return pool.place(frames, self._sub_topics.get(self._shm_topics[self._topics[output]], 0))
+        except OSError as exc:          # /dev/shm full or gone: this output sends frames from now on
+            self._shm = shm.Settings(enabled=False)
+            self.node.log.error("shared memory unusable (%s): sending ordinary frames", exc)
+            return None
+
+    def loan(self, node: Node, output: str, shape: tuple[int, ...], dtype: Any) -> Any:
+        """An array in ``output``'s pool when subscribers on this host take slot tables, else a plain one."""
+        with self._pub_lock:
+            topic = self._topics[output]
+            array = None
+            if self.pub is not None and self._shm.enabled and self._routes_of(topic)[1]:
+                pool = self._pools.get(output)
+                if pool is None:
+                    pool = self._pools[output] = shm.Pool(f"{self.spec.graph}.{self.spec.node_id}.{output}", self._shm)
+                try:
+                    array = pool.loan(shape, np.dtype(dtype), self._sub_topics.get(self._shm_topics[topic], 0))
+                except OSError:
+                    array = None
+        return array if array is not None else super().loan(node, output, shape, dtype)
+
+    def _routes_of(self, topic: bytes) -> tuple[bool, bool]:
+        """Whether ``topic`` has plain subscribers (ordinary frames) and ``@shm/`` ones (slot tables)."""
+        if time.monotonic_ns() - self._subs_read_ns > SUBSCRIPTIONS_PERIOD_NS:
+            self._read_subscriptions()
+        routes = self._sub_routes.get(topic)
+        if routes is None:
+            wide = self._shm_topics.get(topic) or shm.shm_topic(topic)
+            plain = sum(n for s, n in self._sub_topics.items() if not s.startswith(b"@") and topic.startswith(s))
+            plain -= self._sub_topics.get(shm.DUAL_PREFIX + topic, 0)   # Tether subscribers that take tables
+            to_shm = any(wide.startswith(s) for s in self._sub_topics if s.startswith(shm.TOPIC_PREFIX))
+            plain = plain > 0
+            routes = self._sub_routes[topic] = (plain, to_shm)
+        return routes
+
+    def shm_counters(self) -> dict[str, int]:
+        """Shared-memory counters of this node: placed, fallbacks (pool busy), oversize, stale (subscriber side)."""
+        out = {"placed": sum(p.placed for p in self._pools.values()),
+               "fallbacks": sum(p.fallbacks for p in self._pools.values()),
+               "oversize": sum(p.oversize for p in self._pools.values()),
+               "stale": self._reader.stale if self._reader is not None else 0}
+        return out
 
     # -- receiving --------------------------------------------------------------------
     def _recv(self, sock: zmq.Socket, flags: int) -> tuple[bytes, list[Any], int]:
@@ -226,6 +314,20 @@ class NodeRuntime(Context):
         states = self.routes.get(topic)
         if not states:
             return  # a longer topic sharing our prefix: not ours
+        if topic[:1] != b"@":
+            if topic in self._shm_dupes:
+                return    # its publisher sends us slot tables on @shm/: this copy is for plain subscribers
+        elif topic not in self._shm_seen:
+            self._shm_started(topic)
+        if topic[:1] == b"@" and frames and frames[0][:1] and frames[0][0] in shm.TABLE_MARKERS:
+            resolved = self._resolve_shm(topic, states, frames)
+            if resolved is None:
+                for state in states:
+                    if not state.last_seq:
+                        state.stats["dropped_seq_gap"] += 1   # no seq before it: no later gap would count it
+                return
+            frames, held = resolved
+            nbytes += held
         for state in states:
             if state.link is not None:
                 lost = state.link.admit(nbytes, time.time_ns())
@@ -233,6 +335,59 @@ class NodeRuntime(Context):
                     state.stats["dropped_link"] += 1       # the scenario's network, not a fault: not logged
                     continue
             self._accept(state, frames, next(order), nbytes)
+
+    def _resolve_shm(self, topic: bytes, states: list[InputState],
+                     frames: list[Any]) -> tuple[list[Any], int] | None:
+        """``[table, body, *frames]`` to ``[body, *buffers]`` viewing the publisher's slot; None if lost.
+
+        A slot already reused is a lost message, counted where every loss is (the next seq gap);
+        a segment this process may not map switches the topic to ordinary frames."""
+        try:
+            if self._reader is None:
+                raise DecodeError("a shared-memory slot table arrived but shared memory is off here")
+            body = frames[1]
+            resolved = self._reader.resolve(frames[0], [getattr(body, "bytes", body), *frames[2:]])
+        except Exception as exc:  # noqa: BLE001 - whatever a crafted table makes the resolver raise
+            for state in states:
+                state.stats["decode_errors"] += 1
+                self._log_error(state, f"dropped message on {state.topic}: {exc}")
+            if isinstance(exc, shm.ShmUnavailable) and not (exc.missing and topic in self._shm_resolved):
+                self._refuse_shm(topic)
+            return None
+        self._shm_resolved.add(topic)
+        return resolved
+
+    def _shm_started(self, topic: bytes) -> None:
+        """The publisher of ``@shm/<topic>`` speaks shared memory: drop our plain subscription to it.
+
+        Subscribers ask for both at first, since a publisher that is not a Tether node (a plain
+        ZeroMQ client, a replayed log) sends on the plain topic only."""
+        plain = topic[len(shm.TOPIC_PREFIX):]
+        self._shm_seen.add(topic)
+        self._shm_dupes.add(plain)
+        for name, state in self.inputs.items():
+            sock = self._socket_of.get(name)
+            if state.topic.encode() == plain and sock is not None:
+                sock.setsockopt(zmq.UNSUBSCRIBE, plain)
+                sock.setsockopt(zmq.UNSUBSCRIBE, shm.DUAL_PREFIX + plain)
+
+    def _refuse_shm(self, topic: bytes) -> None:
+        """Subscribe to ``topic``'s ordinary frames instead of its slot tables (segments we cannot map)."""
+        plain = topic[len(shm.TOPIC_PREFIX):]
+        if plain.decode() in self._shm_refused:
+            return
+        self._shm_refused.add(plain.decode())
+        self.node.log.warning("cannot map %s's shared memory: receiving it as ordinary frames", plain.decode())
+        was_dupe = plain in self._shm_dupes
+        self._shm_dupes.discard(plain)
+        for name, state in self.inputs.items():
+            sock = self._socket_of.get(name)
+            if state.topic.encode() == plain and sock is not None:
+                if was_dupe:
+                    sock.setsockopt(zmq.SUBSCRIBE, plain)
+                else:
+                    sock.setsockopt(zmq.UNSUBSCRIBE, shm.DUAL_PREFIX + plain)
+                sock.setsockopt(zmq.UNSUBSCRIBE, topic)
 
     def _drain(self, sock: zmq.Socket, order: itertools.count) -> None:
         # Bounded read-ahead: holding hundreds of large received frames at once costs more (cold
@@ -394,11 +549,16 @@ class NodeRuntime(Context):
         if self.pub is None:
             return
         try:
-            self._read_subscriptions()
             with self._pub_lock:
+                self._read_subscriptions()
                 self._stats_seq += 1              # numbered like any output, so a subscriber sees losses and restarts
                 msg = msgspec.structs.replace(self.stats(), seq=self._stats_seq)
-                _send(self.pub, self._stats_topic, self._codec.encode(msg))
+                frames = self._codec.encode(msg)
+                plain, to_shm = self._routes_of(self._stats_topic)
+                if to_shm:
+                    _send(self.pub, self._shm_topics[self._stats_topic], frames)
+                if plain or not to_shm:
+                    _send(self.pub, self._stats_topic, frames)
         except Exception as exc:  # noqa: BLE001 - statistics must never be what kills a node
             self._stats_errors += 1
             now = time.monotonic_ns()
@@ -421,14 +581,30 @@ class NodeRuntime(Context):
                                   "went away; redialled", endpoint, ", ".join(st.topic for st in hit) or "?")
 
     def _read_subscriptions(self) -> None:
-        while True:
-            try:
-                event = self.pub.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            if event:
-                topic = event[1:].decode(errors="replace")
-                self._subscribers[topic] += 1 if event[0] == 1 else -1
+        """Take in (un)subscriptions (``XPUB_VERBOSER``: one event per subscriber) and count subscribers.
+
+        A Tether subscriber on this host asks for ``@shm/<t>`` and, until its first slot table
+        arrives, also for ``<t>`` and the marker ``@dual/<t>`` (see :mod:`tether.shm`): each
+        subscriber counts once, and only plain subscribers make :meth:`publish` send plain frames."""
+        self._subs_read_ns = time.monotonic_ns()
+        ready = [(self.pub, _POLLIN)]
+        while _zmq_poll(ready, 0):
+            event = self.pub.recv()
+            if not event:
+                continue
+            raw, step = event[1:], (1 if event[0] == 1 else -1)
+            count = self._sub_topics[raw] + step
+            if count > 0:
+                self._sub_topics[raw] = count
+            else:
+                del self._sub_topics[raw]
+            self._sub_routes.clear()
+            logical = raw
+            if raw.startswith(shm.TOPIC_PREFIX):
+                logical = raw[len(shm.TOPIC_PREFIX):]
+            elif raw.startswith(shm.DUAL_PREFIX):
+                logical, step = raw[len(shm.DUAL_PREFIX):], -step
+            self._subscribers[logical.decode(errors="replace")] += step
 
     def _wait_for_subscribers(self) -> None:
         """Hold a node's first publication until its known subscribers have joined (bounded)."""
@@ -545,6 +721,10 @@ class NodeRuntime(Context):
         if self._auth is not None:
             self._auth.stop()
             self._auth = None
+        for pool in self._pools.values():      # closed, kept for their counters
+            pool.close()
+        if self._reader is not None:
+            self._reader.close()
 
 
 _zmq_poll = zmq.backend.zmq_poll

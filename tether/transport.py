@@ -78,10 +78,21 @@ def check_private_dir(path: Path) -> None:
                           f"run: chmod 700 {path}")
 
 
+def private_subdir(name: str) -> Path:
+    """``runtime_dir()/name``, created 0700; an existing one passes the same checks as the runtime directory
+    (one planted while the runtime directory was open to others would otherwise be used as it is)."""
+    folder = runtime_dir() / name
+    try:
+        folder.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    check_private_dir(folder)
+    return folder
+
+
 def ipc_endpoint(graph: str, node_id: str, token: str) -> str:
     """A same-host endpoint for ``node_id`` (unix socket paths must stay short: ~100 bytes)."""
-    folder = runtime_dir() / "s"
-    folder.mkdir(exist_ok=True, mode=0o700)
+    folder = private_subdir("s")
     safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in f"{graph}.{node_id}")[:40]
     return f"ipc://{folder}/{safe}.{token}"
 
@@ -92,9 +103,9 @@ def sweep_stale_sockets() -> int:
     A socket file whose listener is gone refuses connections; one that is alive accepts
     (and the probe closes at once, which ZeroMQ takes as a peer that left).
     """
-    folder = runtime_dir() / "s"
+    folder = private_subdir("s")
     removed = 0
-    for path in folder.glob("*") if folder.is_dir() else ():
+    for path in folder.glob("*"):
         try:
             if not stat.S_ISSOCK(path.lstat().st_mode):
                 continue
@@ -141,6 +152,7 @@ def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq
     """The node's one publisher: an XPUB (so it can see subscriptions arrive) bound to ``binds``."""
     sock = ctx.socket(zmq.XPUB)
     sock.setsockopt(zmq.XPUB_VERBOSE, 1)       # every subscribe reaches us, not only the first per topic
+    sock.setsockopt(zmq.XPUB_VERBOSER, 1)      # and every unsubscribe (a subscriber leaving, too): exact counts
     sock.setsockopt(zmq.SNDHWM, HWM_MAX)
     sock.setsockopt(zmq.LINGER, 500)
     if curve is not None:

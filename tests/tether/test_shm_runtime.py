@@ -1,0 +1,217 @@
+"""Shared memory through the live runtime: nodes unchanged, fan-out, fallbacks to frames, graphs side by side."""
+from __future__ import annotations
+
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable, Iterator
+
+import msgpack
+import msgspec
+import numpy as np
+import pytest
+import zmq
+
+from msgs.sensor import Image
+from tether import Input, Node, shm
+from tether.codec import wire_to_inline
+from tether.runtime import NodeRuntime, RunSpec, Source
+
+from conftest import free_port
+
+pytestmark = pytest.mark.skipif(not shm.Settings.from_env().enabled, reason="no /dev/shm or OFD locks here")
+
+MIB = 1 << 20
+
+
+class CamConfig(msgspec.Struct, frozen=True, kw_only=True):
+    count: int = 5
+    first: int = 1              # message i is filled with first + i (mod 256)
+    loan: bool = False
+
+
+class Cam(Node):
+    """Publishes ``count`` 1 MiB images, each filled with one value, then idles."""
+
+    Config = CamConfig
+    outputs = {"image": Image}
+
+    def run(self) -> None:
+        for i in range(self.config.count):
+            if self.stopping.is_set():
+                return
+            value = (self.config.first + i) % 256
+            if self.config.loan:
+                data = self.loan("image", (512, 2048))
+                data[:] = value
+            else:
+                data = np.full((512, 2048), value, np.uint8)
+            self.publish("image", Image(data=data))
+        self.stopping.wait()
+
+
+class Keeper(Node):
+    """Keeps every image it handles (so a rewritten buffer would show)."""
+
+    inputs = {"image": Input(Image, depth=1000, max_queue_bytes=1 << 31)}
+
+    def setup(self) -> None:
+        self.kept: list[Image] = []
+
+    def on_image(self, msg: Image) -> None:
+        self.kept.append(msg)
+
+
+class LatestKeeper(Keeper):
+    inputs = {"image": Input(Image, latest=True)}
+
+
+def _until(done: Callable[[], bool], what: str, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+@contextmanager
+def _running(*runtimes: NodeRuntime) -> Iterator[None]:
+    threads = [threading.Thread(target=rt.serve, daemon=True) for rt in runtimes]
+    for t in threads:
+        t.start()
+    try:
+        yield
+    finally:
+        for rt in runtimes:
+            rt.stop()
+        for t in threads:
+            t.join(30)
+
+
+def _cam(endpoint: str, subscribers: int, *, graph: str = "g", **params) -> NodeRuntime:
+    spec = RunSpec(graph=graph, node_id="cam", node="test:Cam", binds=[endpoint], params=params,
+                   expect_subscribers={"cam/image": subscribers}, wait_subscribers_s=30)
+    return NodeRuntime(spec, Cam)
+
+
+def _keeper(endpoint: str, node_id: str = "keep", cls: type[Keeper] = Keeper, graph: str = "g") -> NodeRuntime:
+    spec = RunSpec(graph=graph, node_id=node_id, node="test:Keeper",
+                   inputs={"image": Source(topic="cam/image", endpoint=endpoint)})
+    return NodeRuntime(spec, cls)
+
+
+def _values(rt: NodeRuntime) -> list[int]:
+    """Each kept image's value, checked to be uniform (a rewritten or torn buffer would not be)."""
+    out = []
+    for msg in rt.node.kept:
+        data = msg.data
+        assert data.shape == (512, 2048) and data.min() == data.max(), "an array changed under its holder"
+        out.append(int(data[0, 0]))
+    return out
+
+
+def test_same_host_subscribers_share_one_copy_and_nodes_see_the_same_arrays(tmp_path: Path) -> None:
+    endpoint = f"ipc://{tmp_path}/cam"
+    cam = _cam(endpoint, 4, count=6)
+    keepers = [_keeper(endpoint, f"keep{i}") for i in range(4)]
+    with _running(*keepers, cam):
+        _until(lambda: all(len(k.node.kept) == 6 for k in keepers), "all six images at every keeper")
+        for keeper in keepers:
+            assert _values(keeper) == [1, 2, 3, 4, 5, 6]
+            assert not keeper.node.kept[0].data.flags.writeable
+            assert [m.seq for m in keeper.node.kept] == [1, 2, 3, 4, 5, 6]
+        counters = cam.shm_counters()
+        assert counters["placed"] == 6 and counters["fallbacks"] == 0    # one copy per message, not per subscriber
+
+
+def test_plain_zeromq_clients_and_recorders_get_ordinary_frames(tmp_path: Path) -> None:
+    """A client that knows nothing of shared memory subscribes to the topic and gets [topic, body, buffer]."""
+    endpoint = f"ipc://{tmp_path}/cam"
+    cam = _cam(endpoint, 1, count=3)
+    keeper = _keeper(endpoint)
+    ctx = zmq.Context.instance()
+    plain = ctx.socket(zmq.SUB)
+    plain.connect(endpoint)
+    plain.setsockopt(zmq.SUBSCRIBE, b"")                   # everything: it must still be able to tell
+    plain.rcvtimeo = 30_000
+    try:
+        with _running(keeper, cam):
+            got = []
+            while len(got) < 3:
+                frames = plain.recv_multipart()
+                if frames[0].startswith(shm.TOPIC_PREFIX):
+                    continue                                # slot tables for shared-memory subscribers only
+                if frames[0] == b"cam/image":
+                    got.append(frames)
+            _until(lambda: len(keeper.node.kept) == 3, "the keeper's images")
+        for i, frames in enumerate(got):
+            body = msgpack.unpackb(frames[1])
+            assert body["data"]["frame"] == 0 and "shm" not in body["data"] and len(frames[2]) == MIB
+            assert frames[2][0] == i + 1
+            record = msgpack.unpackb(wire_to_inline(frames[1:]))    # what a recorder writes: the bytes inline
+            assert len(record["data"]["data"]) == MIB
+        assert _values(keeper) == [1, 2, 3] and cam.shm_counters()["placed"] == 3, cam.shm_counters()
+    finally:
+        plain.close(linger=0)
+
+
+def test_a_subscriber_on_another_machine_gets_frames(tmp_path: Path) -> None:
+    endpoint = f"tcp://127.0.0.1:{free_port()}"
+    cam = _cam(endpoint, 1, count=3)
+    keeper = _keeper(endpoint)
+    with _running(keeper, cam):
+        _until(lambda: len(keeper.node.kept) == 3, "three images over tcp")
+    assert _values(keeper) == [1, 2, 3] and cam.shm_counters()["placed"] == 0
+
+
+def test_two_graphs_with_the_same_topic_names_stay_apart(tmp_path: Path) -> None:
+    a, b = f"ipc://{tmp_path}/a", f"ipc://{tmp_path}/b"
+    cams = [_cam(a, 1, graph="one", count=3, first=10), _cam(b, 1, graph="two", count=3, first=100)]
+    keepers = [_keeper(a, graph="one"), _keeper(b, graph="two")]
+    with _running(*keepers, *cams):
+        _until(lambda: all(len(k.node.kept) == 3 for k in keepers), "both graphs' images")
+    assert _values(keepers[0]) == [10, 11, 12] and _values(keepers[1]) == [100, 101, 102]
+    assert cams[0]._pools["image"].stem != cams[1]._pools["image"].stem
+
+
+def test_slow_and_latest_only_subscribers_never_see_a_buffer_rewritten(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 4-slot pool, 60 messages, subscribers that keep everything: slots stay pinned, frames take over."""
+    monkeypatch.setenv("TETHER_SHM_POOL_BYTES", str(4 * MIB))
+    endpoint = f"ipc://{tmp_path}/cam"
+    cam = _cam(endpoint, 2, count=60)
+    keeper, latest = _keeper(endpoint), _keeper(endpoint, "latest", LatestKeeper)
+    with _running(keeper, latest, cam):
+        _until(lambda: len(keeper.node.kept) == 60, f"all sixty images at the deep keeper {len(keeper.node.kept)} {keeper.inputs['image'].stats} {cam.shm_counters()} {latest.inputs['image'].stats}", 20)
+        _until(lambda: latest.node.kept and latest.node.kept[-1].seq == 60, "the last image at the latest keeper")
+    assert _values(keeper) == [(1 + i) % 256 for i in range(60)]
+    values = _values(latest)
+    assert values == sorted(values) and values[-1] == 60
+    counters = cam.shm_counters()
+    assert counters["placed"] <= 4 and counters["fallbacks"] >= 56      # the pool pinned: frames, never corruption
+
+
+def test_a_subscriber_that_cannot_map_the_segment_falls_back_to_frames(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    def refuse(name: str) -> shm.Segment:
+        raise shm.ShmUnavailable(f"shared-memory segment {name} refused (test)")
+
+    monkeypatch.setattr(shm.Segment, "open", staticmethod(refuse))
+    endpoint = f"ipc://{tmp_path}/cam"
+    cam = _cam(endpoint, 1, count=200)
+    keeper = _keeper(endpoint)
+    with _running(keeper, cam):
+        _until(lambda: len(keeper.node.kept) >= 5, "images as ordinary frames")
+    state = keeper.inputs["image"]
+    assert state.stats["decode_errors"] >= 1 and "cam/image" in keeper._shm_refused
+    assert len(set(_values(keeper))) == len(keeper.node.kept)
+
+
+def test_a_loaned_array_crosses_without_a_copy(tmp_path: Path) -> None:
+    endpoint = f"ipc://{tmp_path}/cam"
+    cam = _cam(endpoint, 1, count=4, loan=True)
+    keeper = _keeper(endpoint)
+    with _running(keeper, cam):
+        _until(lambda: len(keeper.node.kept) == 4, "four loaned images")
+    assert _values(keeper) == [1, 2, 3, 4]
+    assert cam.shm_counters()["placed"] == 4
