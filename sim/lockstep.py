@@ -6,7 +6,7 @@ delivered to its subscribers at the start of the next one (a transport latency o
 step). Nodes that talk CAN (they have an ``open_bus()`` method, like
 ``drivers.canopen402:Cia402Bus`` and ``sim.cia402_drive:Cia402DriveSim``) get an endpoint
 of one :class:`sim.cia402_bank.SyncCanHub` instead of their configured interface, so a
-CANopen master and the simulated drives exchange real frames -- SDO bring-up, PDOs,
+CANopen master and the simulated drives exchange real frames -- SDO bring-up, PDOs, SYNC,
 heartbeats, EMCY -- synchronously at the virtual time.
 
 The same launch file therefore runs live (``tether launch``, real processes and a real
