@@ -207,6 +207,18 @@ class CrowdWorld:
         if self.goal_t_s is None and self.goal_reached:
             self.goal_t_s = self.t_s
 
+    def advance_crowd(self, dt_s: float, step_s: float = 0.05) -> None:
+        """Let the pedestrians walk ``dt_s`` seconds while the robot is not there yet (nobody sees it,
+        no contact counts); the robot then appears at its pose. How an episode starts once the
+        robot's start is clear of everyone's path (``bench/social_nav.py``: ``clear_start_s``)."""
+        n = max(1, int(np.ceil(max(dt_s, 0.0) / step_s)))
+        self.walkers.keep_clear = None
+        for _ in range(n if dt_s > 0 else 0):
+            self.walkers.step(self.t_s, dt_s / n, None)
+            self.t_s += dt_s / n
+        self._in_contact = set()
+        self._update_contacts()
+
     def _hits_static(self, xy: tuple[float, float]) -> bool:
         p = np.asarray(xy, float)[None, :]
         r = self.limits.radius_m

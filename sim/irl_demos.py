@@ -44,35 +44,41 @@ def sim_camera() -> object:
     return CameraModel(fx_px=CAMERA_FX_PX, fy_px=CAMERA_FX_PX)
 
 
-def _expert_tracks(tracks: object, min_len_m: float, min_s: float) -> list[int]:
-    """Indices of pedestrians that walk far enough for long enough to demonstrate something."""
+def _expert_tracks(tracks: object, min_len_m: float, min_s: float) -> list[tuple[int, int]]:
+    """(pedestrian index, segment index) of the walks long enough to demonstrate something; a track
+    with gaps (:meth:`sim.pedestrian_data.Tracks.segments`) gives one walk per gapless piece."""
     out = []
-    for i, (t, xy) in enumerate(zip(tracks.t_s, tracks.xy_m)):  # type: ignore[attr-defined]
-        if len(t) > 3 and t[-1] - t[0] >= min_s and np.hypot(*(xy[-1] - xy[0])) >= min_len_m:
-            out.append(i)
+    for i in range(len(tracks.ids)):  # type: ignore[attr-defined]
+        for k, (t, xy) in enumerate(tracks.segments(i)):  # type: ignore[attr-defined]
+            if len(t) > 3 and t[-1] - t[0] >= min_s and np.hypot(*(xy[-1] - xy[0])) >= min_len_m:
+                out.append((i, k))
     return out
 
 
-def pedestrian_demos(dataset: str, n_peds: int, *, horizon_s: float = 3.0, every_s: float = 0.4,
+def pedestrian_demos(dataset: str | Tracks, n_peds: int, *, horizon_s: float = 3.0, every_s: float = 0.4,
                      seed: int = 0, rim_m: float = 0.0) -> list[Demo]:
-    """Real pedestrians as experts: the robot's camera rides along each one's track (see the module docstring)."""
-    tracks = load_tracks(dataset)
-    chosen = _expert_tracks(tracks, 4.0, 5.0)
+    """Real pedestrians as experts: the robot's camera rides along each one's track (see the module docstring).
+
+    ``dataset`` is a data set name or loaded :class:`Tracks`. A walker whose track has gaps
+    demonstrates each gapless piece on its own (a path across a gap was never walked).
+    """
+    tracks = load_tracks(dataset) if isinstance(dataset, str) else dataset
+    walks = _expert_tracks(tracks, 4.0, 5.0)
     rng = np.random.default_rng(seed)
-    chosen = sorted(rng.choice(chosen, size=min(n_peds, len(chosen)), replace=False).tolist())
+    pick = sorted(rng.choice(len(walks), size=min(n_peds, len(walks)), replace=False).tolist()) if walks else []
     demos: list[Demo] = []
-    for i in chosen:
+    for i, k in (walks[j] for j in pick):
         keep = [j for j in range(len(tracks.ids)) if j != i]
         others = Tracks(tracks.name, tracks.ids[keep], tuple(tracks.t_s[j] for j in keep),
-                        tuple(tracks.xy_m[j] for j in keep), tracks.row_period_s)
-        t, xy = tracks.t_s[i], tracks.xy_m[i]
+                        tuple(tracks.xy_m[j] for j in keep), tracks.row_period_s, tracks.max_gap_s)
+        t, xy = tracks.segments(i)[k]
         lo, hi = xy.min(axis=0) - 8.0, xy.max(axis=0) + 8.0
-        scene = {"name": f"{dataset}-{tracks.ids[i]}", "bounds_m": [lo[0], lo[1], hi[0], hi[1]],
+        scene = {"name": f"{tracks.name}-{tracks.ids[i]}", "bounds_m": [lo[0], lo[1], hi[0], hi[1]],
                  "robot": {"x_m": float(xy[0, 0]), "y_m": float(xy[0, 1])}, "goal": {"x_m": float(xy[-1, 0]), "y_m": float(xy[-1, 1])},
-                 "replay": {"dataset": dataset, "t0_s": float(t[0])}}
+                 "replay": {"dataset": tracks.name, "t0_s": float(t[0])}}
         demos += _ride_along(CrowdWorld(scene, tracks=others, camera=sim_camera()), t - t[0], xy, horizon_s, every_s,
                              rim_m)
-        log.info("%s pedestrian %d: %d demos so far", dataset, tracks.ids[i], len(demos))
+        log.info("%s pedestrian %d: %d demos so far", tracks.name, tracks.ids[i], len(demos))
     return demos
 
 

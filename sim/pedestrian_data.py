@@ -27,6 +27,7 @@ ROW_PERIOD_S: dict[str, float] = {
     "uni_examples": 0.4,
 }
 _FRAMES_PER_ROW = 10.0
+GAP_ROWS = 2.5          # a walker unseen for longer than this many rows is out of sight, not walking a straight line
 
 
 def default_root() -> Path:
@@ -53,6 +54,11 @@ class Tracks:
         Positions in metres, world frame of the data set.
     row_period_s : float
         Seconds between consecutive annotated rows.
+    max_gap_s : float
+        Longest time between two samples of one walker that is still bridged; a longer gap is a
+        walker out of sight (absent in :meth:`state_at`, cut in :meth:`segments`). Files read by
+        :func:`parse_tracks` bridge 2.5 rows (annotators skip a row now and then); tracks built
+        by hand bridge everything unless told.
     """
 
     name: str
@@ -60,6 +66,7 @@ class Tracks:
     t_s: tuple[np.ndarray, ...]
     xy_m: tuple[np.ndarray, ...]
     row_period_s: float
+    max_gap_s: float = float("inf")
 
     def __post_init__(self) -> None:
         first = np.array([t[0] for t in self.t_s]) if self.t_s else np.zeros(0)
@@ -72,12 +79,20 @@ class Tracks:
         """Time of the last sample (s)."""
         return max((float(t[-1]) for t in self.t_s), default=0.0)
 
+    def segments(self, i: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Track ``i`` cut at its gaps (longer than :attr:`max_gap_s`): [(t (n,), xy (n, 2)), ...]."""
+        t, xy = self.t_s[i], self.xy_m[i]
+        cuts = np.flatnonzero(np.diff(t) > self.max_gap_s + 1e-9) + 1
+        return [(a, b) for a, b in zip(np.split(t, cuts), np.split(xy, cuts))]
+
     def state_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pedestrians present at ``t_s``: ids (M,), positions (M, 2) m, velocities (M, 2) m/s.
 
         Positions are linearly interpolated between the two samples around ``t_s``; the
         velocity is that segment's finite difference. A pedestrian is present from its
-        first to its last sample (inclusive).
+        first to its last sample (inclusive), except inside a gap between two samples longer
+        than :attr:`max_gap_s`: nobody knows where they walked then, and interpolating would
+        slide them through the crowd on a straight line they never took.
         """
         ids, pos, vel = [], [], []
         for i in np.flatnonzero((self._first_s <= t_s) & (t_s <= self._last_s)):  # type: ignore[attr-defined]
@@ -87,6 +102,8 @@ class Tracks:
                 continue
             k = int(np.clip(np.searchsorted(t, t_s, side="right") - 1, 0, len(t) - 2))
             seg_dt = t[k + 1] - t[k]
+            if seg_dt > self.max_gap_s + 1e-9 and t[k] < t_s < t[k + 1]:
+                continue                                   # out of sight (a gap in the track)
             a = (t_s - t[k]) / seg_dt
             ids.append(pid)
             pos.append(xy[k] + a * (xy[k + 1] - xy[k]))
@@ -114,7 +131,7 @@ def parse_tracks(table: np.ndarray, *, name: str, row_period_s: float) -> Tracks
     if not np.all(np.isfinite(table)):
         raise ValueError(f"{name}: the track table has non-finite entries; fix or drop those rows")
     if len(table) == 0:
-        return Tracks(name, np.zeros(0, np.int64), (), (), row_period_s)
+        return Tracks(name, np.zeros(0, np.int64), (), (), row_period_s, GAP_ROWS * row_period_s)
     t_all = (table[:, 0] - table[:, 0].min()) * (row_period_s / _FRAMES_PER_ROW)
     pid_all = table[:, 1].astype(np.int64)
     order = np.lexsort((t_all, pid_all))
@@ -126,7 +143,7 @@ def parse_tracks(table: np.ndarray, *, name: str, row_period_s: float) -> Tracks
         t, keep = np.unique(t_all[lo:hi], return_index=True)   # drop duplicated frames of one pedestrian
         t_s.append(t)
         xy_m.append(xy_all[lo:hi][keep])
-    return Tracks(name, ids, tuple(t_s), tuple(xy_m), row_period_s)
+    return Tracks(name, ids, tuple(t_s), tuple(xy_m), row_period_s, GAP_ROWS * row_period_s)
 
 
 def load_tracks(name: str, root: str | Path | None = None) -> Tracks:

@@ -6,6 +6,10 @@ points (floor excluded, thinned to one per 10 cm) placed in the world at the pos
 frame, plus the known map's occupied cells near the robot (the camera's 57-ish degree
 field of view would otherwise let it turn into walls it cannot see). It steers toward a
 carrot ``lookahead_m`` along the global path and slows so that it stops on the goal.
+With ``predict_s`` > 0 and an input ``points`` carrying velocities (the flow node's
+``FlowPoints``), the moving points (``moving_mps`` and faster) also stand where they will be
+over the next ``predict_s`` at constant velocity: the same prediction of people the collision
+guard makes, so a comparison with the IRL planner measures the cost, not the prediction.
 """
 from __future__ import annotations
 
@@ -39,6 +43,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     alpha: float = 0.6
     beta: float = 0.4
     gamma: float = 0.5
+    predict_s: float = 0.0            # moving points are also obstacles where they will be this far ahead (0 = off)
+    moving_mps: float = 0.3
 
 
 class Dwa(Node):
@@ -63,6 +69,8 @@ class Dwa(Node):
         self._graph: GridGraph | None = None
         self._occupied_raw: np.ndarray | None = None
         self._sensed = False
+        self._rgbd = False
+        self._movers = np.zeros((0, 2))           # world frame: predicted positions of moving points
 
     def on_goal(self, msg: Goal2D) -> None:
         self.goal = (msg.x_m, msg.y_m, msg.tolerance_m)
@@ -103,11 +111,24 @@ class Dwa(Node):
             return
         pts, _ = depth_to_robot(np.asarray(msg.depth_m), i.fx_px, i.fy_px, i.cx_px, i.cy_px, stride=6,
                                 mount_xyz_m=(c.camera_x_m, c.camera_y_m, c.camera_z_m))
+        self._rgbd = True
         self._see(pts, msg.stamp_ns)
 
     def on_points(self, msg: FlowPoints) -> None:
         pts = np.asarray(msg.points_m, float).reshape(-1, 3)
-        self._see(pts[np.isfinite(pts).all(axis=1)], msg.stamp_ns)
+        vel = np.asarray(msg.velocity_mps, float).reshape(-1, 3)
+        ok = np.isfinite(pts).all(axis=1)
+        if not self._rgbd:                     # the depth image is the geometry when there is one
+            self._see(pts[ok], msg.stamp_ns)
+        c = self.config
+        pose = self._pose_at(msg.stamp_ns)
+        if c.predict_s <= 0 or len(vel) != len(pts) or pose is None:
+            return
+        ok &= (np.isfinite(vel).all(axis=1) & (pts[:, 2] >= c.z_min_m) & (pts[:, 2] <= c.z_max_m)
+               & (np.hypot(vel[:, 0], vel[:, 1]) >= c.moving_mps))
+        taus = np.arange(0.1, c.predict_s + 1e-9, 0.1)
+        ahead = (pts[ok, None, :2] + vel[ok, None, :2] * taus[None, :, None]).reshape(-1, 2)
+        self._movers = to_world(pose, thin_points(ahead)) if len(ahead) else np.zeros((0, 2))
 
     def _carrot(self, pose: tuple[float, float, float]) -> tuple[np.ndarray, bool]:
         assert self.goal is not None
@@ -137,7 +158,7 @@ class Dwa(Node):
             return None         # nothing seen yet: the robot waits
         carrot, final = self._carrot(pose)
         near = self._map_xy[np.hypot(*(self._map_xy - pose[:2]).T) <= self.config.map_range_m] if len(self._map_xy) else self._map_xy
-        obstacles = np.vstack([self._seen, near]) if len(near) else self._seen
+        obstacles = np.vstack([self._seen, near, self._movers])
         v_cap = np.sqrt(2 * self.params.acc_v_mps2 * max(dist - 0.5 * self.goal[2], 0.0)) if final else None
         r = plan_dwa(np.array(pose), (msg.twist.vx_mps, msg.twist.wz_radps), carrot, obstacles, self.params,
                      v_limit_mps=v_cap)

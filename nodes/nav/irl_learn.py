@@ -40,6 +40,11 @@ log = logging.getLogger("nodes.nav.irl_learn")
 ORACLE_WEIGHTS = np.array([2.2, 0.7, 0.0, 0.0, 0.0, 0.0, 4.0, 3.5, 0.0, 0.7, 0.3, 0.0])
 
 
+def oracle_weights(k: int) -> np.ndarray:
+    """ORACLE_WEIGHTS for a K-feature layout (the appended 'conflict' feature weighs 0: the paper has no such row)."""
+    return np.concatenate([ORACLE_WEIGHTS, np.zeros(max(k - len(ORACLE_WEIGHTS), 0))])[:k]
+
+
 def evaluate(weights: np.ndarray, step_cost: float, demos: list[Demo], *, oracle: bool = False) -> dict[str, float]:
     """Held-out scores of learnt weights next to the shortest-path baseline."""
     out = {"demos": len(demos), "moves": int(sum(len(d.path) - 1 for d in demos))}
@@ -48,8 +53,9 @@ def evaluate(weights: np.ndarray, step_cost: float, demos: list[Demo], *, oracle
     out["action_agreement"] = round(action_agreement(demos, weights, step_cost=step_cost), 4)
     out["action_agreement_shortest_path"] = round(action_agreement(demos, np.zeros_like(weights)), 4)
     if oracle:
-        out["evd"] = round(expected_value_difference(demos, weights, ORACLE_WEIGHTS, step_cost=step_cost), 4)
-        out["evd_shortest_path"] = round(expected_value_difference(demos, np.zeros_like(weights), ORACLE_WEIGHTS), 4)
+        truth = oracle_weights(len(weights))
+        out["evd"] = round(expected_value_difference(demos, weights, truth, step_cost=step_cost), 4)
+        out["evd_shortest_path"] = round(expected_value_difference(demos, np.zeros_like(weights), truth), 4)
     return out
 
 
@@ -58,7 +64,7 @@ def fit_and_report(demos: DemoSet, *, holdout: set[str], oracle_scenes: set[str]
                    use: list[str] | tuple[str, ...] = ()) -> tuple[CostWeights, dict]:
     """Learn weights from ``demos`` (held-out scenes scored, not trained on); returns the weights file's
     content and the scores. ``holdout`` empty: the last fifth of the scenes."""
-    from nodes.nav.features import FEATURE_NAMES
+    from nodes.nav.features import CONFLICT, FEATURE_NAMES
 
     if use:
         demos = DemoSet({k: v for k, v in demos.scenes.items() if k in set(use) | set(holdout)})
@@ -75,7 +81,36 @@ def fit_and_report(demos: DemoSet, *, holdout: set[str], oracle_scenes: set[str]
         report[name] = evaluate(res.weights, res.step_cost, demos.scenes[name], oracle=name in oracle_scenes)
     extra = {"method": method, "prior": prior, "lam": lam, "widen_m": widen_m, "trained_on": train_names,
              "held_out": sorted(held), "converged": res.converged, "scores": report}
-    return CostWeights(tuple(FEATURE_NAMES), res.weights, res.step_cost, extra), report
+    names = list(FEATURE_NAMES) + [CONFLICT] * (len(res.weights) - len(FEATURE_NAMES))
+    return CostWeights(tuple(names), res.weights, res.step_cost, extra), report
+
+
+def leave_one_scene_out(demos: DemoSet, scenes: list[str] | tuple[str, ...] = (), *, method: str = "birl",
+                        prior: str = "laplace", lam: float = 0.5) -> dict[str, dict]:
+    """One fold per scene of ``scenes`` (default: all): learn on the others, score the held-out one.
+
+    Scores: action agreement of the learnt weights, of the shortest path (all weights 0) and of the
+    paper's table (``oracle_weights``, the weights an oracle driver plans with). Real walkers have no
+    true cost, so no expected value difference is defined for them; an oracle-driven log scene
+    (``oracle-*``) held out also gets its EVD against the oracle. A single scene cannot be held out
+    against nothing: it raises a ValueError naming the problem.
+    """
+    names = [n for n in (scenes or list(demos.scenes)) if demos.scenes.get(n)]
+    if len(names) < 2:
+        raise ValueError(f"leave-one-scene-out needs demos from at least 2 scenes, got {names or 'none'}")
+    folds = {}
+    for held in names:
+        train = demos.pick([n for n in names if n != held])
+        res = learn(train, method=method, prior=prior, lam=lam)
+        test = demos.scenes[held]
+        score = evaluate(res.weights, res.step_cost, test, oracle=held.startswith("oracle-"))
+        if score.get("moves"):
+            score["action_agreement_oracle"] = round(action_agreement(test, oracle_weights(len(res.weights))), 4)
+        folds[held] = {"weights": [round(float(v), 4) for v in res.weights], "step_cost": round(res.step_cost, 4),
+                       "scores": score}
+        log.info("fold %s: agreement %.3f (shortest path %.3f, oracle %.3f)", held, score.get("action_agreement", np.nan),
+                 score.get("action_agreement_shortest_path", np.nan), score.get("action_agreement_oracle", np.nan))
+    return folds
 
 
 def add_learning_arguments(ap: argparse.ArgumentParser) -> None:
@@ -94,6 +129,9 @@ def add_learning_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--widen-m", type=float, default=0.0,
                     help="learn on crowd features widened by this radius (the planner's footprint view; 0 = as seen)")
     ap.add_argument("--cell-m", type=float, default=0.25, help="feature grid cell size (for --widen-m)")
+    ap.add_argument("--loso", action="store_true",
+                    help="also run leave-one-scene-out folds over every scene of the demos (not only --use) and "
+                         "store them in the weights file")
     ap.add_argument("-o", "--output", required=True)
     ap.add_argument("--debug", action="store_true")
 
@@ -117,6 +155,9 @@ def learn_main(args: argparse.Namespace, collect) -> int:
         weights, report = fit_and_report(demos, holdout=set(args.holdout), oracle_scenes=oracle_scenes,
                                          method=args.method, prior=args.prior, lam=args.lam, widen_m=args.widen_m,
                                          cell_m=args.cell_m, use=args.use)
+        if getattr(args, "loso", False):
+            weights.extra["leave_one_scene_out"] = leave_one_scene_out(    # every scene of the demos, held out in turn
+                demos, list(demos.scenes), method=args.method, prior=args.prior, lam=args.lam)
     except (ValueError, FileNotFoundError) as exc:
         print(f"irl_learn: {exc}", file=sys.stderr)
         return 2

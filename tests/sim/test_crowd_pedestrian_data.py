@@ -62,3 +62,23 @@ def test_replay_with_synthetic_tracks_applies_the_scene_transform():
     np.testing.assert_allclose(peds.xy_m, [[1.0, 2.0]], atol=1e-6)          # (2, 0) rotated 90 deg, shifted
     np.testing.assert_allclose(peds.vel_mps, [[0.0, 1.0]], atol=1e-6)
     assert list(peds.ids) == [10007]
+
+
+def test_a_walker_out_of_sight_is_absent_and_demonstrates_each_gapless_piece_alone():
+    """Hard case: real walkers whose tracks have gaps (an annotator lost them for seconds)."""
+    from sim.irl_demos import _expert_tracks
+
+    rows = [[f, 1, 0.1 * f, 0.0] for f in range(0, 130, 10)]                  # 0 .. 4.8 s, 1.2 m/s ...
+    rows += [[f, 1, 0.1 * f, 3.0] for f in range(230, 400, 10)]               # ... 4 s unseen, then 8.8 .. 15.6 s
+    rows += [[f, 2, 5.0, 0.0] for f in range(0, 400, 20)]                      # a skipped row (0.8 s) is bridged
+    tr = parse_tracks(np.array(rows, float), name="x", row_period_s=0.4)
+    assert tr.max_gap_s == pytest.approx(1.0)
+    assert 1 not in tr.state_at(6.0)[0]                  # inside the gap: not slid along a line never walked
+    assert 2 in tr.state_at(6.2)[0]                      # between two samples 0.8 s apart: still there
+    ids, xy, _ = tr.state_at(10.0)
+    np.testing.assert_allclose(xy[list(ids).index(1)], [25.0, 3.0])
+    pieces = tr.segments(0)
+    assert [len(t) for t, _ in pieces] == [13, 17] and pieces[1][0][0] == pytest.approx(9.2)
+    assert len(tr.segments(1)) == 1
+    walks = _expert_tracks(tr, 4.0, 4.0)
+    assert (0, 0) in walks and (0, 1) in walks            # each piece a walk of its own, none across the gap

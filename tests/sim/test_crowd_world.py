@@ -147,3 +147,14 @@ def test_contact_attribution_rule_and_no_respawn_inside_the_robot():
     for _ in range(40):
         w.step(0.0, 0.0, 0.1)
     assert w.collisions == 0 and np.hypot(*w.pedestrians().xy_m[0]) > 1.5
+
+
+def test_the_crowd_can_walk_before_the_robot_appears_and_nobody_meets_the_absent_robot():
+    """A clear start (bench/social_nav.py clear_start_s): a walker crossing the start passes before the robot is there."""
+    w = CrowdWorld(room(pedestrians=[{"id": 7, "waypoints": [[3.0, 0.0], [-4.5, 0.0]], "speed_mps": 1.0}],
+                        pedestrian_model="linear", pedestrians_see_robot=False), camera=SMALL)
+    w.advance_crowd(5.0)
+    assert w.t_s == pytest.approx(5.0) and w.collisions == 0 and w.min_clearance_m > 1.0
+    assert w.pose == w.scene.robot_start and w.pedestrians().xy_m[0, 0] < -1.5
+    w.advance_crowd(0.0)                                   # nothing to do is fine
+    assert w.t_s == pytest.approx(5.0)

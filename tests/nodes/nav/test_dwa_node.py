@@ -72,3 +72,21 @@ def test_stops_on_the_goal_and_survives_frames_without_intrinsics():
     assert not h.errors
     assert [(c.vx_mps, c.wz_radps) for c in cmds(at_goal)] == [(0.0, 0.0)]
     assert any(o.output == "status" and o.msg.state == "reached" for o in at_goal)
+
+
+def test_with_predict_s_a_person_walking_into_the_path_is_an_obstacle_where_they_will_be():
+    """dwa_predicts: the same constant-velocity prediction of people as the IRL stack's guard."""
+    empty = RgbdFrame(stamp_ns=int(0.1e9), depth_m=np.zeros((H, W), np.float32), info=INFO, rgb=np.zeros((H, W, 3), np.uint8))
+    # a person 0.9 m ahead, 0.6 m to the right, walking left at 1.2 m/s: in 0.5 s on the robot's line
+    person = FlowPoints(stamp_ns=int(0.1e9), frame_id="base", points_m=np.tile([0.9, -0.6, 1.0], (10, 1)).astype(np.float32),
+                        velocity_mps=np.tile([0.0, 1.2, 0.0], (10, 1)).astype(np.float32))
+    speeds = {}
+    for predict in (0.0, 1.0):
+        with Harness(Dwa, params={"predict_s": predict}) as h:
+            h.feed([(0.0, "goal", Goal2D(x_m=6.0, y_m=0.0, frame_id="world")), (0.05, "odom", odom(t=0.05, v=0.8)),
+                    (0.1, "rgbd", empty), (0.1, "points", person)])
+            moved = cmds(h.feed([(0.15, "odom", odom(t=0.15, v=0.8))]))[-1]
+            speeds[predict] = (moved.vx_mps, moved.wz_radps, len(h.node._movers))
+    assert speeds[0.0][2] == 0 and speeds[1.0][2] > 0
+    # without prediction the person 0.6 m aside is no obstacle; with it DWA slows or turns away from their line
+    assert speeds[1.0][0] < speeds[0.0][0] - 0.05 or abs(speeds[1.0][1] - speeds[0.0][1]) > 0.1
