@@ -175,3 +175,57 @@ def goal_in_robot_frame(goal_xy: tuple[float, float], robot_pose: tuple[float, f
     dx, dy = goal_xy[0] - robot_pose[0], goal_xy[1] - robot_pose[1]
     c, s = np.cos(robot_pose[2]), np.sin(robot_pose[2])
     return float(c * dx + s * dy), float(-s * dx + c * dy)
+
+
+#: the feature the crowd-features node appends to the paper's 12 (``CrowdFeatures`` ``conflict``)
+CONFLICT = "conflict"
+
+
+def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpec = GridSpec(), *,
+                   robot_speed_mps: float = 1.0, horizon_s: float = 6.0, step_s: float = 0.25, slack_m: float = 0.5,
+                   moving_mps: float = 0.25, min_points: float = 2.0, min_height_m: float = -np.inf,
+                   max_height_m: float = np.inf) -> np.ndarray:
+    """(rows, cols) bool: cells someone will occupy when a robot driving straight out at
+    ``robot_speed_mps`` could be there, at constant velocity (a space-time occupancy feature).
+
+    The paper's density feature marks where people are *now*. A walker following a flow
+    crosses cells that were occupied when it looked and are empty when it gets there, so
+    demonstrations in real crowds price density near zero (nodes/nav/weights/default.json:
+    ``also_learnt_from_real_pedestrians``). This feature asks the question a walker answers:
+    will someone be in this cell when I arrive? A point slower than ``moving_mps`` stays
+    where it is (a standing person blocks its cell at every time); a moving one is
+    extrapolated every ``step_s`` up to ``horizon_s`` and marks the cell it reaches at tau
+    when the cell lies ``robot_speed_mps * tau`` (within ``slack_m``) from the robot. A cell
+    needs ``min_points`` such points (a single flow outlier marks nothing).
+    """
+    pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    vel = np.asarray(velocity_mps, dtype=np.float64).reshape(-1, 3)
+    rows, cols = grid.shape
+    if len(pts) != len(vel):
+        raise ValueError(f"points ({len(pts)}) and velocities ({len(vel)}) must pair up")
+    ok = np.all(np.isfinite(pts), axis=1) & np.all(np.isfinite(vel), axis=1)
+    ok &= (pts[:, 2] >= min_height_m) & (pts[:, 2] <= max_height_m)
+    p, v = pts[ok, :2], vel[ok, :2]
+    counts = np.zeros((rows, cols), np.int64)
+    if not len(p):
+        return counts > 0
+    still = np.hypot(v[:, 0], v[:, 1]) < moving_mps
+    index = np.arange(len(p))
+    pairs = [(index[still], *_cell_rc(grid, p[still]))]
+    pm, vm, im = p[~still], v[~still], index[~still]
+    if len(pm) and horizon_s > 0:
+        for tau in np.arange(step_s, horizon_s + 1e-9, step_s):
+            q = pm + vm * tau
+            hit = np.abs(np.hypot(q[:, 0], q[:, 1]) - robot_speed_mps * tau) <= slack_m
+            pairs.append((im[hit], *_cell_rc(grid, q[hit])))
+    i, r, c = (np.concatenate(a) for a in zip(*pairs))
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+    flat = np.unique(i[inside] * (rows * cols) + r[inside] * cols + c[inside]) % (rows * cols)   # a point once per cell
+    counts = np.bincount(flat, minlength=rows * cols).reshape(rows, cols)
+    return counts >= max(min_points, 1)
+
+
+def _cell_rc(grid: GridSpec, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    c = np.floor((xy[:, 0] - grid.x_min_m) / grid.resolution_m).astype(np.int64)
+    r = np.floor((xy[:, 1] - grid.y_min_m) / grid.resolution_m).astype(np.int64)
+    return r, c

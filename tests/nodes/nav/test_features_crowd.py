@@ -119,3 +119,27 @@ def test_grid_geometry_matches_the_message_convention():
     assert g.shape == (24, 24) and g.origin == (-0.375, -2.875)
     x, y = g.centres()
     assert x[0, 1] - x[0, 0] == pytest.approx(0.25) and y[1, 0] - y[0, 0] == pytest.approx(0.25)
+
+
+def test_conflict_marks_where_people_will_be_when_the_robot_gets_there():
+    from nodes.nav.features import conflict_cells
+
+    grid = GridSpec(0.0, 6.0, -3.0, 3.0, 0.25)
+    body = np.array([[0.0, 0.0, 1.0]] * 5)
+    # a person standing 3 m ahead blocks their cell at any time
+    still = conflict_cells(body + [3.1, 0.1, 0.0], np.zeros((5, 3)), grid)
+    assert np.argwhere(still).tolist() == [[12, 12]]
+    # a person 2 m ahead walking away at the robot's speed: the robot never catches up, nothing marked
+    # (the density feature marks their cell now: real walkers follow such people through it)
+    away = conflict_cells(body + [2.1, 0.1, 0.0], np.tile([1.0, 0.0, 0.0], (5, 1)), grid)
+    assert not away.any()
+    # a person crossing from the right at 1 m/s, 3 m ahead: marked near the robot's line, not where they are now
+    cross = conflict_cells(body + [3.1, -2.9, 0.0], np.tile([0.0, 1.0, 0.0], (5, 1)), grid)
+    hit = np.argwhere(cross)
+    assert len(hit) and not cross[0, 12]
+    y = -3.0 + (hit[:, 0] + 0.5) * 0.25
+    assert np.abs(y).min() < 0.5                          # they reach the robot's path about when it does
+    # one flow outlier marks nothing; NaNs and an empty cloud are fine
+    assert not conflict_cells(np.array([[3.1, 0.1, 1.0]]), np.zeros((1, 3)), grid).any()
+    assert not conflict_cells(np.full((3, 3), np.nan), np.zeros((3, 3)), grid).any()
+    assert conflict_cells(np.zeros((0, 3)), np.zeros((0, 3)), grid).shape == grid.shape
