@@ -70,7 +70,7 @@ class CarvedCloud(Node):
     def setup(self) -> None:
         cfg = self.config
         v = cfg.voxel_m
-        params = CarvingParams(voxel_m=v, arc_step_m=0.7 * v, returns=cfg.returns, settle_pings=cfg.settle_pings)
+        params = CarvingParams(voxel_m=v, arc_step_m=v, returns=cfg.returns, settle_pings=cfg.settle_pings)
         self.grid = CarvingGrid((cfg.bounds_m[:3], cfg.bounds_m[3:]), params, seafloor_z_m=cfg.seafloor_z_m)
         self._poses = PoseBuffer(span_ns=int(cfg.pose_buffer_s * 1e9))
         self._pending: deque[tuple[int, SonarPing]] = deque()

@@ -38,6 +38,7 @@ import numpy as np
 from nodes.sonar.highlight import detect_front_ends, effective_region
 
 _U16 = np.iinfo(np.uint16).max
+_DEAD = -4.0            # score below which a candidate is no longer carved
 
 
 @dataclass(frozen=True)
@@ -46,7 +47,7 @@ class CarvingParams:
 
     voxel_m: float = 0.1
     margin_m: float = 0.15            # carve only this far in front of a front end (detection + voxel size)
-    arc_step_m: float = 0.07          # spacing of the hit samples along an arc (< voxel_m: no gaps)
+    arc_step_m: float = 0.1           # spacing of the hit samples along an arc (<= voxel_m)
     miss_weight: float = 2.0          # score = hits - miss_weight * misses
     min_hits: int = 3                 # an arc votes only when its best voxel was hit by this many pings
     near_best: float = 0.8            # an arc's near-best voxels (its elevation extent): score >= this x best
@@ -126,6 +127,7 @@ class CarvingGrid:
         self._votes = np.zeros(0, np.int32)
         self._extent2 = np.zeros(0, np.float64)
         self._count = 0
+        self._alive = np.zeros(0, np.int64)             # candidate rows carving still tests
         self._pending: deque[_PingArcs] = deque()      # arcs still settling, oldest first
         self.pings = 0
 
@@ -191,28 +193,34 @@ class CarvingGrid:
         k = int(min(img.shape[0], max(float(np.nanmax(limit_rows, initial=0.0)), 0.0))) // step * step
         if k < step:
             return np.zeros(0), np.zeros(0)
-        if img.dtype.kind in "ui":
-            level = img[:k].astype(np.float32) * np.float32(1.0 / np.iinfo(img.dtype).max)
-        else:
-            level = np.nan_to_num(img[:k].astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-        if p.sigma_px > 0:
-            level = cv2.GaussianBlur(level, (1, 2 * int(np.ceil(3 * p.sigma_px)) + 1), sigmaX=0.0, sigmaY=p.sigma_px)
-        block = level.reshape(k // step, step, -1).max(axis=1)                  # (blocks, beams)
+        rows = img[:k]
+        if img.dtype.kind == "f":
+            rows = np.nan_to_num(rows.astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+        full = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else 1.0
+        # the mean over each block (its speckle averaged, as a blur would), every other beam: neighbours lie a
+        # few cm apart, well inside a voxel
+        block = cv2.resize(np.ascontiguousarray(rows[:, ::2]), (rows[:, ::2].shape[1], k // step),
+                           interpolation=cv2.INTER_AREA).astype(np.float32) * np.float32(1.0 / full)
         centre = (np.arange(k // step) + 0.5) * step
-        front = np.where(np.isfinite(front_rows), front_rows, np.inf)
-        bright = ((block > p.return_level) & (centre[:, None] < limit_rows[None, :])
+        front = np.where(np.isfinite(front_rows), front_rows, np.inf)[::2]
+        bright = ((block > p.return_level) & (centre[:, None] < limit_rows[::2][None, :])
                   & (centre[:, None] > front[None, :] + step))
-        bright[:, 1::2] = False          # every other beam: neighbours lie a few cm apart, well inside a voxel
         blk, beam = np.nonzero(bright)
-        return centre[blk] * dr, bearings[beam]
+        return centre[blk] * dr, bearings[::2][beam]
 
     def _carve(self, rot: np.ndarray, origin: np.ndarray, bearings: np.ndarray, free_m: np.ndarray,
                half: float) -> int:
         """Count a miss on the candidates inside the fan nearer than their beam's free range."""
-        n = self._count
-        if n == 0:
+        if self.pings % 10 == 0 and self._count:
+            # a candidate carved far more than hit can never be an arc's best: stop testing it (it comes back
+            # if hits lift its score again)
+            rows = np.arange(self._count)
+            score = self.hits[self._cand[rows]].astype(np.int32) - self.params.miss_weight * self.misses[self._cand[rows]]
+            self._alive = rows[score > _DEAD]
+        alive = self._alive
+        if alive.size == 0:
             return 0
-        local = (self._centre[:n] - origin.astype(np.float32)) @ rot.astype(np.float32)   # world -> sonar FRD
+        local = (self._centre[alive] - origin.astype(np.float32)) @ rot.astype(np.float32)   # world -> sonar FRD
         r2 = np.einsum("ij,ij->i", local, local)
         reach = float(max(free_m.max(initial=0.0), 0.0))
         near = np.flatnonzero((local[:, 0] > 0) & (r2 < reach * reach))
@@ -225,7 +233,7 @@ class CarvingGrid:
         beam = np.clip(np.rint(np.interp(theta, bearings, np.arange(bearings.size))), 0, bearings.size - 1).astype(int)
         inside = ((np.abs(loc[:, 2]) < np.sin(half) * rr) & (theta > bearings[0] - half_beam)
                   & (theta < bearings[-1] + half_beam) & (rr < free_m[beam]))
-        idx = self._cand[near[inside]]
+        idx = self._cand[alive[near[inside]]]
         self.misses[idx] = np.minimum(self.misses[idx].astype(np.int32) + 1, _U16)
         return int(idx.size)
 
@@ -252,15 +260,16 @@ class CarvingGrid:
         ok = np.all((cell >= 0) & (cell < np.array(self.shape)), axis=1)
         flat = np.ravel_multi_index(cell[ok].T, self.shape)
         self._pending.append(_PingArcs(flat.astype(np.int64), arc[ok].astype(np.int32), (phi * r)[ok]))
-        voxels = np.unique(flat)                                               # one hit per voxel per ping
-        self.hits[voxels] = np.minimum(self.hits[voxels].astype(np.int32) + 1, _U16)
-        self._slots_for(voxels)
-        return int(voxels.size), int((~ok).sum())
+        before = int(np.count_nonzero(self.hits))
+        self.hits[flat] = np.minimum(self.hits[flat].astype(np.int32) + 1, _U16)   # buffered: once per voxel per ping
+        self._slots_for(flat)
+        return int(np.count_nonzero(self.hits)) - before, int((~ok).sum())
 
-    def _slots_for(self, voxels: np.ndarray) -> np.ndarray:
-        """Candidate rows of the (unique) ``voxels``, adding the new ones."""
+    def _slots_for(self, voxels: np.ndarray) -> None:
+        """Make candidates of the new ones among ``voxels``."""
         new = voxels[self._slot[voxels] < 0]
         if new.size:
+            new = np.unique(new)
             need = self._count + new.size
             if need > self._cand.size:
                 cap = max(need, 2 * self._cand.size, 4096)
@@ -271,7 +280,7 @@ class CarvingGrid:
             self._cand[rows], self._centre[rows] = new, self.centres(new)
             self._slot[new] = rows
             self._count = need
-        return self._slot[voxels]
+            self._alive = np.concatenate([self._alive, rows])
 
     def _vote(self, arcs: _PingArcs) -> None:
         """Each arc of one ping votes for its best-scoring voxels, with the extent of its near-best ones."""

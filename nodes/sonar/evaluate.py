@@ -1,7 +1,11 @@
 """Sonar pipeline evaluation: rates, latency, cloud size and localisation error against ground truth.
 
 At shutdown it logs a short summary, writes ``summary.json`` and two PNGs (the last fan
-image; the cloud before and after ICP over the structure model) into ``out_dir``.
+image; the cloud before and after ICP over the structure model, and under it the carved cloud of
+``nodes.sonar.carved_cloud`` when its input ``carved`` is wired, coloured by elevation sigma) into
+``out_dir``. The carved cloud is built with the navigation pose like the highlight cloud, so it is
+drawn and scored (distance of its points to the structure: ``carved_*`` in the summary) after the
+last trusted ICP correction when there is one.
 """
 from __future__ import annotations
 
@@ -16,7 +20,7 @@ import numpy as np
 from msgs.geometry import Pose3D
 from msgs.sensor import PointCloud
 from msgs.sonar import FanImage, IcpResult, SonarPing
-from nodes.sonar.evaluation import nearest, pose_error, save_cloud_png, save_fan_png
+from nodes.sonar.evaluation import cloud_metrics, nearest, pose_error, save_cloud_png, save_fan_png
 from tether import Input, Node
 
 
@@ -36,7 +40,8 @@ class SonarEvaluation(Node):
     Config = Config
     inputs = {"ping": Input(SonarPing, depth=256), "image": Input(FanImage, latest=True),
               "cloud": Input(PointCloud, latest=True), "correction": Input(IcpResult, depth=256),
-              "truth": Input(Pose3D, depth=256), "nav": Input(Pose3D, depth=256)}
+              "truth": Input(Pose3D, depth=256), "nav": Input(Pose3D, depth=256),
+              "carved": Input(PointCloud, latest=True)}
 
     def setup(self) -> None:
         self._ping_stamps: list[int] = []
@@ -47,6 +52,7 @@ class SonarEvaluation(Node):
         self._images: dict[int, FanImage] = {}     # every 10th fan, by stamp (a few MB)
         self._image_count = 0
         self._cloud: PointCloud | None = None
+        self._carved: PointCloud | None = None
         self._last_trusted: IcpResult | None = None
 
     def on_ping(self, ping: SonarPing) -> None:
@@ -59,6 +65,9 @@ class SonarEvaluation(Node):
 
     def on_cloud(self, cloud: PointCloud) -> None:
         self._cloud = cloud
+
+    def on_carved(self, cloud: PointCloud) -> None:
+        self._carved = cloud
 
     def on_truth(self, pose: Pose3D) -> None:
         self._truth[pose.stamp_ns] = pose.matrix()
@@ -111,7 +120,27 @@ class SonarEvaluation(Node):
             "max_trusted_err_m": max((e["err_m"] for e in trusted), default=float("nan")),
             "max_trusted_err_deg": max((e["err_deg"] for e in trusted), default=float("nan")),
             "wrong_trusted": sum(e["err_m"] > WRONG_M or e["err_deg"] > WRONG_DEG for e in trusted),
+            **self._carved_metrics(),
         }
+
+    def _corrected(self, points: np.ndarray) -> np.ndarray:
+        """``points`` moved by the last trusted ICP correction (unchanged without one)."""
+        if self._last_trusted is None:
+            return points
+        c = self._last_trusted.correction.matrix()
+        return points @ c[:3, :3].T + c[:3, 3]
+
+    def _carved_metrics(self) -> dict:
+        """Accuracy of the carved cloud (after the last trusted correction) against the scene's structures."""
+        if self._carved is None:
+            return {}
+        from sim.fls import load_scene, sample_structures
+
+        surface, _ = sample_structures(load_scene(self.config.scene), spacing_m=0.03)
+        m = cloud_metrics(self._corrected(np.asarray(self._carved.points_m, float)), surface)
+        return {"carved_points": m["points"], "carved_acc_median_m": m["acc_median_m"],
+                "carved_acc_p90_m": m["acc_p90_m"], "carved_acc_frac_0p2": m["acc_frac_0p2"],
+                "carved_corrected": self._last_trusted is not None}
 
     def teardown(self) -> None:
         s = self.summary()
@@ -126,6 +155,11 @@ class SonarEvaluation(Node):
         (self.log.error if s["wrong_trusted"] else self.log.info)(
             "summary: worst trusted correction %.3f m / %.2f deg; %d trusted corrections were wrong (> %.1f m or %.0f deg)",
             s["max_trusted_err_m"], s["max_trusted_err_deg"], s["wrong_trusted"], WRONG_M, WRONG_DEG)
+        if "carved_points" in s:
+            self.log.info("summary: carved cloud %d points, %.0f %% within 0.2 m of the structure (p90 %.2f m)%s",
+                          s["carved_points"], 100 * s["carved_acc_frac_0p2"], s["carved_acc_p90_m"],
+                          " after the last trusted ICP correction" if s["carved_corrected"] else
+                          " (navigation pose: no trusted correction)")
         if self.config.png:
             self._pictures(out)
 
@@ -148,10 +182,13 @@ class SonarEvaluation(Node):
 
             model, _ = sample_structures(load_scene(self.config.scene), spacing_m=self.config.model_spacing_m)
             cloud = np.asarray(self._cloud.points_m, dtype=float)
-            corrected = None
-            if self._last_trusted is not None:
-                c = self._last_trusted.correction.matrix()
-                corrected = cloud @ c[:3, :3].T + c[:3, 3]
+            corrected = self._corrected(cloud) if self._last_trusted is not None else None
+            carved = sigma = None
+            if self._carved is not None:
+                carved = self._corrected(np.asarray(self._carved.points_m, dtype=float))
+                sigma = np.asarray(self._carved.intensity, dtype=float)
             save_cloud_png(out / "cloud.png", cloud, model, corrected,
-                           title=f"{len(cloud)} cloud points over the {self.config.scene} model")
+                           title=f"{len(cloud)} cloud points over the {self.config.scene} model", carved=carved,
+                           carved_sigma=sigma, carved_label="carved cloud" + (" after ICP" if corrected is not None
+                                                                               else " (navigation pose)"))
         self.log.info("pictures in %s", out)

@@ -47,8 +47,13 @@ def save_fan_png(path: str | Path, image: np.ndarray, m_per_px: float, origin_ro
 
 
 def save_cloud_png(path: str | Path, cloud: np.ndarray, model: np.ndarray, corrected: np.ndarray | None = None,
-                   title: str = "") -> None:
-    """Top and side views of the accumulated cloud (raw and ICP-corrected) over the structure model."""
+                   title: str = "", *, carved: np.ndarray | None = None, carved_sigma: np.ndarray | None = None,
+                   carved_label: str = "carved cloud") -> None:
+    """Top and side views of the accumulated cloud (raw and ICP-corrected) over the structure model.
+
+    With ``carved`` (K, 3) a third row of views shows the elevation-resolved cloud alone over the
+    model, coloured by ``carved_sigma`` (K,) elevation 1-sigma in m when given.
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -58,8 +63,25 @@ def save_cloud_png(path: str | Path, cloud: np.ndarray, model: np.ndarray, corre
         return p if len(p) <= n else p[rng.choice(len(p), n, replace=False)]
 
     cloud, model = thin(cloud), thin(model)
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
-    for ax, (i, j, xl, yl) in zip(axes, [(0, 1, "x east (m)", "y north (m)"), (0, 2, "x east (m)", "z up (m)")]):
+    views = [(0, 1, "x east (m)", "y north (m)"), (0, 2, "x east (m)", "z up (m)")]
+    fig, grid = plt.subplots(2 if carved is not None else 1, 2, figsize=(13, 11 if carved is not None else 5.5),
+                             squeeze=False)
+    axes = grid[0]
+    if carved is not None:
+        for ax, (i, j, xl, yl) in zip(grid[1], views):
+            ax.scatter(model[:, i], model[:, j], s=1, c="0.75", label="structure model")
+            if len(carved):
+                colour = carved_sigma if carved_sigma is not None and len(carved_sigma) == len(carved) else "tab:green"
+                sc = ax.scatter(carved[:, i], carved[:, j], s=2, c=colour, cmap="viridis", vmin=0.0, vmax=0.3,
+                                label=carved_label)
+                if carved_sigma is not None and len(carved_sigma) == len(carved):
+                    fig.colorbar(sc, ax=ax, shrink=0.7, label="elevation 1-sigma (m)")
+            ax.set_xlabel(xl)
+            ax.set_ylabel(yl)
+            ax.set_aspect("equal")
+            ax.set_title(f"{carved_label}: {len(carved)} points")
+        grid[1][0].legend(loc="upper right", markerscale=8, fontsize=8)
+    for ax, (i, j, xl, yl) in zip(axes, views):
         ax.scatter(model[:, i], model[:, j], s=1, c="0.6", label="structure model")
         ax.scatter(cloud[:, i], cloud[:, j], s=1, c="tab:red", alpha=0.4, label="cloud (navigation pose)")
         if corrected is not None and len(corrected):
