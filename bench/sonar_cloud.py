@@ -144,6 +144,7 @@ def main() -> None:
                     highlight_acc_frac_0p2=hl["acc_frac_0p2"], highlight_acc_p90_m=hl["acc_p90_m"],
                     highlight_completeness_0p2=hl["completeness_0p2"], highlight_ms_per_ping=demo["ms_highlight"],
                     highlight_points=hl["points"], demo_pings=demo["pings"],
+                    ms_ratio_to_highlight=demo["ms_ratio"], ms_per_ping_front_only=demo["ms_front"],
                     goals=dict(acc_frac_0p2=0.9, completeness_0p2=0.7, ms_per_ping=5.0),
                     height_rmse_m=head["rmse"], detection_rate=head["rate"], height_ms_per_ping=head["ms"],
                     height_rmse_m_paper_model=paper["rmse"], speckle=1.0, sigma_px=1.5, beams=N_BEAMS,
@@ -158,22 +159,23 @@ def main() -> None:
     print(f"\nspeckle 1, sigma 1.5: beam model {100 * head['rmse']:.1f} cm, paper eq. 13 {100 * paper['rmse']:.1f} cm; "
           f"{head['ms']:.2f} ms per 512-beam ping (goal <= 2)")
     print(f"plot: {headline['plot']}")
-    print(f"\ndemo pass (tripod, {demo['pings']} pings of 512 beams, true poses): accuracy = distance from cloud points "
-          f"to the structure, completeness = seen surface within 0.2 m of a point")
+    print(f"\ndemo pass (tripod, {demo['pings']} pings of 512 beams, true poses): accuracy = distance from cloud "
+          f"points to the structure, completeness = seen surface within 0.2 m of a point")
     print(f"{'method':>22} {'points':>7} {'median cm':>9} {'p90 cm':>7} {'<=0.1 m %':>9} {'<=0.2 m %':>9} "
           f"{'complete %':>10}")
     for label, r in [("highlight (paper)", hl)] + [(f"carved {r['returns']} s<={r['max_sigma_m']:g}", r)
                                                     for r in demo["rows"]]:
         print(f"{label:>22} {r['points']:7d} {100 * r['acc_median_m']:9.1f} {100 * r['acc_p90_m']:7.1f} "
               f"{100 * r['acc_frac_0p1']:9.1f} {100 * r['acc_frac_0p2']:9.1f} {100 * r['completeness_0p2']:10.1f}")
-    print(f"ms per ping (median): highlight {demo['ms_highlight']:.2f}, carving {demo['ms_carving']:.2f} "
-          f"(ratio {demo['ms_carving'] / max(demo['ms_highlight'], 1e-9):.1f}x; goal <= 5 ms)")
+    print(f"ms per ping (median): highlight {demo['ms_highlight']:.2f}, carving {demo['ms_carving']:.2f} (front ends "
+          f"only {demo['ms_front']:.2f}); carving / highlight on the same ping: median {demo['ms_ratio']:.1f}x "
+          f"(goal <= 5 ms)")
     print(f"headline (carved, all returns, sigma <= {DEFAULT_SIGMA} m): {100 * carved['acc_frac_0p2']:.1f} % within "
           f"0.2 m (goal >= 90), completeness {100 * carved['completeness_0p2']:.1f} % (goal >= 70)")
     print(f"cloud picture: {demo['plot']}")
 
 
-DEFAULT_SIGMA = 0.25          # nodes.sonar.carved_cloud Config.max_sigma_m
+DEFAULT_SIGMA = 0.3          # nodes.sonar.carved_cloud Config.max_sigma_m
 SIGMAS = (0.1, 0.2, 0.25, 0.3, 0.5, float("inf"))
 
 
@@ -196,40 +198,43 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
     surface, _ = sample_structures(scene, 0.03)
     model, _ = sample_structures(scene, 0.1)
     visible = visible_surface(model, np.concatenate(hits), 0.1)
-    hl_pts, hl_ms = [], []
-    for pose, img, bearings, dr, spread in pings:
+    # one loop over the pings, the methods timed back to back on each: both see the same machine load
+    grids = {returns: CarvingGrid(((-12, -12, -6.5), (12, 12, 0.0)), CarvingParams(returns=returns),
+                                  seafloor_z_m=floor) for returns in ("all", "front")}
+    hl_pts, ms = [], {"highlight": [], "all": [], "front": []}
+    for k, (pose, img, bearings, dr, spread) in enumerate(pings):
         rot, origin = pose[:3, :3], pose[:3, 3]
         down = rot.T @ np.array([0.0, 0.0, -1.0])
         t0 = time.perf_counter()
         scan = extract_line_scan(img, bearings, dr, altitude_m=float(origin[2] - floor),
                                  tilt_rad=float(np.arcsin(down[0])), spread_rad=spread, down_frd=down,
                                  include_seafloor=False)
-        hl_ms.append((time.perf_counter() - t0) * 1e3)
+        ms["highlight"].append((time.perf_counter() - t0) * 1e3)
         hl_pts.append(scan.points_m @ rot.T + origin)
-    highlight = cloud_metrics(np.concatenate(hl_pts), surface, visible)
-    rows, ms_carving, best = [], 0.0, None
-    for returns in ("all", "front"):
-        grid = CarvingGrid(((-12, -12, -6.5), (12, 12, 0.0)), CarvingParams(returns=returns), seafloor_z_m=floor)
-        ms = []
-        for k, (pose, img, bearings, dr, spread) in enumerate(pings):
+        for returns, grid in grids.items():
             t0 = time.perf_counter()
             grid.integrate(img, bearings, dr, pose, spread)
             if (k + 1) % 10 == 0:                     # the node publishes every 10th ping: that cost counts too
                 grid.cloud(max_sigma_m=DEFAULT_SIGMA)
-            ms.append((time.perf_counter() - t0) * 1e3)
-        print(f"  carving ({returns} returns): {np.median(ms):.1f} ms per ping, {grid.candidates} candidate voxels",
-              file=sys.stderr)
+            ms[returns].append((time.perf_counter() - t0) * 1e3)
+    highlight = cloud_metrics(np.concatenate(hl_pts), surface, visible)
+    rows, best = [], None
+    for returns, grid in grids.items():
+        print(f"  carving ({returns} returns): {np.median(ms[returns]):.1f} ms per ping, {grid.candidates} candidate "
+              f"voxels", file=sys.stderr)
         for sigma in SIGMAS:
             c = grid.cloud(flush=True, max_sigma_m=sigma)
             rows.append(dict(returns=returns, max_sigma_m=sigma, **cloud_metrics(c.points_m, surface, visible)))
             if returns == "all" and sigma == DEFAULT_SIGMA:
-                best, ms_carving = c, float(np.median(ms))
+                best = c
+    ms_carving = float(np.median(ms["all"]))
+    ratio = float(np.median(np.asarray(ms["all"]) / np.maximum(ms["highlight"], 1e-6)))
     plot = out_dir / "sonar_cloud_demo.png"
     save_cloud_png(plot, np.concatenate(hl_pts), model, title="demo pass: highlight cloud (paper) and carved cloud, "
                    "true poses", carved=best.points_m, carved_sigma=best.sigma_m,
                    carved_label=f"carved cloud (sigma <= {DEFAULT_SIGMA} m)")
-    return dict(rows=rows, highlight=highlight, ms_highlight=float(np.median(hl_ms)), ms_carving=ms_carving,
-                pings=len(pings), plot=str(plot))
+    return dict(rows=rows, highlight=highlight, ms_highlight=float(np.median(ms["highlight"])), ms_carving=ms_carving,
+                ms_ratio=ratio, ms_front=float(np.median(ms["front"])), pings=len(pings), plot=str(plot))
 
 
 def plot(rows, path: Path) -> None:

@@ -33,13 +33,14 @@ _FLIP = np.diag([1.0, -1.0, -1.0])      # FLU <-> FRD (its own inverse)
 
 
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    bounds_m: tuple[float, float, float, float, float, float] = (-12.0, -12.0, -6.5, 12.0, 12.0, 0.0)  # x0 y0 z0 x1 y1 z1
+    # the mapped box, x0 y0 z0 x1 y1 z1 (m, world)
+    bounds_m: tuple[float, float, float, float, float, float] = (-12.0, -12.0, -6.5, 12.0, 12.0, 0.0)
     voxel_m: float = 0.1
     seafloor_z_m: float | None = None        # flat seafloor: beams carve up to its near edge; None: the whole range
     spread_rad: float = math.radians(20.0)   # vertical aperture, used when the ping does not carry one
     returns: Literal["front", "all"] = "all"
-    settle_pings: int = 30                   # an arc votes once this many later pings added their evidence
-    max_sigma_m: float = 0.25                # publish points whose elevation 1-sigma is at most this
+    settle_pings: int = 20                   # an arc votes once this many later pings added their evidence
+    max_sigma_m: float = 0.3                 # publish points whose elevation 1-sigma is at most this
     body_frame: Literal["frd", "flu"] = "frd"
     publish_every: int = 10
     max_pose_gap_s: float = 0.5
@@ -52,7 +53,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
         lo, hi = np.array(self.bounds_m[:3]), np.array(self.bounds_m[3:])
         if not (np.all(np.isfinite(self.bounds_m)) and np.all(hi > lo)):
             raise ValueError("bounds_m is (x0, y0, z0, x1, y1, z1) with x1 > x0, y1 > y0, z1 > z0")
-        if not (self.voxel_m > 0 and 0 < self.spread_rad < math.pi and self.publish_every >= 1 and self.max_sigma_m > 0):
+        if not (self.voxel_m > 0 and 0 < self.spread_rad < math.pi and self.publish_every >= 1
+                and self.max_sigma_m > 0):
             raise ValueError("need voxel_m > 0, 0 < spread_rad < pi, publish_every >= 1 and max_sigma_m > 0")
         if not (self.max_pose_gap_s > 0 and self.max_wait_s >= 0 and self.max_pending >= 1
                 and self.pose_buffer_s >= self.max_pose_gap_s and self.settle_pings >= 0):

@@ -51,7 +51,7 @@ class CarvingParams:
     miss_weight: float = 2.0          # score = hits - miss_weight * misses
     min_hits: int = 3                 # an arc votes only when its best voxel was hit by this many pings
     near_best: float = 0.8            # an arc's near-best voxels (its elevation extent): score >= this x best
-    settle_pings: int = 30            # an arc votes once this many later pings have added evidence
+    settle_pings: int = 20            # an arc votes once this many later pings have added evidence
     min_votes: int = 2                # a voxel is in the cloud when this many arcs voted for it
     floor_margin_m: float = 0.15      # voxels this close to the seafloor are the seafloor, not the structure
     returns: str = "all"              # "front": front ends only; "all": also the bright blocks behind them
@@ -215,7 +215,8 @@ class CarvingGrid:
             # a candidate carved far more than hit can never be an arc's best: stop testing it (it comes back
             # if hits lift its score again)
             rows = np.arange(self._count)
-            score = self.hits[self._cand[rows]].astype(np.int32) - self.params.miss_weight * self.misses[self._cand[rows]]
+            voxels = self._cand[rows]
+            score = self.hits[voxels].astype(np.int32) - self.params.miss_weight * self.misses[voxels]
             self._alive = rows[score > _DEAD]
         alive = self._alive
         if alive.size == 0:

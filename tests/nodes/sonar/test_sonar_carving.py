@@ -79,12 +79,30 @@ def test_flat_seafloor_gives_no_point_in_the_water() -> None:
     assert len(grid.cloud(flush=True, max_sigma_m=np.inf).points_m) == 0
 
 
-def test_a_block_seen_from_one_side_lands_on_its_faces() -> None:
-    scene = load_scene({"name": "block", "seafloor": {"type": "plane", "z_m": -6.0},
-                        "structures": [{"type": "box", "center_m": [0.5, 4.0, -4.75], "size_m": [2.0, 2.0, 2.5]}],
-                        "sonar": {"tilt_deg": 15}, "platform": {"start_m": [0.0, -8.0], "end_m": [0.0, 1.0],
-                                                                "depth_m": 1.0, "speed_mps": 1.5}})
-    grid = _run(scene, np.arange(0.0, 6.0, 0.15))           # south to north, never past it: one side only
+BLOCK = {"name": "block", "seafloor": {"type": "plane", "z_m": -6.0},
+         "structures": [{"type": "box", "center_m": [0.5, 4.0, -4.75], "size_m": [2.0, 2.0, 2.5]}],
+         "sonar": {"tilt_deg": 15}, "platform": {"start_m": [0.0, -8.0], "end_m": [0.0, 1.0], "depth_m": 1.0,
+                                                 "speed_mps": 1.5}}
+
+
+@pytest.fixture(scope="module")
+def block_pass() -> CarvingGrid:
+    return _run(load_scene(BLOCK), np.arange(0.0, 6.0, 0.15))     # south to north, never past it: one side only
+
+
+def test_a_short_stretch_says_its_elevations_are_less_certain(block_pass: CarvingGrid) -> None:
+    short = _run(load_scene(BLOCK), np.arange(4.0, 4.6, 0.15))     # 0.9 m of track: arcs barely cross
+    s_short = short.cloud(flush=True, max_sigma_m=np.inf).sigma_m
+    s_long = block_pass.cloud(flush=True, max_sigma_m=np.inf).sigma_m
+    assert len(s_short) and len(s_long)
+    assert np.percentile(s_short, 25) > 2 * np.percentile(s_long, 25)    # most of its arcs stay flat
+    assert np.mean(s_short <= 0.3) < 0.05 < 0.25 < np.mean(s_long <= 0.3)
+    published = len(block_pass.cloud(max_sigma_m=0.3).points_m)
+    assert len(short.cloud(flush=True, max_sigma_m=0.3).points_m) < 0.2 * published
+
+
+def test_a_block_seen_from_one_side_lands_on_its_faces(block_pass: CarvingGrid) -> None:
+    scene, grid = load_scene(BLOCK), block_pass
     surface, _ = sample_structures(scene, 0.03)
     cloud = grid.cloud(flush=True, max_sigma_m=0.25)
     m = cloud_metrics(cloud.points_m, surface)

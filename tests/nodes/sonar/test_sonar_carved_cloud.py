@@ -1,0 +1,65 @@
+"""CarvedCloud node through tether.testing: pings placed at the interpolated pose of their stamp, the cloud
+lands on the structure with its sigma as intensity, bad pings and poses are dropped and counted."""
+from __future__ import annotations
+
+import numpy as np
+
+from msgs.geometry import Pose3D
+from msgs.sonar import SonarPing
+from nodes.sonar.carved_cloud import CarvedCloud
+from nodes.sonar.evaluation import cloud_metrics
+from sim.fls import PingSettings, load_scene, render_ping, sample_structures
+from tether.testing import Harness
+
+BLOCK = {"name": "block", "seafloor": {"type": "plane", "z_m": -6.0},
+         "structures": [{"type": "box", "center_m": [0.5, 4.0, -4.75], "size_m": [2.0, 2.0, 2.5]}],
+         "sonar": {"tilt_deg": 15}, "platform": {"start_m": [0.0, -8.0], "end_m": [0.0, 1.0], "depth_m": 1.0,
+                                                 "speed_mps": 1.5}}
+PARAMS = {"bounds_m": [-8, -8, -6.5, 8, 10, 0], "seafloor_z_m": -6.0, "publish_every": 5, "settle_pings": 10}
+
+
+def _events(scene, times):
+    """Poses at 20 Hz, pings at 6.7 Hz between them (their stamps fall between two poses)."""
+    rng = np.random.default_rng(0)
+    events = []
+    for t in np.arange(times[0], times[-1] + 0.1, 0.05):
+        pose = Pose3D.from_matrix(scene.sonar_pose(t), stamp_ns=int(round(t * 1e9)), frame_id="world")
+        events.append((t, "pose", pose))
+    for k, t in enumerate(times):
+        r = render_ping(scene, scene.sonar_pose(t), PingSettings(n_beams=256, range_m=15.0), rng=rng)
+        ping = SonarPing(stamp_ns=int(round(t * 1e9)), intensities=r.intensities,
+                         bearings_rad=r.bearings_rad.astype(np.float32),
+                         range_resolution_m=r.range_resolution_m, range_m=r.range_m, ping_id=k,
+                         vertical_aperture_rad=r.vertical_aperture_rad)
+        events.append((t + 0.06, "ping", ping))                 # arrives after the pose that follows its stamp
+    return sorted(events, key=lambda e: e[0])
+
+
+def test_cloud_lands_on_the_block_with_its_sigma() -> None:
+    scene = load_scene(BLOCK)
+    with Harness(CarvedCloud, params=PARAMS) as h:
+        h.feed(_events(scene, np.arange(0.02, 6.0, 0.15)))
+    clouds = h.of("points")
+    assert len(clouds) == 40 // 5 and clouds[-1].frame_id == "world"
+    assert h.node.pings == 40 and not h.node.dropped
+    final = h.node.cloud(flush=True)
+    pts, sigma = np.asarray(final.points_m, float), np.asarray(final.intensity)
+    surface, _ = sample_structures(scene, 0.03)
+    m = cloud_metrics(pts, surface)
+    assert m["points"] >= 30 and m["acc_frac_0p2"] >= 0.85, m
+    assert np.all((sigma > 0) & (sigma <= 0.3))                # the node publishes sigma <= max_sigma_m only
+
+
+def test_bad_pings_and_poses_are_counted_not_raised() -> None:
+    scene = load_scene(BLOCK)
+    events = _events(scene, [0.02, 0.17])
+    bad_pose = Pose3D(x_m=float("nan"), stamp_ns=int(0.3e9))
+    bad_ping = SonarPing(stamp_ns=int(0.12e9), intensities=np.zeros((50, 8), np.uint8),
+                         bearings_rad=np.zeros(3, np.float32), range_resolution_m=0.02)
+    early = SonarPing(stamp_ns=int(-1e9), intensities=np.zeros((50, 3), np.uint8),
+                      bearings_rad=np.array([-0.1, 0.0, 0.1], np.float32), range_resolution_m=0.02)
+    with Harness(CarvedCloud, params=PARAMS) as h:
+        h.feed(events + [(0.2, "ping", bad_ping), (0.21, "pose", bad_pose), (0.22, "ping", early)])
+    assert h.node.pings == 2
+    assert sum(h.node.dropped.values()) == 3, h.node.dropped
+    assert any("bearing" in k for k in h.node.dropped) and any("pose" in k for k in h.node.dropped)
