@@ -20,8 +20,10 @@ voted for it of ``extent / sqrt(12)`` (a uniform spread), at least ``voxel / sqr
 
 Returns are every beam's front end (``nodes.sonar.highlight.detect_front_ends``, in the region before
 the seafloor's near edge ``r_emin``, eq. 8) and, with ``returns="all"``, every bright range block
-behind it in that region. Beams without a front end carve up to ``r_emin`` (less a guard), or their
-whole range when no seafloor is given. Frames: pings in the sonar FRD frame (x boresight, y
+behind it: brighter than ``return_level`` before ``r_emin``, than ``floor_level`` beyond it (a structure
+standing out of the seafloor's own echo; the flat floor's 10 cm blocks stay below 0.5 of full scale
+in the simulator). Beams without a front end carve up to ``r_emin`` (less a guard), or their whole
+range when no seafloor is given; nothing is carved beyond ``r_emin``. Frames: pings in the sonar FRD frame (x boresight, y
 starboard, z down), poses sonar -> world 4x4, grid and cloud in the world. Pure numpy/OpenCV; a dense
 grid over ``bounds`` (arc samples outside it are counted and ignored); carving projects only the
 *candidate* voxels (those ever hit) into each ping, so the work per ping follows the surface seen,
@@ -57,6 +59,7 @@ class CarvingParams:
     returns: str = "all"              # "front": front ends only; "all": also the bright blocks behind them
     return_level: float = 0.3         # a bright block: blurred level above this (full scale = 1)
     return_step_m: float = 0.1        # range block of the bright returns
+    floor_level: float = 0.6          # ... and beyond the seafloor's near edge, over its echo (>= 1: none there)
     sigma_px: float = 1.5             # front-end detection (nodes.sonar.highlight.detect_front_ends)
     sigma_beam_px: float = 0.5
     threshold: float = 0.12
@@ -187,10 +190,12 @@ class CarvingGrid:
 
     def _bright(self, img: np.ndarray, bearings: np.ndarray, limit_rows: np.ndarray, front_rows: np.ndarray,
                 dr: float) -> tuple[np.ndarray, np.ndarray]:
-        """Ranges and bearings of the bright range blocks behind each front end, before ``limit_rows``."""
+        """Ranges and bearings of the bright range blocks behind each front end: brighter than ``return_level``
+        before ``limit_rows`` (the seafloor's near edge), than ``floor_level`` beyond it (over the seafloor's echo)."""
         p = self.params
         step = max(1, int(round(p.return_step_m / dr)))
-        k = int(min(img.shape[0], max(float(np.nanmax(limit_rows, initial=0.0)), 0.0))) // step * step
+        k = (img.shape[0] if p.floor_level < 1 else
+             int(min(img.shape[0], max(float(np.nanmax(limit_rows, initial=0.0)), 0.0)))) // step * step
         if k < step:
             return np.zeros(0), np.zeros(0)
         rows = img[:k]
@@ -203,8 +208,9 @@ class CarvingGrid:
                            interpolation=cv2.INTER_AREA).astype(np.float32) * np.float32(1.0 / full)
         centre = (np.arange(k // step) + 0.5) * step
         front = np.where(np.isfinite(front_rows), front_rows, np.inf)[::2]
-        bright = ((block > p.return_level) & (centre[:, None] < limit_rows[::2][None, :])
-                  & (centre[:, None] > front[None, :] + step))
+        level = np.where(centre[:, None] < limit_rows[::2][None, :], np.float32(p.return_level),
+                         np.float32(p.floor_level))
+        bright = (block > level) & (centre[:, None] > front[None, :] + step)
         blk, beam = np.nonzero(bright)
         return centre[blk] * dr, bearings[::2][beam]
 
