@@ -86,7 +86,7 @@ class PingUpdate:
 
 
 @dataclass(frozen=True)
-class CarvedCloud:
+class VotedCloud:
     """Voxels voted for: ``points_m`` (K, 3) world centres, ``sigma_m`` (K,) elevation 1-sigma (m),
     ``votes`` (K,) arcs that chose each, ``hits`` (K,) pings whose arcs passed through it."""
 
@@ -318,7 +318,7 @@ class CarvingGrid:
         """Voxels ever hit (those carving tests in each ping)."""
         return self._count
 
-    def cloud(self, *, flush: bool = False, max_sigma_m: float = np.inf) -> CarvedCloud:
+    def cloud(self, *, flush: bool = False, max_sigma_m: float = np.inf) -> VotedCloud:
         """Voxels with >= ``min_votes`` votes, off the seafloor, elevation sigma <= ``max_sigma_m``.
 
         ``flush`` first lets every arc still settling vote (the end of a run; or a single ping).
@@ -335,5 +335,5 @@ class CarvingGrid:
         votes = self._votes[rows]
         sigma = np.maximum(np.sqrt(self._extent2[rows] / votes / 12.0), p.voxel_m / np.sqrt(12.0)).astype(np.float32)
         keep = sigma <= max_sigma_m
-        return CarvedCloud(points_m=pts[keep].copy(), sigma_m=sigma[keep], votes=votes[keep].astype(np.int32),
+        return VotedCloud(points_m=pts[keep].copy(), sigma_m=sigma[keep], votes=votes[keep].astype(np.int32),
                            hits=self.hits[self._cand[rows[keep]]].astype(np.int32))
