@@ -284,6 +284,7 @@ class NodeRuntime(Context):
         out = {"placed": sum(p.placed for p in self._pools.values()),
                "fallbacks": sum(p.fallbacks for p in self._pools.values()),
                "oversize": sum(p.oversize for p in self._pools.values()),
+               "loaned": sum(p.loaned for p in self._pools.values()),
                "stale": self._reader.stale if self._reader is not None else 0}
         return out
 

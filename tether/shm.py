@@ -43,7 +43,6 @@ import logging
 import mmap
 import os
 import re
-import secrets
 import stat
 import struct
 import threading
@@ -51,7 +50,7 @@ import weakref
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-import msgpack
+import msgspec
 import numpy as np
 
 from tether.errors import DecodeError
@@ -72,6 +71,8 @@ _FLOCK = struct.Struct("hhqqi4x")   # struct flock on Linux x86-64/aarch64
 _NAME_RE = re.compile(r"^tether-(\d+)-[A-Za-z0-9_.-]{1,180}$")
 #: first byte of a slot table (a msgpack array); a message body is always a map
 _NO_READER = (1 << 64) - 1
+_TABLE_ENCODER = msgspec.msgpack.Encoder()
+_TABLE_DECODER = msgspec.msgpack.Decoder()
 TABLE_MARKERS = frozenset(range(0x90, 0xA0)) | {0xDC, 0xDD}
 
 
@@ -200,7 +201,7 @@ class Pool:
 
     def __init__(self, stem: str, settings: Settings) -> None:
         safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in stem)[:120]
-        self.stem = f"tether-{os.getuid()}-{os.getpid()}-{secrets.token_hex(4)}-{safe}"
+        self.stem = f"tether-{os.getuid()}-{os.getpid()}-{os.urandom(4).hex()}-{safe}"
         self.settings = settings
         self.segment: Segment | None = None
         self._serial = 0
@@ -211,7 +212,7 @@ class Pool:
         self._loans: dict[int, int] = {}           # slot -> loan serial, for arrays handed out by loan()
         self._loan_serial = 0
         self._retired: list[Segment] = []
-        self.placed = self.fallbacks = self.oversize = 0
+        self.placed = self.fallbacks = self.oversize = self.loaned = 0
 
     def place(self, frames: Sequence[Any], readers: int = 0) -> tuple[bytes, list[Any], int] | None:
         """``(slot table, frames still to send, bytes placed)`` for ``[body, *buffers]``, or None (send as is).
@@ -226,6 +227,7 @@ class Pool:
         slot, where = self._loaned_slot(frames, large, sizes) if self._loans else (-1, [])
         if slot >= 0:
             seg = self.segment
+            self.loaned += 1
         else:
             need = sum(_align(n) for n in sizes)
             if need * 2 > self.settings.pool_bytes:
@@ -251,7 +253,7 @@ class Pool:
         self._local_gens[slot] = self._gen
         _lock(seg.fd, fcntl.F_UNLCK, _LOCK_SLOT + slot)
         self.placed += 1
-        table = msgpack.packb([seg.name, slot, self._gen, where])
+        table = _TABLE_ENCODER.encode([seg.name, slot, self._gen, where])
         keep = set(large)
         return table, [frames[0], *(frames[i] for i in range(1, len(frames)) if i not in keep)], sum(sizes)
 
@@ -388,10 +390,10 @@ class Reader:
         """``[body, *buffers]`` with the table's buffers put back in place (read-only views of the slot)
         and the bytes they hold; None when the slot was already reused (counted in :attr:`stale`)."""
         try:
-            name, slot, gen, where = msgpack.unpackb(table, raw=False, use_list=True)
+            name, slot, gen, where = _TABLE_DECODER.decode(table)
             slot, gen = int(slot), int(gen)
             where = [(int(k), int(off), int(n)) for k, off, n in where]
-        except (ValueError, TypeError, msgpack.UnpackException) as exc:
+        except (ValueError, TypeError, msgspec.DecodeError) as exc:
             raise DecodeError(f"bad shared-memory slot table: {exc}") from None
         if not isinstance(name, str):
             raise DecodeError("bad shared-memory slot table: segment name is not a string")

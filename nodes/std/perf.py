@@ -75,6 +75,8 @@ class BlobConfig(msgspec.Struct, frozen=True, kw_only=True):
     rows: int = 512
     cols: int = 2048
     result_path: str = ""
+    rate_hz: float = 0.0      # 0: as fast as the socket takes them
+    loan: bool = False        # write each image into a loaned (shared-memory) array: no copy at publish
 
 
 class BlobSource(Node):
@@ -85,11 +87,21 @@ class BlobSource(Node):
 
     def run(self) -> None:
         rng = np.random.default_rng(0)
-        image = rng.integers(0, 255, (self.config.rows, self.config.cols), dtype=np.uint8)
+        shape = (self.config.rows, self.config.cols)
+        image = rng.integers(0, 255, shape, dtype=np.uint8)
+        period_ns = int(1e9 / self.config.rate_hz) if self.config.rate_hz > 0 else 0
+        start = time.monotonic_ns()
         for i in range(self.config.count):
             if self.stopping.is_set():
                 return
-            self.publish("image", Image(data=image, encoding="mono8", stamp_ns=i + 1))
+            if period_ns:
+                self.stopping.wait(max(0.0, (start + i * period_ns - time.monotonic_ns()) / 1e9))
+            data = image
+            if self.config.loan:
+                # A driver decoding straight into the loaned buffer: here only a stamp row is written.
+                data = self.loan("image", shape)
+                data[0, :8] = i & 0xFF
+            self.publish("image", Image(data=data, encoding="mono8", stamp_ns=time.time_ns()))
         self.stopping.wait(2.0)   # let the last frames leave before the socket closes
 
 
@@ -104,11 +116,13 @@ class BlobSink(Node):
 
     def setup(self) -> None:
         self._times: list[int] = []
+        self._latency: list[int] = []
         self._checksum = 0
         self._written = False
 
     def on_image(self, msg: Image) -> None:
         self._times.append(time.perf_counter_ns())
+        self._latency.append(time.time_ns() - msg.stamp_ns)     # publish to handler, same host clock
         self._checksum += int(msg.data[0, 0]) + int(msg.data[-1, -1])
         if len(self._times) == self.config.count:
             self._flush()
@@ -120,7 +134,8 @@ class BlobSink(Node):
 
     def _flush(self) -> None:
         self._written = True
-        _write_result(self.config.result_path, {"recv_ns": self._times, "checksum": self._checksum})
+        _write_result(self.config.result_path, {"recv_ns": self._times, "latency_ns": self._latency,
+                                                "checksum": self._checksum})
 
     def teardown(self) -> None:
         if not self._written:
