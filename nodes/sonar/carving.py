@@ -235,11 +235,14 @@ class CarvingGrid:
             return 0
         loc = local[near]
         rr = np.sqrt(r2[near])
-        theta = np.arctan2(loc[:, 1], loc[:, 0])
+        # the beam by the tangent of the bearing (x > 0 here): a sorted search, no arctan
         half_beam = 0.5 * float(np.median(np.diff(bearings)))
-        beam = np.clip(np.rint(np.interp(theta, bearings, np.arange(bearings.size))), 0, bearings.size - 1).astype(int)
-        inside = ((np.abs(loc[:, 2]) < np.sin(half) * rr) & (theta > bearings[0] - half_beam)
-                  & (theta < bearings[-1] + half_beam) & (rr < free_m[beam]))
+        edges = np.tan(np.clip(np.r_[bearings[0] - half_beam, 0.5 * (bearings[1:] + bearings[:-1]),
+                                     bearings[-1] + half_beam], -1.5, 1.5)).astype(np.float32)
+        tan_b = loc[:, 1] / loc[:, 0]
+        beam = np.clip(np.searchsorted(edges, tan_b) - 1, 0, bearings.size - 1)
+        inside = ((np.abs(loc[:, 2]) < np.float32(np.sin(half)) * rr) & (tan_b > edges[0]) & (tan_b < edges[-1])
+                  & (rr < free_m[beam]))
         idx = self._cand[alive[near[inside]]]
         self.misses[idx] = np.minimum(self.misses[idx].astype(np.int32) + 1, _U16)
         return int(idx.size)
