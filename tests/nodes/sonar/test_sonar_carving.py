@@ -126,3 +126,7 @@ def test_bad_input_is_refused_with_a_reason() -> None:
     with pytest.raises(ValueError, match="seafloor"):
         CarvingGrid(((-6, -2, -8), (6, 14, 0)), seafloor_z_m=0.0).integrate(img, BEARINGS, DR, pose, SPREAD)
     assert grid.pings == 0 and len(grid.cloud(flush=True).points_m) == 0
+    nan_ping = np.full((ROWS, BEARINGS.size), np.nan, np.float32)      # a float ping of NaNs: nothing, no error
+    nan_ping[300:305, 60] = np.inf
+    update = grid.integrate(nan_ping, BEARINGS, DR, pose, SPREAD)
+    assert grid.pings == 1 and update.detected_beams <= 1 and len(grid.cloud(flush=True).points_m) == 0
