@@ -17,7 +17,11 @@ the way out, then ramped up from rest over ``--ramp`` s; the controller is seede
 measured wheels. The headline RMS and max are over the WHOLE run, start-up
 included; "steady" leaves out the first ``--skip`` seconds.
 
-Knob swept: the master's set-point rate (50-200 Hz) and the control rate. Reference, in
+Knob swept: the master's set-point rate (50-200 Hz) and the control rate. One run uses the
+cyclic synchronous modes (steering CSP, wheels CSV, the master's step producing SYNC): there
+every drive quick-stops itself when SYNC is missing for 3 cycles (35 ms at 100 Hz), so a stall
+of this Python loop that long (seen here at 58-66 ms on a loaded machine) trips the run --
+what real drives would do too; the lockstep run has no such stalls. Reference, in
 the same run: launch/ackermann_can.yaml itself in lockstep (sim.lockstep: every node, the
 CANopen master and the drives on a synchronous bus in virtual time -- no scheduling noise),
 and the same controller on the pure model with no bus and with the bus modelled as a delay +

@@ -41,9 +41,23 @@ class SimDriveBank:
                 self.send_errors += 1
 
     def poll(self, duration_s: float) -> None:
-        """Serve the bus for ``duration_s`` seconds (frames answered as they come)."""
+        """Serve the bus for ``duration_s`` seconds (frames answered as they come).
+
+        Frames already waiting are handled before the motors are advanced: after this thread
+        was held up, the SYNC frames that did arrive count before any SYNC watchdog looks.
+        """
         end = time.monotonic() + duration_s
         while True:
+            now = time.monotonic()
+            wait = 0.0 if now >= self._next_step or now >= end else min(self._next_step, end) - now
+            msg = self.bus.recv(wait)
+            if msg is not None:
+                if not msg.is_error_frame and not msg.is_remote_frame:
+                    now = time.monotonic()
+                    with self.lock:
+                        for drive in self.drives.values():
+                            self._send(drive.receive(msg.arbitration_id, bytes(msg.data), now))
+                continue
             now = time.monotonic()
             if now >= self._next_step:
                 self._next_step = now + self.step_s
@@ -52,12 +66,6 @@ class SimDriveBank:
                         self._send(drive.advance(now))
             if now >= end:
                 return
-            msg = self.bus.recv(max(0.0, min(self._next_step, end) - now))
-            if msg is not None and not msg.is_error_frame and not msg.is_remote_frame:
-                now = time.monotonic()
-                with self.lock:
-                    for drive in self.drives.values():
-                        self._send(drive.receive(msg.arbitration_id, bytes(msg.data), now))
 
     def start(self) -> "SimDriveBank":
         self._thread = threading.Thread(target=self._run, name="sim-cia402", daemon=True)

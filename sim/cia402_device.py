@@ -274,8 +274,13 @@ class SimDrive:
 
     # -- time ------------------------------------------------------------------------
     def advance(self, now_s: float) -> list[Frame]:
-        """Integrate the motor up to ``now_s`` and emit due heartbeats / TPDOs."""
+        """Integrate the motor up to ``now_s``, emit due heartbeats / TPDOs, watch the SYNC.
+
+        The SYNC watchdog runs here, in the drive's own cycle, not on frame arrival: frames
+        handled late (a real-time bank catching up) must not look like a missed SYNC.
+        """
         self._update(now_s)
+        self._sync_watchdog(now_s)
         return self._flush()
 
     def _update(self, now_s: float) -> None:
@@ -296,7 +301,6 @@ class SimDrive:
             self._master_hb = None
             if self.state in (p.OPERATION_ENABLED, p.QUICK_STOP_ACTIVE):
                 self._enter_fault(0x8130)             # master lost: stop on the fault ramp
-        self._sync_watchdog(now_s)
         if self.nmt == "OPERATIONAL":
             for i in range(4):
                 if self._get(0x1800 + i, 2) >= 0xFE and not self._get(0x1800 + i, 1) & 0x80000000:
