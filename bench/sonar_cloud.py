@@ -145,7 +145,7 @@ def main() -> None:
                     highlight_completeness_0p2=hl["completeness_0p2"], highlight_ms_per_ping=demo["ms_highlight"],
                     highlight_points=hl["points"], demo_pings=demo["pings"],
                     ms_ratio_to_highlight=demo["ms_ratio"], ms_per_ping_front_only=demo["ms_front"],
-                    goals=dict(acc_frac_0p2=0.9, completeness_0p2=0.7, ms_per_ping=5.0),
+                    goals=dict(acc_frac_0p2=0.9, completeness_0p2=0.7, ms_per_ping=5.0), goal_ms_per_ping=5.0,
                     height_rmse_m=head["rmse"], detection_rate=head["rate"], height_ms_per_ping=head["ms"],
                     height_rmse_m_paper_model=paper["rmse"], speckle=1.0, sigma_px=1.5, beams=N_BEAMS,
                     ranges=M, plot=str(out_dir / "sonar_cloud.png"), demo_plot=demo["plot"])
