@@ -336,7 +336,8 @@ def load_refiner(path: str | Path) -> tuple[Any, SimGANConfig, dict[str, Any]]:
         cfg = SimGANConfig(**raw)
     except TypeError as exc:
         raise ValueError(f"{path}: refiner config does not fit this version: {exc}") from None
-    like = Refiner(cfg.features, cfg.blocks, cfg.space_to_depth, cfg.residual).init(
-        jax.random.PRNGKey(0), jnp.zeros((1, 8, 8, int(meta.get("channels", 1))), jnp.float32))
+    net = Refiner(cfg.features, cfg.blocks, cfg.space_to_depth, cfg.residual)
+    x = jax.ShapeDtypeStruct((1, 8, 8, int(meta.get("channels", 1))), jnp.float32)
+    like = jax.eval_shape(lambda v: net.init(jax.random.PRNGKey(0), v), x)      # shapes only: no compile
     params, meta = load_checkpoint(path, like)
     return params, cfg, meta

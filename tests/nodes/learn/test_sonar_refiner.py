@@ -158,7 +158,7 @@ def test_refiner_sits_between_the_simulator_and_the_imager(tmp_path):
     base = tempfile.mkdtemp(prefix="tr-", dir="/tmp")          # short: ipc paths have a length limit
     env = dict(os.environ, TETHER_RUNTIME_DIR=os.path.join(base, "rt"), TETHER_KEYS_DIR=os.path.join(base, "keys"))
     run = subprocess.run([sys.executable, "-m", "tether.cli", "launch", str(repo / "launch" / "sonar_refined.yaml"),
-                          "--duration", "10"], cwd=repo, env=env, capture_output=True, text=True, timeout=120)
+                          "--duration", "15"], cwd=repo, env=env, capture_output=True, text=True, timeout=120)
     out = run.stdout + run.stderr
     assert run.returncode == 0, out
     refined = re.search(r"refiner: (\d+) pings refined, (\d+) dropped", out)
