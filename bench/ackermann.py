@@ -172,8 +172,8 @@ def main() -> None:
         "fig8_rms_mm_can_is": "launch/ackermann_can.yaml in lockstep: CiA 402 master + simulated drives, whole run from rest",
         "fig8_rms_mm_csp": real_can["rms_mm"],
         "fig8_max_mm_csp": real_can["max_mm"],
-        "fig8_rms_mm_csp_is": "launch/ackermann_can.yaml in lockstep, steering CSP + wheels CSV, SYNC 100 Hz, controller "
-                              "50 Hz on can/measured, whole run from rest (1 s alignment, 4 s ramp)",
+        "fig8_rms_mm_csp_is": "launch/ackermann_can.yaml in lockstep, steering CSP + wheels CSV, SYNC 100 Hz, "
+                              "controller 50 Hz on can/measured, whole run from rest (1 s alignment, 4 s ramp)",
         "fig8_csp_tripped": real_can["tripped"],
         "fig8_rms_mm_profile": profile["rms_mm"],
         "fig8_rms_mm_csp_by_sync_hz": {f"{hz:g}": r["rms_mm"] for hz, r in sorted(csp.items())},
@@ -192,7 +192,8 @@ def main() -> None:
     else:
         print(f"\nheadline: fig8 {headline['fig8_rms_mm_50hz']:.4f} mm RMS at 50 Hz (goal <= 1 mm), "
               f"CAN loop {headline['fig8_rms_mm_can']:.4f} mm (goal <= 10 mm), CSP at 100 Hz SYNC "
-              f"{headline['fig8_rms_mm_csp']:.4f} mm (goal <= 1 mm; profile modes {profile['rms_mm']:.4f} mm; modelled bus "
+              f"{headline['fig8_rms_mm_csp']:.4f} mm (goal <= 1 mm; profile modes {profile['rms_mm']:.4f} mm; "
+              f"modelled bus "
               f"{headline['fig8_rms_mm_modelled_bus']:.4f} mm), step "
               f"{headline['step_us']:.1f} us (goal <= 100), MPC h20 {headline['mpc_ms_h20']:.2f} ms (goal <= 10)")
         print(f"plot: {path}")

@@ -134,7 +134,8 @@ class Cia402Bus(Node):
             self.log.info("drives %s", "all OPERATION ENABLED: ready" if ready else "not ready")
         measured_hz = self.config.measured_hz
         if measured_hz > 0 and now >= self._next_measured_ns:      # at the control rate: what the controller reads
-            self._next_measured_ns = max(self._next_measured_ns + int(1e9 / measured_hz), now + int(0.5e9 / measured_hz))
+            self._next_measured_ns = max(self._next_measured_ns + int(1e9 / measured_hz),
+                                         now + int(0.5e9 / measured_hz))
             out.append(("measured", self.measured(now)))
         if now >= self._next_state_ns:
             self._next_state_ns = now + int(1e9 / self.config.state_hz)

@@ -127,7 +127,8 @@ def check_config(cfg: Config) -> None:
         raise ValueError("feedback_timeout_ms and fault_reset_interval_s must be >= 0 (0: off), "
                          "max_speed_mps and steer_speed_radps > 0")
     if cfg.wheel_mode not in WHEEL_MODES or cfg.steer_mode not in STEER_MODES:
-        raise ValueError(f"wheel_mode must be one of {sorted(WHEEL_MODES)} and steer_mode one of {sorted(STEER_MODES)}, "
+        raise ValueError(f"wheel_mode must be one of {sorted(WHEEL_MODES)} and steer_mode one of "
+                         f"{sorted(STEER_MODES)}, "
                          f"not {cfg.wheel_mode!r} / {cfg.steer_mode!r}")
     cyclic = cfg.wheel_mode == "csv" or cfg.steer_mode == "csp"
     if cfg.sync_hz < 0 or (cyclic and not 0 < cfg.sync_hz <= cfg.rate_hz * (1 + 1e-9)):

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 
 from drivers import cia402 as p
+from sim.cia402_motion import CspSegment, approach_velocity
 from sim.cia402_od import DriveFaults, SdoServer, object_dictionary
 
 Frame = tuple[int, bytes]
@@ -69,7 +70,7 @@ class SimDrive:
         self._rpdo_pending: dict[int, bytes] = {}     # synchronous RPDOs: acted on at the next SYNC
         self._sync_last: float | None = None
         self._cyclic_since: float | None = None       # entered OPERATION ENABLED in CSP / CSV
-        self._csp = (self.position, self.position, now_s, 0.0)   # from, to (physical), t0, period
+        self._csp = CspSegment(self.position, self.position, now_s, 0.0)      # physical counts
         self._csv_target = 0.0
         self._homing = "idle"                         # idle | running | attained | error
         self._homing_start = 0.0
@@ -180,7 +181,7 @@ class SimDrive:
         elif cw & 0x8F == 0x0F and s in (p.SWITCHED_ON, p.OPERATION_ENABLED):
             if s == p.SWITCHED_ON:
                 self._pp_target = None                    # no stale move on enable
-                self._csp = (self.position, self.position, self._t, 0.0)    # CSP holds until a SYNC says more
+                self._csp = CspSegment(self.position, self.position, self._t, 0.0)   # CSP holds until a SYNC
                 self._csv_target = 0.0
             self.state = p.OPERATION_ENABLED
         if self.state == p.OPERATION_ENABLED and self.mode == p.MODE_HOMING:
@@ -341,8 +342,8 @@ class SimDrive:
         self._rpdo_pending.clear()
         self._set(p.STATUSWORD, self.statusword())    # the TPDOs of this SYNC show the controlword it applied
         if self.state == p.OPERATION_ENABLED and self.mode == p.MODE_CSP:
-            start = self._csp_demand(now_s)[0]
-            self._csp = (start, self._get(p.TARGET_POSITION) - self._enc, now_s, self._interpolation_period())
+            start = self._csp.demand(now_s)[0]
+            self._csp = CspSegment(start, self._get(p.TARGET_POSITION) - self._enc, now_s, self._interpolation_period())
         elif self.state == p.OPERATION_ENABLED and self.mode == p.MODE_CSV:
             self._csv_target = self._target_velocity()
         for i in range(4):
@@ -365,14 +366,6 @@ class SimDrive:
         self._last_sw[i] = self._get(p.STATUSWORD)
         self._out.append((self._get(0x1800 + i, 1) & 0x7FF, data[:8]))
 
-    def _csp_demand(self, t: float) -> tuple[float, float]:
-        """CSP position demand (physical counts) and its rate at ``t``: linear over the period, then held."""
-        start, end, t0, period = self._csp
-        if period <= 0 or t >= t0 + period:
-            return end, 0.0
-        u = max(0.0, (t - t0) / period)
-        return start + u * (end - start), (end - start) / period
-
     def _homing_goal(self) -> float:
         """Velocity toward the home switch edge (fast speed 0x6099:1, accel 0x609A); ends the run there."""
         edge, method = self.faults.home_switch, self._get(p.HOMING_METHOD)
@@ -387,8 +380,7 @@ class SimDrive:
             self._enc = self._get(p.HOME_OFFSET) - edge
             self._homing = "attained"
             return 0.0
-        accel = float(self._get(p.HOMING_ACCEL))
-        return math.copysign(min(fast, math.sqrt(2 * accel * abs(error)), abs(error) / self.tau), error)
+        return approach_velocity(error, fast, float(self._get(p.HOMING_ACCEL)), self.tau)
 
     def _integrate(self, dt: float) -> None:
         s, mode = self.state, self.mode
@@ -398,7 +390,7 @@ class SimDrive:
             if mode == p.MODE_CSV:
                 goal = self._csv_target
             else:
-                demand, rate = self._csp_demand(self._t - 0.5 * dt)      # mid-step: the rate of this interval
+                demand, rate = self._csp.demand(self._t - 0.5 * dt)      # mid-step: the rate of this interval
                 goal = rate + (demand - self.position) / (4.0 * self.tau)
             self._demand_v = max(-self.vmax, min(self.vmax, goal))
             self._lag(dt)
@@ -412,8 +404,7 @@ class SimDrive:
         elif s == p.OPERATION_ENABLED and mode == p.MODE_PP and self._pp_target is not None:
             error = self._pp_target - self.position
             vprof, accel = float(self._get(p.PROFILE_VELOCITY)), float(self._get(p.PROFILE_ACCEL))
-            # Brake in time: v^2 = 2 a d, and never faster than the profile velocity.
-            goal = math.copysign(min(vprof, math.sqrt(2 * accel * abs(error)), abs(error) / self.tau), error)
+            goal = approach_velocity(error, vprof, accel, self.tau)
         else:                                         # quick stop, fault reaction, disabled, halt
             goal, accel = 0.0, float(self._get(p.QUICK_STOP_DECEL))
         step = accel * dt

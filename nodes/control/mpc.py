@@ -75,7 +75,9 @@ def build_solver(*, horizon: int, step_s: float, wheelbase_m: float, accel_max: 
         cost += q_s * ca.sumsqr(_body(w) - sref[:, k]) + ca.sumsqr(ca.sqrt(effort) * g_rate[-1])
     nlp = {"x": ca.veccat(P, W), "p": ca.veccat(p0, wprev, pref, sref), "f": cost,
            "g": ca.vertcat(*g_eq, *g_rigid, *g_rate)}
-    opts = {"qpsol": "qrqp", "max_iter": max_iter, "convexify_strategy": "regularize", "print_header": False, "print_iteration": False,
+    # the Lagrangian's Hessian is indefinite (the steer angles enter through sin / cos): regularised for qrqp
+    opts = {"qpsol": "qrqp", "max_iter": max_iter, "convexify_strategy": "regularize",
+            "print_header": False, "print_iteration": False,
             "print_status": False, "print_time": False, "error_on_fail": False,
             "qpsol_options": {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False}}
     solver = ca.nlpsol("mpc", "sqpmethod", nlp, opts)
