@@ -51,7 +51,18 @@ def _wait_file(path: Path, procs: list[subprocess.Popen], timeout_s: float) -> d
         if time.monotonic() > deadline:
             raise TimeoutError(f"no result at {path} after {timeout_s} s")
         time.sleep(0.02)
-    return json.loads(path.read_text())
+    while True:
+        try:
+            return json.loads(path.read_text())
+        except ValueError:          # a peer still writing it (the nodes replace it whole; raw peers too now)
+            time.sleep(0.05)
+            if time.monotonic() > deadline:
+                raise
+
+
+def _write_json(path: str, doc: dict) -> None:
+    Path(path + ".tmp").write_text(json.dumps(doc))
+    os.replace(path + ".tmp", path)
 
 
 def _stop(procs: list[subprocess.Popen]) -> None:
@@ -163,7 +174,7 @@ def raw_pinger(ping_ep: str, pong_ep: str, count: int, warmup: int, out: str) ->
         except zmq.Again:
             continue   # not connected yet
         rtts.append(time.perf_counter_ns() - t0)
-    Path(out).write_text(json.dumps({"rtt_ns": rtts[warmup:]}))
+    _write_json(out, {"rtt_ns": rtts[warmup:]})
 
 
 def raw_source(ep: str, count: int, nbytes: int = 1 << 20, sinks: int = 1, rate_hz: float = 0.0) -> None:
@@ -211,7 +222,7 @@ def raw_sink(ep: str, count: int, out: str) -> None:
         np.frombuffer(frames[2].buffer, np.uint8)
         times.append(time.perf_counter_ns())
         latency.append(time.time_ns() - int.from_bytes(frames[1].bytes, "little"))
-    Path(out).write_text(json.dumps({"recv_ns": times, "latency_ns": latency}))
+    _write_json(out, {"recv_ns": times, "latency_ns": latency})
 
 
 def raw_rtt(tmp: Path, count: int) -> np.ndarray:
@@ -294,7 +305,7 @@ def iox_sink(name: str, count: int, out: str) -> None:
         sample.delete()
         times.append(time.perf_counter_ns())
         last = time.monotonic()
-    Path(out).write_text(json.dumps({"recv_ns": times}))
+    _write_json(out, {"recv_ns": times})
 
 
 def iox_throughput(tmp: Path, count: int, nbytes: int) -> tuple[float, int]:

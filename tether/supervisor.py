@@ -17,7 +17,7 @@ from typing import IO
 
 import msgspec
 
-from tether import keystore, registry
+from tether import forked, keystore, registry
 from tether.launch import LaunchFile, plan
 from tether.errors import ConfigError
 from tether.runtime import RunSpec
@@ -146,7 +146,11 @@ class Supervisor:
     def _start(self, child: Child) -> None:
         child.spec.incarnation = child.restarts     # a restarted node counts what it missed while down
         env = {**os.environ, **child.env, "PYTHONUNBUFFERED": "1"}
-        child.proc = spawn("tether.runner", msgspec.json.encode(child.spec), env=env)
+        if forked.can_fork():
+            with self._write_lock:      # no launcher thread is writing (holding stream locks) at the fork
+                child.proc = forked.ForkedNode(child.spec, env)
+        else:
+            child.proc = spawn("tether.runner", msgspec.json.encode(child.spec), env=env)
         threading.Thread(target=self._pump, args=(child.id, child.proc.stdout), daemon=True).start()
         self._register()
 

@@ -39,6 +39,13 @@ PUB_QUEUE_BYTES = _env_bytes("TETHER_PUB_QUEUE_BYTES", 64 << 20)
 HWM_MAX = 1000
 
 
+def reload_env() -> None:
+    """Read the two byte budgets again (a node forked from its launcher, with its own environment)."""
+    global MAX_MESSAGE_BYTES, PUB_QUEUE_BYTES
+    MAX_MESSAGE_BYTES = _env_bytes("TETHER_MAX_MESSAGE_BYTES", 1 << 30)
+    PUB_QUEUE_BYTES = _env_bytes("TETHER_PUB_QUEUE_BYTES", 64 << 20)
+
+
 def hwm_for(budget_bytes: int, message_bytes: int) -> int:
     """A ZeroMQ high-water mark (messages) that keeps ``budget_bytes`` of ``message_bytes`` messages."""
     return max(2, min(HWM_MAX, budget_bytes // max(message_bytes, 1)))
