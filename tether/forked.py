@@ -107,9 +107,9 @@ def _run_child(spec: RunSpec, env: dict[str, str], out_fd: int) -> int:
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr, force=True)
     faulthandler.enable(file=sys.stderr, all_threads=True)
-    transport.reload_env()                          # this node's own TETHER_* knobs, not the launcher's
-    runtime.PUB_QUEUE_BYTES = transport.PUB_QUEUE_BYTES
     try:
+        transport.reload_env()                      # this node's own TETHER_* knobs, not the launcher's
+        runtime.PUB_QUEUE_BYTES = transport.PUB_QUEUE_BYTES
         return run_spec(spec)
     except (ConfigError, ValueError) as exc:
         logging.getLogger("tether").error("%s", exc)
