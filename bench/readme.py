@@ -300,7 +300,13 @@ def ackermann(d: dict) -> list[Row]:
              f"{d['mpc_ms_h20']:.2f} ms",
              f"kinematic baseline {1000 * law['kinematic']:.0f} um, the paper's first law {law['fblin']:.1f} mm "
              f"(singular on crab/spin), MPC {1000 * law['mpc']:.1f} um",
-             f"<= 1 mm, <= 100 us, <= 10 ms: {_met(ok)}")]
+             f"<= 1 mm, <= 100 us, <= 10 ms: {_met(ok)}"),
+            ("`ackermann.py` launch/ackermann_can.yaml in lockstep, CSP steering + CSV wheels, SYNC 100 Hz, from rest",
+             f"{d['fig8_rms_mm_csp']:.3f} mm RMS, max {d['fig8_max_mm_csp']:.3f} mm"
+             + ("" if not d.get("fig8_csp_tripped") else " (SYNC watchdog tripped)"),
+             "SYNC " + ", ".join(f"{k} Hz {v:.3f} mm" for k, v in d["fig8_rms_mm_csp_by_sync_hz"].items()
+                                 if k != "100"),
+             f"<= 1 mm: {_met(d['fig8_rms_mm_csp'] <= 1.0 and not d.get('fig8_csp_tripped'))}")]
 
 
 def ackermann_can(d: dict) -> list[Row]:
