@@ -179,6 +179,8 @@ def main() -> None:
     state = init_simgan(cfg, (PATCH, PATCH, 1), seed=args.seed)
     book = out / "simgan.time.json"
     book_d: dict = json.loads(book.read_text()) if book.exists() else {}       # stage -> training time
+    if "wall" in book_d:                          # an older cache's single total
+        book_d = {"all": book_d}
     hist: dict = {}
     picked: tuple[float, int, object] | None = None
     previous: Path | None = None
