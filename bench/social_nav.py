@@ -15,6 +15,18 @@ Collisions are split by who closed the gap at the onset (``collisions_robot``: t
 into the person; ``collisions_pedestrian``: a person walked into a robot that was stopped or
 nearly so; see ``sim.crowd.robot_drove_in``): replayed people never react to the robot.
 ``--live`` runs the same scenarios through ``tether launch`` (bench/social_nav_live.py).
+
+Fair measurement (issue 22): contacts are also counted at the bodies' touching distance
+(0.2 m personal radius each, 0.4 m between centres) and blamed on whoever closes on the
+other at the onset, the robot first when both move (``robot_contacts_strict``); DWA and its
+guard get the flow node's constant-velocity prediction of people, as the IRL planner and its
+guard do (``dwa_predicts``); an episode starts once the robot's start stays clear of every
+person for 2 s (the crowd walks ``start_shift_s`` before the robot appears; the human
+reference of a synthetic scene is sent at the same moment); ``weights_from`` names the scenes
+the weights were learnt on (``weights_from_evaluated`` must stay empty). The collision guard's
+share of control ticks where it braked or slowed the planner's command is ``guard_frac``
+(the largest over the scenarios; ``guard_frac_median`` beside it). ``out/social_nav_tradeoff.png``
+plots speed against error: time / human time against closest approach, per planner.
 Writes ``out/social_nav.png`` (trajectories) and prints a table; ``--json`` prints one
 object with the metrics per scenario and method, ``pipeline_hz`` and ``plan_ms_100x100``.
 """
@@ -41,7 +53,9 @@ from nodes.nav.collision_guard import CollisionGuard  # noqa: E402
 from nodes.nav.dijkstra import GridGraph, plan_dijkstra  # noqa: E402
 from nodes.nav.dijkstra_planner import DijkstraPlanner  # noqa: E402
 from nodes.nav.dwa import Dwa  # noqa: E402
-from nodes.nav.irl_cost import IrlCost  # noqa: E402
+from nodes.nav.irl_cost import IrlCost, load_weights  # noqa: E402
+from nodes.nav.rgbd_flow import RgbdFlow  # noqa: E402
+from nodes.nav.social_planner import PlannerParams  # noqa: E402
 from nodes.nav.demos import PLANNER_PARAMS, FeaturePipeline  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
 from sim.crowd import CrowdWorld  # noqa: E402
@@ -52,6 +66,10 @@ from tether.testing import Harness  # noqa: E402
 DT = 1.0 / 15.0
 SCENES = ["toward", "crossing", "group", "hallway", "students003", "zara03"]    # sim/scenes/crowd_<name>.yaml
 QUICK = ["toward", "crossing", "group", "students003"]
+DWA_PREDICTS = True       # DWA and its guard get the flow node's constant-velocity prediction of people, as IRL's do
+DWA_PREDICT_S = 1.0       # ... this far ahead in DWA's obstacles (the guard: its own predict_s)
+CLEAR_START_S = 2.0       # an episode starts once the robot's start stays clear of everyone for this long
+CLEAR_M = 0.75            # ... clear: no pedestrian centre nearer (bodies 0.35 + 0.3 m, and 0.1 m)
 
 
 # -- robot methods ----------------------------------------------------------------------------------
@@ -109,18 +127,31 @@ class IrlStack:
             ms.setdefault("plan", []).append((t3 - t2) * 1e3)
         cmd = cmds[-1] if cmds else Twist2D()
         sensed = [(t, "odom", odom), (t, "rgbd", frame)] + ([(t, "points", flow)] if flow is not None else [])
-        safe = [o.msg for o in self.guard.feed(sensed + [(t, "cmd", cmd)]) if o.output == "cmd"]
-        return (safe[-1].vx_mps, safe[-1].wz_radps) if safe else (0.0, 0.0)
+        return guarded(self, self.guard.feed(sensed + [(t, "cmd", cmd)]), cmd)
+
+
+def guarded(stack, outputs, cmd: Twist2D) -> tuple[float, float]:
+    """The guard's command; counts the ticks where it braked or slowed what the planner asked for."""
+    safe = [o.msg for o in outputs if o.output == "cmd"]
+    if safe:
+        stack.safe = (safe[-1].vx_mps, safe[-1].wz_radps)
+    v, w = getattr(stack, "safe", (0.0, 0.0))
+    stack.ticks = getattr(stack, "ticks", 0) + 1
+    stack.guard_ticks = getattr(stack, "guard_ticks", 0) + int(cmd.vx_mps > 0 and v < cmd.vx_mps - 1e-6)
+    return v, w
 
 
 class DwaStack:
-    """launch/social_nav_dwa.yaml in-process: DWA -> guard."""
+    """launch/social_nav_dwa.yaml in-process: (flow ->) DWA -> guard. With ``DWA_PREDICTS`` the flow
+    node's moving points reach DWA (``predict_s``) and its guard (``points``): the IRL stack's prediction."""
 
     name = "dwa"
 
     def __init__(self, world: CrowdWorld, weights: str, params: dict[str, dict] | None = None) -> None:
         params = params or {}
-        self.dwa = Harness(Dwa, params=params.get("dwa", {}), roundtrip=False, node_id="dwa")
+        self.flow = Harness(RgbdFlow, params={}, roundtrip=False, node_id="flow") if DWA_PREDICTS else None
+        dwa_params = ({"predict_s": DWA_PREDICT_S} if DWA_PREDICTS else {}) | params.get("dwa", {})
+        self.dwa = Harness(Dwa, params=dwa_params, roundtrip=False, node_id="dwa")
         self.guard = Harness(CollisionGuard, params=params.get("guard", {}), roundtrip=False, node_id="guard")
         goal, grid = _static(world)
         self.dwa.feed([(0.0, "goal", goal), (0.0, "map", grid)])
@@ -129,12 +160,15 @@ class DwaStack:
         rgb, depth = world.render()
         odom, frame = _msgs(world, t, rgb, depth)
         t0 = time.perf_counter()
-        out = self.dwa.feed([(t, "odom", odom), (t, "rgbd", frame)])
+        flow = []
+        if self.flow is not None:
+            flow = [(t, "points", o.msg) for o in self.flow.feed([(t, "odom", odom), (t, "rgbd", frame)])
+                    if o.output == "flow"]
+        out = self.dwa.feed([(t, "odom", odom), (t, "rgbd", frame)] + flow)
         ms.setdefault("dwa", []).append((time.perf_counter() - t0) * 1e3)
         cmds = [o.msg for o in out if o.output == "cmd"]
         cmd = cmds[-1] if cmds else Twist2D()
-        safe = [o.msg for o in self.guard.feed([(t, "odom", odom), (t, "rgbd", frame), (t, "cmd", cmd)]) if o.output == "cmd"]
-        return (safe[-1].vx_mps, safe[-1].wz_radps) if safe else (0.0, 0.0)
+        return guarded(self, self.guard.feed([(t, "odom", odom), (t, "rgbd", frame)] + flow + [(t, "cmd", cmd)]), cmd)
 
 
 def node_params(overrides: list[str]) -> dict[str, dict]:
@@ -150,13 +184,40 @@ def node_params(overrides: list[str]) -> dict[str, dict]:
     return out
 
 
-def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[str, dict] | None = None) -> Episode:
+def clear_start_s(scene, window_s: float = CLEAR_START_S, clear_m: float = CLEAR_M, max_shift_s: float = 15.0) -> float:
+    """How long the crowd must walk before the robot's start stays clear of every pedestrian for ``window_s``.
+
+    Replayed companions of the walker the robot replaces, or a group heading for the start,
+    walked into a robot that had not moved yet (issue 22): instead of excusing those contacts the
+    episode starts later, when nobody would reach the standing robot within ``window_s``.
+    The crowd is probed without the robot (nobody sees it)."""
+    far = (scene.bounds_m[0] - 100.0, scene.bounds_m[1] - 100.0, 0.0)
+    probe = CrowdWorld(dataclasses.replace(scene, robot_start=far), camera=sim_camera())
+    (sx, sy, _) = scene.robot_start
+    near = []
+    while probe.t_s <= max_shift_s + window_s:
+        p = probe.pedestrians()
+        near.append(bool(len(p.ids)) and float(np.hypot(p.xy_m[:, 0] - sx, p.xy_m[:, 1] - sy).min()) < clear_m)
+        probe.advance_crowd(DT)
+    near = np.array(near)
+    w = int(round(window_s / DT))
+    for k in range(0, int(round(max_shift_s / DT)) + 1, 3):
+        if not near[k:k + w + 1].any():
+            return k * DT
+    return max_shift_s
+
+
+def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[str, dict] | None = None,
+              shift_s: float = 0.0) -> Episode:
     world = make_world()
+    if shift_s > 0:
+        world.advance_crowd(shift_s)
+    t_start = world.t_s
     stack = stack_cls(world, weights, params)
     ts, poses, rates, peds, ms = [], [], [], [], {}
     goal_t = None
-    while world.t_s <= max_s:
-        t = world.t_s
+    while world.t_s - t_start <= max_s:
+        t = world.t_s - t_start
         p = world.pedestrians()
         ts.append(t), poses.append(world.pose), rates.append(world.twist[1]), peds.append((p.ids.copy(), p.xy_m.copy()))
         if world.goal_reached:
@@ -165,7 +226,8 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
         v, w = stack.step(world, t, ms)
         world.step(v, w, DT)
     return Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms,
-                   by_robot=world.collisions_by_robot)
+                   by_robot=world.collisions_by_robot, guard_ticks=getattr(stack, "guard_ticks", 0),
+                   ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s)
 
 
 # -- human references -------------------------------------------------------------------------------
@@ -177,7 +239,7 @@ def _yaw_rate(xy: np.ndarray, dt: float) -> np.ndarray:
     return np.convolve(rate, np.ones(3) / 3, mode="same")
 
 
-def human_walker(scene, max_s: float) -> Episode:
+def human_walker(scene, max_s: float, shift_s: float = 0.0) -> Episode:
     """A social-force pedestrian sent from the robot's start to its goal at the robot's top speed.
 
     It heads for the goal, then for a point 1 m beyond it (a walker halts short of a 'stop' goal); it has
@@ -190,17 +252,19 @@ def human_walker(scene, max_s: float) -> Episode:
     direction = np.array([gx - sx, gy - sy]) / max(np.hypot(gx - sx, gy - sy), 1e-9)
     beyond = np.array([gx, gy]) + direction
     walker = PedestrianSpec(id=999, waypoints=np.array([[sx, sy], [gx, gy], beyond]), speed_mps=1.0,
-                            unseen=not scene.pedestrians_see_robot)
+                            unseen=not scene.pedestrians_see_robot, start_s=shift_s)
     far = (scene.bounds_m[0] - 100.0, scene.bounds_m[1] - 100.0, 0.0)
     world = CrowdWorld(dataclasses.replace(scene, pedestrians=scene.pedestrians + (walker,), robot_start=far),
                        camera=sim_camera())
     ts, xy, peds, goal_t = [], [], [], None
-    while world.t_s <= max_s:
+    if shift_s > 0:
+        world.step(0.0, 0.0, shift_s)
+    while world.t_s - shift_s <= max_s:
         p = world.pedestrians()
         me = p.ids == 999
-        ts.append(world.t_s), xy.append(p.xy_m[me][0]), peds.append((p.ids[~me], p.xy_m[~me]))
+        ts.append(world.t_s - shift_s), xy.append(p.xy_m[me][0]), peds.append((p.ids[~me], p.xy_m[~me]))
         if np.hypot(xy[-1][0] - gx, xy[-1][1] - gy) <= tol:
-            goal_t = world.t_s
+            goal_t = ts[-1]
             break
         world.step(0.0, 0.0, DT)
     xy_a = np.array(xy)
@@ -261,9 +325,10 @@ def replay_reference(scene) -> Episode:
                    len(onsets), by_robot=sum(b for *_, b in onsets))
 
 
-def human_reference(scene) -> Episode:
-    """The recorded walker on a real crowd, a social-force walker on a synthetic scene."""
-    return replay_reference(scene) if scene.replay is not None else human_walker(scene, scene.duration_s)
+def human_reference(scene, shift_s: float = 0.0) -> Episode:
+    """The recorded walker on a real crowd (its own walk, from its own start), a social-force walker on a
+    synthetic scene (sent when the robot is: ``shift_s``)."""
+    return replay_reference(scene) if scene.replay is not None else human_walker(scene, scene.duration_s, shift_s)
 
 
 # -- report -----------------------------------------------------------------------------------------
@@ -338,6 +403,75 @@ def plot(cases: dict, runs: dict, filename: str = "social_nav.png") -> Path:
     return out / filename
 
 
+HEADLINE = ("person_cost", "robot_contacts", "robot_contacts_strict", "closest_ge_dwa_count", "time_ok_count",
+            "scenario_count", "guard_frac", "dwa_predicts", "weights_from", "weights")
+
+
+def headline(report: dict, goals: dict, args: argparse.Namespace) -> dict:
+    """The issue's headline keys over all scenarios (IRL planner), DWA's beside where they compare."""
+    planner = node_params(args.param).get("planner", {})
+    w = load_weights(args.weights)
+    irl = [r["irl"] for r in report.values()]
+    dwa = [r["dwa"] for r in report.values()]
+    ticks = {m: [r[m]["guard_frac"] for r in report.values() if r[m]["guard_frac"] is not None] for m in ("irl", "dwa")}
+    out = {"person_cost": float(planner.get("person_cost", PlannerParams().person_cost)),
+           "robot_contacts": sum(int(r["collisions_robot"] or 0) for r in irl),
+           "robot_contacts_strict": sum(r["robot_contacts_strict"] for r in irl),
+           "contacts_strict_moving": sum(r["contacts_strict_moving"] for r in irl),
+           "closest_ge_dwa_count": sum(bool(g["closest_ge_dwa"]) for g in goals.values()),
+           "time_ok_count": sum(bool(g["time_within_15pct"]) for g in goals.values()),
+           "scenario_count": len(report),
+           "guard_frac": round(float(np.max(ticks["irl"])), 4) if ticks["irl"] else None,
+           "guard_frac_median": round(float(np.median(ticks["irl"])), 4) if ticks["irl"] else None,
+           "dwa_predicts": DWA_PREDICTS,
+           "weights_from": list((w.extra or {}).get("trained_on", [])),
+           "weights": {n: round(float(v), 3) for n, v in zip(w.names, w.weights)} | {"step_cost": round(w.step_cost, 3)},
+           "dwa": {"robot_contacts": sum(int(r["collisions_robot"] or 0) for r in dwa),
+                   "robot_contacts_strict": sum(r["robot_contacts_strict"] for r in dwa),
+                   "contacts_strict_moving": sum(r["contacts_strict_moving"] for r in dwa),
+                   "guard_frac": round(float(np.max(ticks["dwa"])), 4) if ticks["dwa"] else None,
+                   "time_ok_count": sum(r["dwa"]["time_s"] is not None and r["human"]["time_s"] is not None
+                                        and r["dwa"]["time_s"] <= 1.15 * r["human"]["time_s"] for r in report.values()),
+                   "closest_median_m": _median([r["closest_m"] for r in dwa])},
+           "closest_median_m": _median([r["closest_m"] for r in irl]),
+           "tradeoff_plot": str(tradeoff_plot(report).relative_to(ROOT))}
+    evaluated = {sc.replay.dataset for sc in (load_scene(n) for n in report) if sc.replay is not None}
+    out["weights_from_evaluated"] = sorted(set(out["weights_from"]) & evaluated)    # must stay empty
+    return out
+
+
+def _median(values: list) -> float | None:
+    v = [x for x in values if x is not None]
+    return round(float(np.median(v)), 3) if v else None
+
+
+def tradeoff_plot(report: dict, filename: str = "social_nav_tradeoff.png") -> Path:
+    """Speed against error: time / human time against closest approach, one marker per scenario, per planner."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for m, colour in (("irl", "tab:blue"), ("dwa", "tab:red")):
+        xs, ys = [], []
+        for name, r in report.items():
+            if r[m]["time_s"] is None or r["human"]["time_s"] is None or r[m]["closest_m"] is None:
+                continue
+            xs.append(r[m]["closest_m"]), ys.append(r[m]["time_s"] / r["human"]["time_s"])
+            ax.annotate(name, (xs[-1], ys[-1]), fontsize=7, color=colour, xytext=(3, 3), textcoords="offset points")
+        ax.plot(xs, ys, "o", color=colour, label=f"{m} ({len(xs)} reached)")
+    ax.axhline(1.15, color="0.5", ls="--", lw=1, label="1.15 x human time")
+    ax.axvline(0.4, color="k", ls=":", lw=1, label="bodies touch (0.4 m)")
+    ax.set_xlabel("closest approach to a pedestrian (m, centres)"), ax.set_ylabel("time / human reference time")
+    ax.set_title("social_nav: speed against closeness (up-left is worse)"), ax.legend(fontsize=8)
+    fig.tight_layout()
+    out = ROOT / "out"
+    out.mkdir(exist_ok=True)
+    fig.savefig(out / filename, dpi=100)
+    plt.close(fig)
+    return out / filename
+
+
 def goal_checks(report: dict) -> dict:
     goals = {}
     for name, r in report.items():
@@ -385,14 +519,16 @@ def main() -> None:
     logging.basicConfig(level=logging.ERROR)
     names = args.scenes or (QUICK if args.quick else SCENES)
     cases = {name: load_scene(name) for name in names}
-    runs: dict[str, dict[str, Episode]] = {name: {"human": human_reference(scene)} for name, scene in cases.items()}
+    shifts = {name: (0.0 if args.live else clear_start_s(scene)) for name, scene in cases.items()}
+    runs: dict[str, dict[str, Episode]] = {name: {"human": human_reference(scene, shifts[name])}
+                                           for name, scene in cases.items()}
     stage_ms: dict[str, list[float]] = {}
     if args.live:
         return live_main(args, cases, runs)
     for name, scene in cases.items():
         make = (lambda s=scene: CrowdWorld(s, camera=sim_camera()))
         for stack in (IrlStack, DwaStack):
-            ep = run_robot(make, stack, args.weights, scene.duration_s, node_params(args.param))
+            ep = run_robot(make, stack, args.weights, scene.duration_s, node_params(args.param), shifts[name])
             runs[name][stack.name] = ep
             for k, v in ep.stage_ms.items():
                 stage_ms.setdefault(k, []).extend(v)
@@ -403,13 +539,15 @@ def main() -> None:
     pipeline_ms = med.get("flow+features", np.nan) + med.get("cost", np.nan) + med.get("plan", np.nan)
     goals = goal_checks(report)
     png = plot(cases, runs)
-    out = {"scenarios": report, "goals": goals, "pipeline_hz": round(1000.0 / pipeline_ms, 1),
+    out = {**headline(report, goals, args), "scenarios": report, "goals": goals, "pipeline_hz": round(1000.0 / pipeline_ms, 1),
            "stage_ms_median": {k: round(v, 2) for k, v in med.items()}, "plan_ms_100x100": round(plan_ms_100x100(), 3),
            "resolution": "640x480", "plot": str(png.relative_to(ROOT))}
     if args.json:
         print(json.dumps(out))
         return
     print_table(report, goals)
+    print("headline: " + ", ".join(f"{k} {out[k]}" for k in HEADLINE))
+    print(f"speed against error: {out['tradeoff_plot']}")
     print(f"pipeline (flow+features+cost+plan, 640x480): {out['pipeline_hz']} Hz; stages (median ms) {out['stage_ms_median']}")
     print(f"local plan 100x100: {out['plan_ms_100x100']} ms (median); plot {png}")
 

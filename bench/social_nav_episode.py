@@ -24,6 +24,9 @@ class Episode:
     collisions: int
     stage_ms: dict[str, list[float]] = dataclasses.field(default_factory=dict)
     by_robot: int | None = None          # contacts where the robot drove into the person (None = not known)
+    guard_ticks: int = 0                 # control ticks where the collision guard changed the planner's command
+    ticks: int = 0                       # control ticks
+    start_shift_s: float = 0.0           # the crowd walked this long before the robot appeared (clear start)
 
 
 def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
@@ -42,7 +45,40 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
             "collisions": int(ep.collisions),
             "collisions_robot": None if ep.by_robot is None else int(ep.by_robot),
             "collisions_pedestrian": None if ep.by_robot is None else int(ep.collisions - ep.by_robot),
-            "success": bool(ep.goal_t is not None and ep.collisions == 0)}
+            "success": bool(ep.goal_t is not None and ep.collisions == 0),
+            **strict_contacts(ep),
+            "guard_frac": round(ep.guard_ticks / ep.ticks, 4) if ep.ticks else None,
+            "start_shift_s": round(ep.start_shift_s, 2)}
+
+
+#: bodies touch at this centre distance: 0.2 m personal radius each (issue 22, section 5)
+TOUCH_M = 0.4
+
+
+def strict_contacts(ep: Episode, *, touch_m: float = TOUCH_M, moving_mps: float = 0.05) -> dict:
+    """Contacts at touching distance, blamed strictly: at the onset, whoever closes on the other is to
+    blame, the robot first when both do (its closing speed above ``moving_mps`` is enough, whatever the
+    person does); the person only when the robot was not closing. ``robot_contacts_strict`` counts the
+    robot's; ``contacts_strict_moving`` the contacts while the robot moved at all."""
+    t, xy = ep.t, ep.pose[:, :2]
+    if len(t) < 2:
+        return {"contacts_strict": 0, "robot_contacts_strict": 0, "contacts_strict_moving": 0}
+    vel = np.gradient(xy, t, axis=0)
+    n = robot = moving = 0
+    touching: set[int] = set()
+    for k, (ids, p) in enumerate(ep.peds):
+        if ep.goal_t is not None and t[k] > ep.goal_t:
+            break
+        d = np.hypot(*(p - xy[k]).T) if len(ids) else np.zeros(0)
+        now = {int(i) for i in ids[d < touch_m]} if len(ids) else set()
+        for i in now - touching:
+            j = int(np.flatnonzero(ids == i)[0])
+            u = (p[j] - xy[k]) / max(d[j], 1e-9)
+            n += 1
+            robot += int(float(vel[k] @ u) > moving_mps)
+            moving += int(float(np.hypot(*vel[k])) > moving_mps)
+        touching = now
+    return {"contacts_strict": n, "robot_contacts_strict": robot, "contacts_strict_moving": moving}
 
 
 def contact_onsets(t: np.ndarray, xy: np.ndarray, robot_vel: np.ndarray, peds: list[tuple[np.ndarray, np.ndarray]], *,

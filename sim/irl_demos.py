@@ -82,6 +82,70 @@ def pedestrian_demos(dataset: str | Tracks, n_peds: int, *, horizon_s: float = 3
     return demos
 
 
+def body_points(xy: np.ndarray, vel: np.ndarray, rng: np.random.Generator, *, per_person: int = 100,
+                radius_m: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 3) and velocities (N, 3) on people's bodies (xy (P, 2), vel (P, 2), one frame): a
+    ``radius_m`` column 0.2-1.7 m high each, as many points as the simulated camera gives a person at
+    ~3 m (fx 149 px, stride 4)."""
+    n = len(xy) * per_person
+    if n == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    a, r = rng.uniform(0, 2 * np.pi, n), radius_m * np.sqrt(rng.uniform(0, 1, n))
+    centre, v = np.repeat(xy, per_person, axis=0), np.repeat(vel, per_person, axis=0)
+    pts = np.column_stack([centre[:, 0] + r * np.cos(a), centre[:, 1] + r * np.sin(a), rng.uniform(0.2, 1.7, n)])
+    return pts, np.column_stack([v, np.zeros(n)])
+
+
+def track_demos(dataset: str | Tracks, n_peds: int, *, horizon_s: float = 8.0, every_s: float = 0.4, seed: int = 0,
+                rim_m: float = 4.0, fov_deg: float = 130.0, range_m: float = 8.0, conflict_horizon_s: float = 6.0,
+                own_speed: bool = False) -> list[Demo]:
+    """Real pedestrians as experts over the others' recorded positions (no rendering, no flow): each
+    other walker in the camera's view (``fov_deg``, ``range_m``) is a column of points moving at its
+    recorded velocity, through the crowd-features node's own function. Perfect perception: what
+    :func:`pedestrian_demos` sees through the simulated camera and optical flow, without their errors.
+    ``own_speed``: the conflict feature assumes the walker's own mean speed (else the robot's 1 m/s)."""
+    from nodes.nav.features import CONFLICT, GridSpec, Thresholds, conflict_cells, extract_features, goal_in_robot_frame
+    from nodes.nav.demos import FEATURE_PARAMS
+    from nodes.nav.grid_frame import to_robot
+
+    tracks = load_tracks(dataset) if isinstance(dataset, str) else dataset
+    walks = _expert_tracks(tracks, 4.0, 5.0)
+    rng = np.random.default_rng(seed)
+    pick = sorted(rng.choice(len(walks), size=min(n_peds, len(walks)), replace=False).tolist()) if walks else []
+    grid = GridSpec()
+    th = Thresholds((FEATURE_PARAMS["density_low_points"], FEATURE_PARAMS["density_high_points"]), (0.3, 0.8), 0.25,
+                    int(FEATURE_PARAMS["flow_points"]))
+    demos: list[Demo] = []
+    for i, k in (walks[j] for j in pick):
+        t, xy = tracks.segments(i)[k]
+        tt = np.arange(t[0], t[-1] + 1e-9, 0.1)
+        px, py = np.interp(tt, t, xy[:, 0]), np.interp(tt, t, xy[:, 1])
+        yaw = np.unwrap(np.arctan2(np.gradient(py), np.gradient(px)))
+        poses = np.column_stack([tt, px, py, yaw])
+        grids = []
+        speed = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)) / (t[-1] - t[0])) if own_speed else 1.0
+        for ts in np.arange(t[0], t[-1] - 1.0, every_s):
+            pose = (float(np.interp(ts, tt, px)), float(np.interp(ts, tt, py)), float(np.interp(ts, tt, yaw)))
+            ids, oxy, ovel = tracks.state_at(float(ts))
+            keep = ids != tracks.ids[i]
+            rel = to_robot(pose, oxy[keep]) if keep.any() else np.zeros((0, 2))
+            c, s_ = np.cos(pose[2]), np.sin(pose[2])
+            rvel = ovel[keep] @ np.array([[c, -s_], [s_, c]]) if keep.any() else np.zeros((0, 2))
+            seen = (np.hypot(rel[:, 0], rel[:, 1]) <= range_m) & (np.abs(np.arctan2(rel[:, 1], rel[:, 0] - 0.3))
+                                                                    <= np.radians(fov_deg) / 2)
+            pts, vel = body_points(rel[seen], rvel[seen], rng)
+            goal = goal_in_robot_frame(tuple(xy[-1]), pose)
+            f = extract_features(pts, vel, goal, grid, th).features
+            hit = conflict_cells(pts, vel, grid, min_points=th.density_points[0], robot_speed_mps=speed,
+                                 horizon_s=conflict_horizon_s)
+            f = np.concatenate([f, hit[..., None].astype(np.uint8)], axis=2)
+            ox, oy = grid.origin
+            grids.append((float(ts), f, GridFrame(f.shape[:2], grid.resolution_m, ox, oy)))
+        demos += demos_from_poses(grids, poses, horizon_s=horizon_s, goal_xy=xy[-1], rim_m=rim_m)
+    log.info("%s: %d demos from %d walkers (recorded positions, %s feature)", tracks.name, len(demos), len(pick), CONFLICT)
+    return demos
+
+
 def _ride_along(world: object, t: np.ndarray, xy: np.ndarray, horizon_s: float, every_s: float,
                 rim_m: float = 0.0) -> list[Demo]:
     """Carry the camera along a track (t from 0, xy world); a demo every ``every_s``."""

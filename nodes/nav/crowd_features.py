@@ -2,7 +2,10 @@
 
 The layout of the 12 features is documented in :mod:`nodes.nav.features` and travels in
 ``FeatureGrid.names``: density, speed, direction (Figure 3 risk), goal distance, each
-high / medium / low.
+high / medium / low. With ``conflict`` (default) a 13th feature follows them: the cells
+someone will occupy when the robot could be there (:func:`nodes.nav.features.conflict_cells`,
+constant-velocity prediction at ``conflict_speed_mps``), the space-time occupancy the IRL
+cost learns to avoid from real walkers.
 """
 from __future__ import annotations
 
@@ -11,7 +14,8 @@ import numpy as np
 
 from msgs.geometry import Odometry2D
 from msgs.nav import FeatureGrid, FlowPoints, Goal2D
-from nodes.nav.features import FEATURE_NAMES, GridSpec, Thresholds, extract_features, goal_in_robot_frame
+from nodes.nav.features import (CONFLICT, FEATURE_NAMES, GridSpec, Thresholds, conflict_cells, extract_features,
+                                goal_in_robot_frame)
 from tether import Input, Node
 
 
@@ -29,6 +33,10 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     flow_points: int = 10            # points needed to call a cell's in-flow
     min_height_m: float = 0.15       # ignore floor points
     max_height_m: float = 2.2
+    conflict: bool = True            # append the 'conflict' feature (space-time occupancy)
+    conflict_speed_mps: float = 1.0  # the robot speed it assumes (the demos from walkers use the same)
+    conflict_horizon_s: float = 6.0
+    conflict_slack_m: float = 0.5
 
 
 class CrowdFeatures(Node):
@@ -85,6 +93,12 @@ class CrowdFeatures(Node):
         result = extract_features(msg.points_m, msg.velocity_mps, self._goal_xy(msg.frame_id), self.grid,
                                   self.thresholds, min_height_m=cfg.min_height_m, max_height_m=cfg.max_height_m)
         ox, oy = self.grid.origin
-        return {"features": FeatureGrid(stamp_ns=msg.stamp_ns, frame_id=msg.frame_id, features=result.features,
-                                        resolution_m=cfg.resolution_m, origin_x_m=ox, origin_y_m=oy,
-                                        names=list(FEATURE_NAMES))}
+        features, names = result.features, list(FEATURE_NAMES)
+        if cfg.conflict:
+            hit = conflict_cells(msg.points_m, msg.velocity_mps, self.grid, robot_speed_mps=cfg.conflict_speed_mps,
+                                 horizon_s=cfg.conflict_horizon_s, slack_m=cfg.conflict_slack_m,
+                                 moving_mps=cfg.moving_mps, min_points=cfg.density_low_points,
+                                 min_height_m=cfg.min_height_m, max_height_m=cfg.max_height_m)
+            features, names = np.concatenate([features, hit[..., None].astype(np.uint8)], axis=2), names + [CONFLICT]
+        return {"features": FeatureGrid(stamp_ns=msg.stamp_ns, frame_id=msg.frame_id, features=features,
+                                        resolution_m=cfg.resolution_m, origin_x_m=ox, origin_y_m=oy, names=names)}

@@ -239,6 +239,10 @@ def _exit_value_difference(demo: Demo, true_cost: np.ndarray, learnt: np.ndarray
     return path_cost(true_cost, cells) + float(exits[walk[-1]]) * true_step - float(best.reshape(-1)[start])
 
 
+#: features appended after the paper's 12 (nodes.nav.features.CONFLICT): a weights file learnt without them prices them 0
+APPENDED_FEATURES = frozenset({"conflict"})
+
+
 @dataclass(frozen=True)
 class CostWeights:
     """What the learner writes and the cost node reads: named weights and the step cost.
@@ -282,7 +286,8 @@ class CostWeights:
                 raise ValueError(f"grid has {k} unnamed features, weights have {len(self.weights)}")
             return self.weights
         index = {n: i for i, n in enumerate(self.names)}
-        missing = [n for n in names if n not in index]
+        missing = [n for n in names if n not in index and n not in APPENDED_FEATURES]
         if missing:
             raise ValueError(f"no weight for features {missing}; relearn the weights for this feature layout")
-        return self.weights[[index[n] for n in names]]
+        # a feature appended to the paper's 12 after a weights file was learnt weighs 0 there: the old cost, unchanged
+        return np.array([self.weights[index[n]] if n in index else 0.0 for n in names])

@@ -39,8 +39,10 @@ class PlannerParams:
     v_max_mps: float = 1.0
     w_max_radps: float = 1.2
     crowd_margin_m: float = 0.3   # the cost grid is dilated by robot radius + this (personal space)
-    person_cost: float = 4.0      # cells with people (high density, predicted crossings) cost at least this x the median
-                                  # (8 made detours ~2 m wide; 4 keeps the same closest distance on the bench)
+    person_cost: float = 0.0      # > 0: cells with people (high density, predicted crossings) cost at least this x the
+                                  # median. Off: the learnt cost alone (its 'conflict' weight, learnt from real
+                                  # walkers) keeps people at a distance; the hard safety distance is the guard's.
+                                  # (Before the conflict feature, 4 carried the avoidance: issue 18.)
     commitment: float = 0.5       # cost of moving the sub-goal between re-plans, x typical cost per cell
     memory_s: float = 1.5         # unseen cells keep what was seen there this long
     fov_deg: float = 57.0         # the camera's horizontal field of view

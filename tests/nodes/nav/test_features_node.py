@@ -24,7 +24,7 @@ def test_feature_grid_message_carries_layout_frame_and_origin():
     with Harness(CrowdFeatures) as h:
         out = h.feed([(0.0, "flow", flow(n=200))])
     grid = out[0].msg
-    assert grid.features.shape == (24, 24, 12) and grid.names == FEATURE_NAMES
+    assert grid.features.shape == (24, 24, 13) and grid.names == FEATURE_NAMES + ["conflict"]
     assert grid.frame_id == "base_link" and grid.stamp_ns == 5
     assert (grid.origin_x_m, grid.origin_y_m, grid.resolution_m) == (-0.375, -2.875, 0.25)
     c, r = int((2.0 + 0.5) / 0.25), int((0.0 + 3.0) / 0.25)
@@ -51,3 +51,13 @@ def test_non_finite_goal_is_dropped():
     with Harness(CrowdFeatures) as h:
         h.feed([(0.0, "goal", Goal2D(frame_id="base_link", x_m=float("nan"))), (0.1, "flow", flow())])
         assert np.all(goal_levels(h.of("features")[-1]) == 1)
+
+
+def test_the_conflict_feature_can_be_left_out_and_marks_a_standing_person():
+    with Harness(CrowdFeatures, params={"conflict": False}) as h:
+        plain = h.feed([(0.0, "flow", flow(n=200))])[0].msg
+    assert plain.features.shape[2] == 12 and plain.names == FEATURE_NAMES
+    with Harness(CrowdFeatures) as h:
+        grid = h.feed([(0.0, "flow", flow(n=200, vx=0.0))])[0].msg
+    conflict = grid.features[..., 12]
+    assert conflict.any() and np.array_equal(conflict > 0, grid.features[..., 0] > 0)   # standing: where they are

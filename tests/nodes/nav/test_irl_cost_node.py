@@ -67,7 +67,17 @@ def test_empty_grid_gives_an_empty_cost_grid(weights_file):
 
 def test_shipped_default_weights_load_and_are_strictly_positive():
     w = load_weights()
-    assert DEFAULT_WEIGHTS.is_file() and len(w.names) == len(w.weights) == 12
+    assert DEFAULT_WEIGHTS.is_file() and len(w.names) == len(w.weights) == 13 and w.names[-1] == "conflict"
     assert w.step_cost > 0 and np.all(w.weights >= 0)
     with pytest.raises(FileNotFoundError, match="irl_learn"):
         load_weights("/nonexistent/weights.json")
+
+
+def test_weights_learnt_before_the_conflict_feature_price_it_zero(weights_file):
+    f = np.zeros((1, 2, 4), np.uint8)
+    f[0, 0, 3] = 1                                    # a conflict cell: the old cost, unchanged
+    f[0, 1, 0] = 1
+    with Harness(IrlCost, params={"weights_path": weights_file}) as h:
+        out = h.feed([(0.0, "features", grid(f, names=NAMES + ["conflict"]))])
+        assert h.node.bad_inputs == 0
+    np.testing.assert_allclose(out[0].msg.cost[0], [2.5, 5.5])
