@@ -182,6 +182,7 @@ def raw_source(ep: str, count: int, nbytes: int = 1 << 20, sinks: int = 1, rate_
 
     ctx = zmq.Context()
     pub = ctx.socket(zmq.XPUB)      # an XPUB only to wait for the sinks, as tether's own wait does
+    pub.setsockopt(zmq.XPUB_VERBOSE, 1)   # every sink's subscription, not only the first
     pub.sndhwm = 1000
     pub.bind(ep)
     joined = 0
