@@ -39,17 +39,9 @@ class _Progress:
 
 
 def _params(items: Sequence[str] | None) -> dict[str, Any]:
-    from tether.launch import parse_value
+    from tether.launch import parse_assignments
 
-    out = {}
-    for item in items or []:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"--param {item!r}: expected KEY=VALUE")
-        if key in out:
-            raise ConfigError(f"--param {key} is given twice")
-        out[key] = parse_value(value)
-    return out
+    return parse_assignments(list(items or []), "--param")
 
 
 def _pairs(items: Sequence[str] | None, flag: str) -> dict[str, str]:

@@ -117,17 +117,22 @@ def parse_value(text: str) -> Any:
         return text
 
 
-def parse_launch_args(items: list[str] | None) -> dict[str, Any]:
-    """``--arg NAME=VALUE`` strings -> {name: value} (values read like ``--param``)."""
+def parse_assignments(items: list[str] | None, flag: str = "--arg") -> dict[str, Any]:
+    """``NAME=VALUE`` strings of a command-line ``flag`` -> {name: value} (values read by :func:`parse_value`)."""
     out: dict[str, Any] = {}
     for item in items or []:
         name, sep, value = item.partition("=")
         if not sep or not name:
-            raise ConfigError(f"--arg {item!r}: expected NAME=VALUE")
+            raise ConfigError(f"{flag} {item!r}: expected NAME=VALUE")
         if name in out:
-            raise ConfigError(f"--arg {name} is given twice")
+            raise ConfigError(f"{flag} {name} is given twice")
         out[name] = parse_value(value)
     return out
+
+
+def parse_launch_args(items: list[str] | None) -> dict[str, Any]:
+    """``--arg NAME=VALUE`` strings -> {name: value} (values read like ``--param``)."""
+    return parse_assignments(items, "--arg")
 
 
 def parse_overrides(items: list[str] | None) -> dict[str, dict[str, Any]]:

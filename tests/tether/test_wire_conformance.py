@@ -101,15 +101,13 @@ def check_relay(stats: dict) -> None:
     assert (inp["decode_errors"], inp["handler_errors"], inp["seq_resets"], inp["dropped_seq_gap"]) == (0, 0, 0, 0)
 
 
-def test_python_client_without_tether_publishes_into_and_subscribes_from_a_graph(runtime_env: dict) -> None:
-    client = subprocess.Popen([sys.executable, str(EXAMPLES / "wire_client.py"), "--publish", "wirepy/value",
-                               "--subscribe", "relay/value", "--subscribe", "relay/image", "-n", "5"],
-                              cwd=EXAMPLES, env=runtime_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+def run_client_against_relay(client: subprocess.Popen, topic: str, bind: str = "") -> None:
+    """Relay ``topic`` (the client's) back to it as relay/value and relay/image; check both sides."""
     relay = None
     try:
-        source = wait_for_topic("wirepy/value", client)
+        source = wait_for_topic(topic, client)
         assert source.type_name == "std.Float64"
-        relay = RunningRelay("wirepy/value", source.endpoint)
+        relay = RunningRelay(topic, source.endpoint, bind=bind)
         out, err = client.communicate(timeout=60)
     finally:
         if client.poll() is None:
@@ -118,6 +116,13 @@ def test_python_client_without_tether_publishes_into_and_subscribes_from_a_graph
     assert client.returncode == 0, err
     check_lines(out, 5)
     check_relay(stats)
+
+
+def test_python_client_without_tether_publishes_into_and_subscribes_from_a_graph(runtime_env: dict) -> None:
+    client = subprocess.Popen([sys.executable, str(EXAMPLES / "wire_client.py"), "--publish", "wirepy/value",
+                               "--subscribe", "relay/value", "--subscribe", "relay/image", "-n", "5"],
+                              cwd=EXAMPLES, env=runtime_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    run_client_against_relay(client, "wirepy/value")
     assert "wirepy/value" not in registry.topics()           # the client removed its entry
 
 
@@ -150,24 +155,12 @@ def c_client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 
 def test_c_client_publishes_into_and_subscribes_from_a_graph(runtime_env: dict, c_client: Path) -> None:
     relay_topics = ["relay/value", "relay/image"]
-    relay = None
     # The C client reads no JSON: it registers its own topic but is told the relay's endpoint,
     # which is known before the relay binds (ZeroMQ connects to an endpoint before it exists).
     endpoint = ipc_endpoint("relay", "relay", uuid.uuid4().hex[:8])
     client = subprocess.Popen([str(c_client), "wirec/value", endpoint, *relay_topics, "5"], env=runtime_env,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        source = wait_for_topic("wirec/value", client)
-        assert source.type_name == "std.Float64"
-        relay = RunningRelay("wirec/value", source.endpoint, bind=endpoint)
-        out, err = client.communicate(timeout=60)
-    finally:
-        if client.poll() is None:
-            client.kill()
-        stats = relay.stop() if relay is not None else {}
-    assert client.returncode == 0, err
-    check_lines(out, 5)
-    check_relay(stats)
+    run_client_against_relay(client, "wirec/value", bind=endpoint)
 
 
 class Collect(Node):
