@@ -175,5 +175,8 @@ def cmd_node(args: argparse.Namespace) -> int:
         sent = st.published_bytes.get(out, 0)
         print(f"  -> {out:12s} published {n:8d}  subscribers {st.subscribers.get(f'{st.node_id}/{out}', 0)}"
               + (f"  {sent / 1e6:.3f} MB sent" if sent else ""))
+    if st.shm_placed or st.shm_fallbacks or st.shm_oversize or st.shm_stale:
+        print(f"  shared memory: placed {st.shm_placed} (loaned, no copy: {st.shm_loaned})  fallbacks to frames "
+              f"{st.shm_fallbacks} (pool busy) + {st.shm_oversize} (oversize)  stale tables {st.shm_stale}")
     return 0
 

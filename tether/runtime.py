@@ -543,6 +543,7 @@ class NodeRuntime(Context):
                          errors=saturate(errors), restarts=saturate(self.spec.incarnation),
                          stats_errors=saturate(self._stats_errors),
                          published_bytes={k: saturate(v) for k, v in self._published_bytes.items()},
+                         **{f"shm_{k}": saturate(v) for k, v in self.shm_counters().items()},
                          stamp_ns=time.time_ns())
 
     def _publish_stats(self) -> None:

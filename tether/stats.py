@@ -44,3 +44,9 @@ class NodeStats(Message, tag="std.NodeStats"):
     restarts: int = 0              # how many times the launcher restarted this node before this run
     stats_errors: int = 0          # failures while publishing these statistics (counted, never fatal)
     published_bytes: dict[str, int] = {}   # per output: bytes sent (frames and topic), cumulative
+    # shared memory (docs/wire.md section 10), cumulative over every output / input of the node:
+    shm_placed: int = 0            # messages whose large buffers went through a pool slot
+    shm_loaned: int = 0            # ... of which lay in a loaned slot already (no copy at all)
+    shm_fallbacks: int = 0         # sent as ordinary frames: no slot came free in time (pool busy)
+    shm_oversize: int = 0          # sent as ordinary frames: larger than half the pool
+    shm_stale: int = 0             # slot tables received whose slot was reused before we could lease it

@@ -215,3 +215,34 @@ def test_a_loaned_array_crosses_without_a_copy(tmp_path: Path) -> None:
         _until(lambda: len(keeper.node.kept) == 4, "four loaned images")
     assert _values(keeper) == [1, 2, 3, 4]
     assert cam.shm_counters()["placed"] == 4
+
+
+def test_node_statistics_and_node_info_carry_the_shared_memory_counters(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                         capsys: pytest.CaptureFixture) -> None:
+    import argparse
+
+    from tether import introspect
+    from tether.stats import NodeStats
+
+    endpoint = f"ipc://{tmp_path}/cam"
+    cam = _cam(endpoint, 1, count=3, loan=True)
+    keeper = _keeper(endpoint)
+    sock = zmq.Context.instance().socket(zmq.SUB)
+    monkeypatch.setattr(introspect, "subscribe", lambda topic: (None, sock))
+    try:
+        with _running(keeper, cam):
+            _until(lambda: len(keeper.node.kept) == 3, "three loaned images")
+            sock.connect(endpoint)                  # now: the statistics it gets are sent after the images
+            sock.setsockopt(zmq.SUBSCRIBE, b"cam/_stats")
+            introspect.cmd_node(argparse.Namespace(action="info", id="cam"))    # the next statistics, over the wire
+            stats = cam.stats()
+    finally:
+        sock.close(linger=0)
+    assert (stats.shm_placed, stats.shm_loaned, stats.shm_fallbacks, stats.shm_oversize) == (3, 3, 0, 0)
+    assert keeper.stats().shm_stale == 0 and keeper.stats().shm_placed == 0
+    assert "shared memory: placed 3 (loaned, no copy: 3)  fallbacks to frames 0 (pool busy) + 0 (oversize)" \
+        in capsys.readouterr().out
+    # statistics from a node built before these fields decode with zeros (appended fields only)
+    older = msgspec.msgpack.encode({"type": "std.NodeStats", "node_id": "old", "published": {"old/x": 2}})
+    decoded = msgspec.msgpack.decode(older, type=NodeStats)
+    assert decoded.node_id == "old" and decoded.shm_placed == 0 and decoded.shm_stale == 0
