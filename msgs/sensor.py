@@ -49,10 +49,13 @@ class RgbdFrame(Message, tag="sensor.RgbdFrame"):
 
 
 class PointCloud(Message, tag="sensor.PointCloud"):
-    """N x 3 float points in ``frame_id`` (metres), with optional per-point N-vectors."""
+    """N x 3 float points in ``frame_id`` (metres), with optional per-point N-vectors: ``intensity``, and
+    ``sigma_m`` the 1-sigma position uncertainty of each point (a sonar cloud's: along the elevation arc);
+    empty when the producer gives none (older logs, appended field)."""
 
     points_m: np.ndarray = const(np.zeros((0, 3), np.float32))
     intensity: np.ndarray = const(np.zeros(0, np.float32))
+    sigma_m: np.ndarray = const(np.zeros(0, np.float32))
 
 
 class Grid(Message, tag="sensor.Grid"):

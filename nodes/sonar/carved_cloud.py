@@ -3,8 +3,8 @@
 Beside the highlight cloud (the paper's lower-edge elevation, seed 01): the same pings and poses, but
 each return's elevation is chosen where the arcs of many poses cross and no ping saw free water
 (:mod:`nodes.sonar.carving`). Output ``points`` (world frame): the voxels voted for whose elevation
-1-sigma is at most ``max_sigma_m``; ``intensity`` carries that sigma in metres (PointCloud has one
-per-point vector). Published every ``publish_every`` pings.
+1-sigma is at most ``max_sigma_m``, that sigma in ``sigma_m`` (metres, along the elevation arc) and the
+number of arcs that chose each point in ``intensity``. Published every ``publish_every`` pings.
 
 Poses as in ``highlight_cloud``: each ping is placed with the pose at its own stamp, interpolated
 between the two poses around it (:class:`nodes.sonar.pose_buffer.PoseBuffer`); a ping newer than the
@@ -63,7 +63,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
 
 
 class CarvedCloud(Node):
-    """Inputs ``ping`` and ``pose``; output ``points`` (world; intensity = elevation 1-sigma, m)."""
+    """Inputs ``ping`` and ``pose``; output ``points`` (world; ``sigma_m`` elevation 1-sigma, ``intensity`` votes)."""
 
     Config = Config
     inputs = {"ping": Input(SonarPing, depth=16), "pose": Input(Pose3D, depth=256)}
@@ -143,10 +143,10 @@ class CarvedCloud(Node):
         return [("points", self.cloud(ping.stamp_ns))]
 
     def cloud(self, stamp_ns: int = 0, *, flush: bool = False) -> PointCloud:
-        """The voxels voted for with elevation sigma <= ``max_sigma_m``; intensity = that sigma (m)."""
+        """The voxels voted for with elevation sigma <= ``max_sigma_m``: that sigma (m), and the votes."""
         c = self.grid.cloud(flush=flush, max_sigma_m=self.config.max_sigma_m)
         return PointCloud(stamp_ns=stamp_ns, frame_id=self.config.world_frame, points_m=c.points_m.astype(np.float32),
-                          intensity=c.sigma_m.astype(np.float32))
+                          intensity=c.votes.astype(np.float32), sigma_m=c.sigma_m.astype(np.float32))
 
     def teardown(self) -> None:
         ms = np.asarray(self._work_ms) if self._work_ms else np.zeros(1)

@@ -2,17 +2,20 @@
 
 A forward-looking sonar measures range and bearing but not elevation: a return at range ``r`` in a
 beam comes from *somewhere* on the arc of elevations across the vertical aperture
-(``nodes.sonar.arcs``). Two facts hold for every ping whatever the elevation (Aykin & Negahdaripour
+(``nodes.sonar.arcs``). Three facts hold for every ping whatever the elevation (Aykin & Negahdaripour
 2017, space carving; Westman & Kaess 2019, wide-aperture sonar):
 
 * the whole elevation arc at every range *before* a beam's first return (its highlight's front end)
   is empty -- nothing echoed there and nothing nearer can shadow it: those voxels are **carved**;
 * some voxel on the arc of every return is occupied: each voxel the arc passes through gets a **hit**
-  (once per ping).
+  (once per ping);
+* a voxel behind the front end, at a range where its beam is dark (no bright block there nor next to
+  it), is empty or in the shadow of something nearer: a **dark** (weaker evidence than a miss, as a
+  shadow is possible; ghosts of a return sit on arcs whose other ranges stay dark in later views).
 
 Arc intersection then chooses the elevation: each arc, once ``settle_pings`` later pings have added
-their evidence, **votes** for its voxels of best score ``hits - miss_weight * misses`` (where the arcs
-of many poses cross and no ping carved). The elevation extent of the arc's near-best voxels (score
+their evidence, **votes** for its voxels of best score ``hits - miss_weight * misses - dark_weight *
+darks`` (where the arcs of many poses cross and no ping carved). The elevation extent of the arc's near-best voxels (score
 >= ``near_best`` x best) is its elevation uncertainty: an arc no other view crosses (one ping, a pass
 that never changes the view) stays flat along its whole length, ``r s``, and says so; crossed by
 arcs of other poses it narrows to a few voxels. A voxel's ``sigma_m`` is the RMS over the arcs that
@@ -23,11 +26,12 @@ the seafloor's near edge ``r_emin``, eq. 8) and, with ``returns="all"``, every b
 behind it: brighter than ``return_level`` before ``r_emin``, than ``floor_level`` beyond it (a structure
 standing out of the seafloor's own echo; the flat floor's 10 cm blocks stay below 0.5 of full scale
 in the simulator). Beams without a front end carve up to ``r_emin`` (less a guard), or their whole
-range when no seafloor is given; nothing is carved beyond ``r_emin``. Frames: pings in the sonar FRD frame (x boresight, y
-starboard, z down), poses sonar -> world 4x4, grid and cloud in the world. Pure numpy/OpenCV; a dense
-grid over ``bounds`` (arc samples outside it are counted and ignored); carving projects only the
-*candidate* voxels (those ever hit) into each ping, so the work per ping follows the surface seen,
-not the volume of the fan.
+range when no seafloor is given; nothing is carved beyond ``r_emin``. The ping is first averaged
+over range cells of at most 0.4 voxel (a fraction of the work; the front end still lands well inside
+a voxel). Frames: pings in the sonar FRD frame (x boresight, y starboard, z down), poses sonar ->
+world 4x4, grid and cloud in the world. Pure numpy/OpenCV; a dense grid over ``bounds`` (arc samples
+outside it are counted and ignored); carving projects only the *candidate* voxels (those ever hit)
+into each ping, so the work per ping follows the surface seen, not the volume of the fan.
 """
 from __future__ import annotations
 
@@ -50,7 +54,8 @@ class CarvingParams:
     voxel_m: float = 0.1
     margin_m: float = 0.15            # carve only this far in front of a front end (detection + voxel size)
     arc_step_m: float = 0.1           # spacing of the hit samples along an arc (<= voxel_m)
-    miss_weight: float = 2.0          # score = hits - miss_weight * misses
+    miss_weight: float = 2.0          # score = hits - miss_weight * misses - dark_weight * darks
+    dark_weight: float = 4.0          # a dark range block behind the front end: empty (or in a nearer object's shadow)
     min_hits: int = 3                 # an arc votes only when its best voxel was hit by this many pings
     near_best: float = 0.8            # an arc's near-best voxels (its elevation extent): score >= this x best
     settle_pings: int = 20            # an arc votes once this many later pings have added evidence
@@ -76,7 +81,8 @@ class CarvingParams:
 
 @dataclass(frozen=True)
 class PingUpdate:
-    """What one ping did: beams with a front end, arcs (returns), voxels carved and hit, samples outside."""
+    """What one ping did: beams with a front end, arcs (returns), voxels carved, voxels hit for the first time,
+    arc samples outside the grid."""
 
     detected_beams: int
     arcs: int
@@ -105,6 +111,18 @@ class _PingArcs:
     along: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Blocks:
+    """One ping's range blocks (every other beam): ``bright`` (B, N/2), ``near`` (bright or next to a bright
+    one), block centres in rows, ``step`` rows per block, ``dr`` m per row."""
+
+    bright: np.ndarray
+    near: np.ndarray
+    centre: np.ndarray
+    step: int
+    dr: float
+
+
 class CarvingGrid:
     """Carving and arc voting over the world box ``bounds_m = ((x0, y0, z0), (x1, y1, z1))``.
 
@@ -124,11 +142,15 @@ class CarvingGrid:
             raise ValueError(f"{self.shape} = {n} voxels exceeds {max_voxels}: shrink the bounds or grow voxel_m")
         self.hits = np.zeros(n, np.uint16)
         self.misses = np.zeros(n, np.uint16)
+        self.darks = np.zeros(n, np.uint16)
+        self._lut_key: bytes | None = None
+        self._lut: tuple = ()
         self._slot = np.full(n, -1, np.int32)           # voxel -> row of the candidate arrays
         self._cand = np.zeros(0, np.int64)              # candidates (ever hit): voxel, centre, votes, sum extent^2
         self._centre = np.zeros((0, 3), np.float32)
         self._votes = np.zeros(0, np.int32)
         self._extent2 = np.zeros(0, np.float64)
+        self._prec = np.zeros(0, np.float64)
         self._count = 0
         self._alive = np.zeros(0, np.int64)             # candidate rows carving still tests
         self._pending: deque[_PingArcs] = deque()      # arcs still settling, oldest first
@@ -158,23 +180,39 @@ class CarvingGrid:
         if not (range_resolution_m > 0 and 0 < spread_rad < np.pi):
             raise ValueError(f"need range_resolution_m > 0 and 0 < spread < pi, got {range_resolution_m}, {spread_rad}")
         rot, origin = pose[:3, :3], pose[:3, 3]
-        m_emin = self._seafloor_rows(b, img.shape[0], range_resolution_m, rot, origin, spread_rad)
-        rows, _ = detect_front_ends(img, m_emin, sigma_px=p.sigma_px, threshold=p.threshold, guard_px=p.guard_px,
+        img, dr, f = self._coarse(img, range_resolution_m)
+        m_emin = self._seafloor_rows(b, img.shape[0], dr, rot, origin, spread_rad)
+        rows, _ = detect_front_ends(img, m_emin, sigma_px=p.sigma_px / f, threshold=p.threshold,
+                                    guard_px=None if p.guard_px is None else p.guard_px / f,
                                     sigma_beam_px=p.sigma_beam_px)
         detected = np.isfinite(rows)
-        guard = 2.0 * p.sigma_px + 2.0 if p.guard_px is None else p.guard_px
-        r_front = (rows + 0.5) * range_resolution_m
-        free = np.where(detected, r_front, (m_emin - guard) * range_resolution_m) - p.margin_m
-        carved = self._carve(rot, origin, b, free, 0.5 * spread_rad)
+        guard = (2.0 * p.sigma_px / f + 2.0) if p.guard_px is None else p.guard_px / f
+        r_front = (rows + 0.5) * dr
+        free = np.where(detected, r_front, (m_emin - guard) * dr) - p.margin_m
+        blocks = self._blocks(img, m_emin - guard, dr)
+        carved = self._carve(rot, origin, b, free, 0.5 * spread_rad, blocks)
         r_hit, b_hit = r_front[detected], b[detected]
         if p.returns == "all":
-            more_r, more_b = self._bright(img, b, m_emin - guard, rows, range_resolution_m)
+            more_r, more_b = self._bright(blocks, b, rows)
             r_hit, b_hit = np.concatenate([r_hit, more_r]), np.concatenate([b_hit, more_b])
         hit, outside = self._hit(rot, origin, r_hit, b_hit, 0.5 * spread_rad)
         self.pings += 1
         while len(self._pending) > p.settle_pings:
             self._vote(self._pending.popleft())
         return PingUpdate(int(detected.sum()), int(r_hit.size), carved, hit, outside)
+
+    def _coarse(self, img: np.ndarray, dr: float) -> tuple[np.ndarray, float, int]:
+        """The ping averaged over ``f`` range cells, the coarsest that keeps cells <= 0.4 voxel (the front end is
+        still placed to a fraction of a voxel, at a fraction of the work); floats with NaN/inf made finite
+        (no data is dark)."""
+        if img.dtype.kind == "f":
+            img = np.nan_to_num(img.astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+        f = int(max(1, min(np.floor(0.4 * self.params.voxel_m / dr), img.shape[0] // 3)))
+        if f == 1:
+            return img, dr, 1
+        m = img.shape[0] // f * f
+        small = cv2.resize(np.ascontiguousarray(img[:m]), (img.shape[1], m // f), interpolation=cv2.INTER_AREA)
+        return small, dr * f, f
 
     def _seafloor_rows(self, b: np.ndarray, m: int, dr: float, rot: np.ndarray, origin: np.ndarray,
                        spread: float) -> np.ndarray:
@@ -188,16 +226,15 @@ class CarvingGrid:
         return effective_region(b, altitude, spread, tilt_rad=float(np.arcsin(np.clip(down[0], -1, 1))), n_ranges=m,
                                 range_resolution_m=dr, down_frd=down).m_emin
 
-    def _bright(self, img: np.ndarray, bearings: np.ndarray, limit_rows: np.ndarray, front_rows: np.ndarray,
-                dr: float) -> tuple[np.ndarray, np.ndarray]:
-        """Ranges and bearings of the bright range blocks behind each front end: brighter than ``return_level``
-        before ``limit_rows`` (the seafloor's near edge), than ``floor_level`` beyond it (over the seafloor's echo)."""
+    def _blocks(self, img: np.ndarray, limit_rows: np.ndarray, dr: float) -> _Blocks | None:
+        """Bright range blocks of every other beam: block mean above ``return_level`` before ``limit_rows``
+        (the seafloor's near edge), above ``floor_level`` beyond it (over the seafloor's echo)."""
         p = self.params
         step = max(1, int(round(p.return_step_m / dr)))
         k = (img.shape[0] if p.floor_level < 1 else
              int(min(img.shape[0], max(float(np.nanmax(limit_rows, initial=0.0)), 0.0)))) // step * step
         if k < step:
-            return np.zeros(0), np.zeros(0)
+            return None
         rows = img[:k]
         if img.dtype.kind == "f":
             rows = np.nan_to_num(rows.astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
@@ -207,45 +244,83 @@ class CarvingGrid:
         block = cv2.resize(np.ascontiguousarray(rows[:, ::2]), (rows[:, ::2].shape[1], k // step),
                            interpolation=cv2.INTER_AREA).astype(np.float32) * np.float32(1.0 / full)
         centre = (np.arange(k // step) + 0.5) * step
-        front = np.where(np.isfinite(front_rows), front_rows, np.inf)[::2]
         level = np.where(centre[:, None] < limit_rows[::2][None, :], np.float32(p.return_level),
                          np.float32(p.floor_level))
-        bright = (block > level) & (centre[:, None] > front[None, :] + step)
-        blk, beam = np.nonzero(bright)
-        return centre[blk] * dr, bearings[::2][beam]
+        bright = block > level
+        # a voxel spans a few beams and range blocks: dark only where no neighbouring block is bright
+        near = cv2.dilate(bright.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+        return _Blocks(bright, near, centre, step, dr)
+
+    def _bright(self, blocks: _Blocks | None, bearings: np.ndarray, front_rows: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Ranges and bearings of the bright range blocks behind each front end."""
+        if blocks is None:
+            return np.zeros(0), np.zeros(0)
+        front = np.where(np.isfinite(front_rows), front_rows, np.inf)[::2]
+        blk, beam = np.nonzero(blocks.bright & (blocks.centre[:, None] > front[None, :] + blocks.step))
+        return blocks.centre[blk] * blocks.dr, bearings[::2][beam]
 
     def _carve(self, rot: np.ndarray, origin: np.ndarray, bearings: np.ndarray, free_m: np.ndarray,
-               half: float) -> int:
-        """Count a miss on the candidates inside the fan nearer than their beam's free range."""
+               half: float, blocks: _Blocks | None) -> int:
+        """Count a miss on the candidates inside the fan nearer than their beam's free range, and a dark on those
+        behind their beam's front end (past ``margin_m``) in a range block with no bright return near it."""
+        p = self.params
         if self.pings % 10 == 0 and self._count:
             # a candidate carved far more than hit can never be an arc's best: stop testing it (it comes back
             # if hits lift its score again)
             rows = np.arange(self._count)
-            voxels = self._cand[rows]
-            score = self.hits[voxels].astype(np.int32) - self.params.miss_weight * self.misses[voxels]
-            self._alive = rows[score > _DEAD]
+            self._alive = rows[self._score(self._cand[rows]) > _DEAD]
         alive = self._alive
         if alive.size == 0:
             return 0
         local = (self._centre[alive] - origin.astype(np.float32)) @ rot.astype(np.float32)   # world -> sonar FRD
         r2 = np.einsum("ij,ij->i", local, local)
         reach = float(max(free_m.max(initial=0.0), 0.0))
+        if blocks is not None and p.dark_weight > 0:
+            reach = max(reach, blocks.centre.size * blocks.step * blocks.dr)
         near = np.flatnonzero((local[:, 0] > 0) & (r2 < reach * reach))
         if near.size == 0:
             return 0
         loc = local[near]
         rr = np.sqrt(r2[near])
-        # the beam by the tangent of the bearing (x > 0 here): a sorted search, no arctan
-        half_beam = 0.5 * float(np.median(np.diff(bearings)))
-        edges = np.tan(np.clip(np.r_[bearings[0] - half_beam, 0.5 * (bearings[1:] + bearings[:-1]),
-                                     bearings[-1] + half_beam], -1.5, 1.5)).astype(np.float32)
         tan_b = loc[:, 1] / loc[:, 0]
-        beam = np.clip(np.searchsorted(edges, tan_b) - 1, 0, bearings.size - 1)
-        inside = ((np.abs(loc[:, 2]) < np.float32(np.sin(half)) * rr) & (tan_b > edges[0]) & (tan_b < edges[-1])
-                  & (rr < free_m[beam]))
-        idx = self._cand[alive[near[inside]]]
+        beam, in_fan = self._beams(bearings, tan_b)
+        inside = np.flatnonzero(in_fan & (np.abs(loc[:, 2]) < np.float32(np.sin(half)) * rr))
+        rr, beam = rr[inside], beam[inside]
+        free = free_m[beam]
+        carve = rr < free
+        idx = self._cand[alive[near[inside[carve]]]]
         self.misses[idx] = np.minimum(self.misses[idx].astype(np.int32) + 1, _U16)
+        if blocks is not None and p.dark_weight > 0:
+            blk = (rr * np.float32(1.0 / (blocks.step * blocks.dr))).astype(np.int64)
+            behind = np.flatnonzero((rr > free + 2 * p.margin_m) & (blk < blocks.centre.size))
+            dark = ~blocks.near[blk[behind], np.minimum(beam[behind] // 2, blocks.near.shape[1] - 1)]
+            didx = self._cand[alive[near[inside[behind[dark]]]]]
+            self.darks[didx] = np.minimum(self.darks[didx].astype(np.int32) + 1, _U16)
         return int(idx.size)
+
+    def _beams(self, bearings: np.ndarray, tan_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Beam of each direction by the tangent of its bearing (x > 0): a table of fine uniform bins over the
+        fan's tangents (cached per bearing table), no arctan or sorted search per candidate."""
+        key = bearings.tobytes()
+        if self._lut_key != key:
+            half_beam = 0.5 * float(np.median(np.diff(bearings)))
+            edges = np.tan(np.clip(np.r_[bearings[0] - half_beam, 0.5 * (bearings[1:] + bearings[:-1]),
+                                         bearings[-1] + half_beam], -1.5, 1.5))
+            bins = 16 * bearings.size
+            centres = edges[0] + (np.arange(bins) + 0.5) * (edges[-1] - edges[0]) / bins
+            lut = np.clip(np.searchsorted(edges, centres) - 1, 0, bearings.size - 1).astype(np.int32)
+            self._lut, self._lut_key = (np.float32(edges[0]), np.float32(bins / (edges[-1] - edges[0])), lut), key
+        t0, scale, lut = self._lut
+        k = ((tan_b - t0) * scale).astype(np.int64)
+        ok = (k >= 0) & (k < lut.size)
+        return lut[np.clip(k, 0, lut.size - 1)], ok
+
+    def _score(self, voxels: np.ndarray) -> np.ndarray:
+        """hits - miss_weight * misses - dark_weight * darks of ``voxels`` (float32)."""
+        p = self.params
+        return (self.hits[voxels].astype(np.float32) - np.float32(p.miss_weight) * self.misses[voxels]
+                - np.float32(p.dark_weight) * self.darks[voxels])
 
     def _hit(self, rot: np.ndarray, origin: np.ndarray, ranges: np.ndarray, bearings: np.ndarray,
              half: float) -> tuple[int, int]:
@@ -270,13 +345,11 @@ class CarvingGrid:
         ok = np.all((cell >= 0) & (cell < np.array(self.shape)), axis=1)
         flat = np.ravel_multi_index(cell[ok].T, self.shape)
         self._pending.append(_PingArcs(flat.astype(np.int64), arc[ok].astype(np.int32), (phi * r)[ok]))
-        before = int(np.count_nonzero(self.hits))
         self.hits[flat] = np.minimum(self.hits[flat].astype(np.int32) + 1, _U16)   # buffered: once per voxel per ping
-        self._slots_for(flat)
-        return int(np.count_nonzero(self.hits)) - before, int((~ok).sum())
+        return self._slots_for(flat), int((~ok).sum())
 
-    def _slots_for(self, voxels: np.ndarray) -> None:
-        """Make candidates of the new ones among ``voxels``."""
+    def _slots_for(self, voxels: np.ndarray) -> int:
+        """Make candidates of the new ones among ``voxels`` (those hit for the first time); how many."""
         new = voxels[self._slot[voxels] < 0]
         if new.size:
             new = np.unique(new)
@@ -286,18 +359,20 @@ class CarvingGrid:
                 self._cand, self._centre = np.resize(self._cand, cap), np.resize(self._centre, (cap, 3))
                 self._votes = np.concatenate([self._votes, np.zeros(cap - self._votes.size, np.int32)])
                 self._extent2 = np.concatenate([self._extent2, np.zeros(cap - self._extent2.size)])
+                self._prec = np.concatenate([self._prec, np.zeros(cap - self._prec.size)])
             rows = np.arange(self._count, need)
             self._cand[rows], self._centre[rows] = new, self.centres(new)
             self._slot[new] = rows
             self._count = need
             self._alive = np.concatenate([self._alive, rows])
+        return int(new.size)
 
     def _vote(self, arcs: _PingArcs) -> None:
         """Each arc of one ping votes for its best-scoring voxels, with the extent of its near-best ones."""
         p = self.params
         if arcs.voxel.size == 0:
             return
-        score = self.hits[arcs.voxel].astype(np.float32) - np.float32(p.miss_weight) * self.misses[arcs.voxel]
+        score = self._score(arcs.voxel)
         starts = np.flatnonzero(np.r_[True, arcs.arc[1:] != arcs.arc[:-1]])
         counts = np.diff(np.r_[starts, arcs.arc.size])
         best = np.repeat(np.maximum.reduceat(score, starts), counts)
@@ -309,6 +384,7 @@ class CarvingGrid:
         slots = self._slot[arcs.voxel[win]]
         np.add.at(self._votes, slots, 1)
         np.add.at(self._extent2, slots, extent[win].astype(np.float64) ** 2)
+        np.add.at(self._prec, slots, 1.0 / extent[win].astype(np.float64) ** 2)
 
     # -- results --------------------------------------------------------------------------
     def centres(self, voxels: np.ndarray) -> np.ndarray:

@@ -186,7 +186,9 @@ class SonarEvaluation(Node):
             carved = sigma = None
             if self._carved is not None:
                 carved = self._corrected(np.asarray(self._carved.points_m, dtype=float))
-                sigma = np.asarray(self._carved.intensity, dtype=float)
+                # sigma_m since it was appended to PointCloud; older logs carried it in intensity
+                sigma = np.asarray(self._carved.sigma_m if len(self._carved.sigma_m) else self._carved.intensity,
+                                   dtype=float)
             save_cloud_png(out / "cloud.png", cloud, model, corrected,
                            title=f"{len(cloud)} cloud points over the {self.config.scene} model", carved=carved,
                            carved_sigma=sigma, carved_label="carved cloud" + (" after ICP" if corrected is not None

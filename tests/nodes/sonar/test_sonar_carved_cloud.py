@@ -1,5 +1,5 @@
 """CarvedCloud node through tether.testing: pings placed at the interpolated pose of their stamp, the cloud
-lands on the structure with its sigma as intensity, bad pings and poses are dropped and counted."""
+lands on the structure with its sigma (PointCloud.sigma_m; older logs without it still decode), bad pings and poses are dropped and counted."""
 from __future__ import annotations
 
 import numpy as np
@@ -43,11 +43,29 @@ def test_cloud_lands_on_the_block_with_its_sigma() -> None:
     assert len(clouds) == 40 // 5 and clouds[-1].frame_id == "world"
     assert h.node.pings == 40 and not h.node.dropped
     final = h.node.cloud(flush=True)
-    pts, sigma = np.asarray(final.points_m, float), np.asarray(final.intensity)
+    pts, sigma = np.asarray(final.points_m, float), np.asarray(final.sigma_m)
     surface, _ = sample_structures(scene, 0.03)
     m = cloud_metrics(pts, surface)
     assert m["points"] >= 30 and m["acc_frac_0p2"] >= 0.85, m
     assert np.all((sigma > 0) & (sigma <= 0.3))                # the node publishes sigma <= max_sigma_m only
+    assert len(sigma) == len(pts) == len(final.intensity) and np.all(np.asarray(final.intensity) >= 2)   # votes
+
+
+def test_a_point_cloud_logged_before_sigma_m_still_decodes() -> None:
+    import msgpack
+
+    from msgs.sensor import PointCloud
+    from tether.codec import Codec
+
+    codec = Codec()
+    new = PointCloud(stamp_ns=7, frame_id="world", points_m=np.ones((4, 3), np.float32),
+                     intensity=np.arange(4, dtype=np.float32), sigma_m=np.full(4, 0.2, np.float32))
+    record = msgpack.unpackb(codec.encode_inline(new), raw=False)
+    assert set(record) >= {"points_m", "intensity", "sigma_m"}
+    del record["sigma_m"]                                          # what a log written before the field holds
+    old = codec.decode_inline(PointCloud, msgpack.packb(record, use_bin_type=True))
+    assert old.stamp_ns == 7 and len(old.points_m) == 4 and np.array_equal(old.intensity, new.intensity)
+    assert old.sigma_m.shape == (0,)                              # the default: no uncertainty given
 
 
 def test_bad_pings_and_poses_are_counted_not_raised() -> None:
