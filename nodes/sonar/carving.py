@@ -60,6 +60,7 @@ class CarvingParams:
     near_best: float = 0.8            # an arc's near-best voxels (its elevation extent): score >= this x best
     settle_pings: int = 20            # an arc votes once this many later pings have added evidence
     min_votes: int = 2                # a voxel is in the cloud when this many arcs voted for it
+    min_support: float = 0.7          # ... and its score is still >= this x its hits (later views did not empty it)
     floor_margin_m: float = 0.15      # voxels this close to the seafloor are the seafloor, not the structure
     returns: str = "all"              # "front": front ends only; "all": also the bright blocks behind them
     return_level: float = 0.3         # a bright block: blurred level above this (full scale = 1)
@@ -77,6 +78,8 @@ class CarvingParams:
             raise ValueError("need min_hits >= 1, min_votes >= 1, settle_pings >= 0 and 0 < near_best <= 1")
         if self.returns not in ("front", "all") or not (0 < self.return_level < 1 and self.return_step_m > 0):
             raise ValueError("returns must be 'front' or 'all', 0 < return_level < 1, return_step_m > 0")
+        if not (self.miss_weight >= 0 and self.dark_weight >= 0 and self.min_support <= 1):
+            raise ValueError("need miss_weight >= 0, dark_weight >= 0 and min_support <= 1 (-inf: no support test)")
 
 
 @dataclass(frozen=True)
@@ -398,7 +401,8 @@ class CarvingGrid:
         return self._count
 
     def cloud(self, *, flush: bool = False, max_sigma_m: float = np.inf) -> VotedCloud:
-        """Voxels with >= ``min_votes`` votes, off the seafloor, elevation sigma <= ``max_sigma_m``.
+        """Voxels with >= ``min_votes`` votes, off the seafloor, still supported (``min_support``), elevation
+        sigma <= ``max_sigma_m``.
 
         ``flush`` first lets every arc still settling vote (the end of a run; or a single ping).
         """
@@ -411,6 +415,9 @@ class CarvingGrid:
         if self.seafloor_z_m is not None:
             above = pts[:, 2] > self.seafloor_z_m + p.floor_margin_m
             rows, pts = rows[above], pts[above]
+        voxels = self._cand[rows]
+        support = self._score(voxels) >= p.min_support * self.hits[voxels]
+        rows, pts = rows[support], pts[support]
         votes = self._votes[rows]
         sigma = np.maximum(np.sqrt(self._extent2[rows] / votes / 12.0), p.voxel_m / np.sqrt(12.0)).astype(np.float32)
         keep = sigma <= max_sigma_m
