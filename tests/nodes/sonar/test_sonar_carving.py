@@ -1,7 +1,8 @@
 """Carving and arc voting (nodes.sonar.carving): ground truth from the FLS simulator and a synthetic point target.
 
 Hard cases: one view only (nothing crosses its arcs: the sigma is the arc's own spread and nothing is
-published), a structure seen from one side, the flat seafloor (no point invented in the water), bad input.
+published), a single pass with no revisit (its sigma covers its errors; a revisit narrows it), a
+structure seen from one side, the flat seafloor (no point invented in the water), bad input.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 from nodes.sonar.carving import CarvingGrid, CarvingParams
-from nodes.sonar.evaluation import cloud_metrics
+from nodes.sonar.evaluation import cloud_metrics, surface_distances
 from sim.fls import PingSettings, load_scene, render_ping, sample_structures, sonar_frame
 
 SPREAD = math.radians(20.0)
@@ -49,6 +50,18 @@ def test_arcs_from_different_heights_cross_at_the_target_and_pin_it() -> None:
     assert np.all(np.linalg.norm(grid.cloud(flush=True, max_sigma_m=0.15).points_m - target, axis=1) < 0.3)
 
 
+def test_a_target_that_later_views_see_empty_leaves_the_cloud() -> None:
+    target = np.array([0.3, 8.0, -3.0])
+    grid = _grid(settle_pings=100, min_votes=1)
+    poses = [sonar_frame(np.array([0.0, 0.0, z]), math.pi / 2, 0.0) for z in np.linspace(-0.5, -5.5, 21)]
+    for pose in poses:
+        grid.integrate(_target_ping(pose, target), BEARINGS, DR, pose, SPREAD)
+    assert np.any(np.linalg.norm(grid.cloud(flush=True).points_m - target, axis=1) < 0.2)
+    for pose in poses:                                    # gone (it was a fish): the same views now see free water
+        grid.integrate(_target_ping(pose, target + 100.0), BEARINGS, DR, pose, SPREAD)
+    assert grid.misses.max() > 0 and len(grid.cloud(flush=True).points_m) == 0
+
+
 def test_a_single_view_keeps_the_whole_arc_as_its_uncertainty() -> None:
     target = np.array([0.0, 8.0, -3.0])
     pose = sonar_frame(np.array([0.0, 0.0, -1.5]), math.pi / 2, math.radians(10.0))
@@ -62,11 +75,11 @@ def test_a_single_view_keeps_the_whole_arc_as_its_uncertainty() -> None:
     assert len(grid.cloud(flush=True, max_sigma_m=0.25).points_m) == 0
 
 
-def _run(scene, times, n_beams: int = 256, range_m: float = 15.0, **kw):
+def _run(scene, times, n_beams: int = 256, range_m: float = 15.0, *, poses=(), **kw):
+    """Carve the pings of ``scene``'s run at ``times``, then of the extra ``poses`` (a revisit)."""
     grid = CarvingGrid(((-8, -8, -6.5), (8, 10, 0)), CarvingParams(**kw), seafloor_z_m=-6.0)
     rng = np.random.default_rng(0)
-    for t in times:
-        pose = scene.sonar_pose(t)
+    for pose in [scene.sonar_pose(t) for t in times] + list(poses):
         ping = render_ping(scene, pose, PingSettings(n_beams=n_beams, range_m=range_m), rng=rng)
         grid.integrate(ping.intensities, ping.bearings_rad, ping.range_resolution_m, pose, ping.vertical_aperture_rad)
     return grid
@@ -109,6 +122,21 @@ def test_a_block_seen_from_one_side_lands_on_its_faces(block_pass: CarvingGrid) 
     assert m["points"] >= 30 and m["acc_frac_0p2"] >= 0.85, m
     assert np.all(cloud.sigma_m > 0) and np.all(np.isfinite(cloud.sigma_m))
     assert np.all(cloud.points_m[:, 1] < 5.2)                # nothing invented beyond the unseen back face
+
+
+def test_a_single_pass_says_how_little_it_resolves_and_a_revisit_narrows_it(block_pass: CarvingGrid) -> None:
+    scene = load_scene(BLOCK)
+    surface, _ = sample_structures(scene, 0.03)
+    one = block_pass.cloud(flush=True, max_sigma_m=np.inf)         # one straight pass at one depth, no revisit
+    error = surface_distances(one.points_m, surface)
+    assert np.mean(error <= np.maximum(2 * one.sigma_m, 0.1)) >= 0.9   # its sigma covers its errors: it says so
+    # the same pass, then a leg from the east at 3 m depth: arcs cross at new angles
+    east = [sonar_frame(np.array([8.0 - 1.5 * t, 4.0, -3.0]), math.pi, math.radians(15.0))
+            for t in np.arange(0.0, 3.0, 0.15)]
+    both = _run(scene, np.arange(0.0, 6.0, 0.15), poses=east)
+    two = both.cloud(flush=True, max_sigma_m=np.inf)
+    assert np.median(two.sigma_m) < 0.85 * np.median(one.sigma_m)
+    assert len(both.cloud(max_sigma_m=0.3).points_m) > 1.2 * len(block_pass.cloud(max_sigma_m=0.3).points_m)
 
 
 def test_bad_input_is_refused_with_a_reason() -> None:
