@@ -328,14 +328,16 @@ class NodeRuntime(Context):
                         state.stats["dropped_seq_gap"] += 1   # no seq before it: no later gap would count it
                 return
             frames, held = resolved
-            nbytes += held
+            wire, nbytes = nbytes, nbytes + held
+        else:
+            wire = nbytes
         for state in states:
             if state.link is not None:
                 lost = state.link.admit(nbytes, time.time_ns())
                 if lost:
                     state.stats["dropped_link"] += 1       # the scenario's network, not a fault: not logged
                     continue
-            self._accept(state, frames, next(order), nbytes)
+            self._accept(state, frames, next(order), nbytes, wire)
 
     def _resolve_shm(self, topic: bytes, states: list[InputState],
                      frames: list[Any]) -> tuple[list[Any], int] | None:
@@ -418,8 +420,9 @@ class NodeRuntime(Context):
         for sock, _ in poller.poll(timeout_ms):
             self._drain(sock, order)
 
-    def _accept(self, state: InputState, frames: list[Any], index: int, nbytes: int = -1) -> None:
-        """Decode one received message into ``state``'s queue; ``nbytes`` is its size (-1: measure it)."""
+    def _accept(self, state: InputState, frames: list[Any], index: int, nbytes: int = -1, wire: int = -1) -> None:
+        """Decode one received message into ``state``'s queue; ``nbytes`` is its size (-1: measure it),
+        ``wire`` what of it ZeroMQ carried (less when its buffers lie in shared memory; -1: all)."""
         state.stats["received"] += 1
         if nbytes < 0:
             nbytes = sum(map(len, frames))
@@ -432,8 +435,11 @@ class NodeRuntime(Context):
                                    f"{type(exc).__name__}: {exc}")
             return
         state.track_seq(msg.seq)
-        if nbytes > self._largest_in.get(state.name, 0):
-            self._fit_receive_queue(state, nbytes)
+        # ZeroMQ's receive queue holds what came through it: a slot table, not the slot (the
+        # publisher's pool bounds those), so a shared-memory stream does not shrink it
+        wire = nbytes if wire < 0 else wire
+        if wire > self._largest_in.get(state.name, 0):
+            self._fit_receive_queue(state, wire)
         state.push(index, msg, nbytes)
 
     def _fit_receive_queue(self, state: InputState, nbytes: int) -> None:

@@ -21,9 +21,12 @@ which are released when their holder dies, however it dies):
   by that subscriber: a slot is reused only once every live reader's cell has passed its
   generation. A reader is live while it holds the lock on its reader byte: a crashed
   subscriber stops pinning the pool at once.
-* **Exhaustion** -- when no slot is free the publisher never blocks and never drops: that
-  message travels as ordinary frames (counted in :attr:`Pool.fallbacks`). A message larger
-  than half the pool does too (:attr:`Pool.oversize`).
+* **Exhaustion** -- when no slot is free the publisher waits for one, polling, at most
+  ``TETHER_SHM_WAIT_MS`` (20 ms: back-pressure on a publisher that outruns its subscribers'
+  queues), then sends that message as ordinary frames (counted in :attr:`Pool.fallbacks`):
+  it never blocks for longer and never drops. After a wait that ran out it does not wait
+  again until a slot comes free, so a subscriber that pins the pool costs one wait, not one
+  per message. A message larger than half the pool travels as frames too (:attr:`Pool.oversize`).
 
 Wire: a Tether subscriber of an ``ipc://`` endpoint subscribes to ``@shm/<topic>``, and until
 the first message arrives there also to ``<topic>`` (a publisher that is not a Tether node
@@ -40,12 +43,14 @@ from __future__ import annotations
 
 import fcntl
 import logging
+import math
 import mmap
 import os
 import re
 import stat
 import struct
 import threading
+import time
 import weakref
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -72,7 +77,7 @@ _NAME_RE = re.compile(r"^tether-(\d+)-[A-Za-z0-9_.-]{1,180}$")
 #: first byte of a slot table (a msgpack array); a message body is always a map
 _NO_READER = (1 << 64) - 1
 _TABLE_ENCODER = msgspec.msgpack.Encoder()
-_TABLE_DECODER = msgspec.msgpack.Decoder()
+_TABLE_DECODER = msgspec.msgpack.Decoder(tuple[str, int, int, list[tuple[int, int, int]]])
 TABLE_MARKERS = frozenset(range(0x90, 0xA0)) | {0xDC, 0xDD}
 
 
@@ -83,16 +88,18 @@ class Settings:
     enabled: bool = True
     min_bytes: int = 64 << 10      # ``TETHER_SHM_MIN_BYTES``: smaller buffers stay ordinary frames
     pool_bytes: int = 256 << 20    # ``TETHER_SHM_POOL_BYTES``: per output (tmpfs pages are used only when touched)
+    wait_ms: int = 20              # ``TETHER_SHM_WAIT_MS``: longest wait for a free slot before sending frames
 
     @classmethod
     def from_env(cls) -> "Settings":
         enabled = os.environ.get("TETHER_SHM", "1") != "0" and os.path.isdir(SHM_DIR) and hasattr(fcntl, "F_OFD_SETLK")
-        return cls(enabled, _env_int("TETHER_SHM_MIN_BYTES", cls.min_bytes), _env_int("TETHER_SHM_POOL_BYTES", cls.pool_bytes))
+        return cls(enabled, _env_int("TETHER_SHM_MIN_BYTES", cls.min_bytes), _env_int("TETHER_SHM_POOL_BYTES", cls.pool_bytes),
+                   _env_int("TETHER_SHM_WAIT_MS", cls.wait_ms, low=0, high=10_000))
 
 
-def _env_int(name: str, default: int) -> int:
+def _env_int(name: str, default: int, *, low: int = 1024, high: int = 1 << 62) -> int:
     text = os.environ.get(name, "")
-    return int(text) if text.isdigit() and int(text) >= 1024 else default
+    return int(text) if text.isdigit() and low <= int(text) <= high else default
 
 
 def shm_topic(topic: bytes) -> bytes:
@@ -209,10 +216,12 @@ class Pool:
         self._local_gens: list[int] = []
         self._data: np.ndarray | None = None
         self._pending_since: int | None = 0     # a subscriber joined at this generation and has not registered
-        self._loans: dict[int, int] = {}           # slot -> loan serial, for arrays handed out by loan()
-        self._loan_serial = 0
+        self._loans: dict[int, tuple[int, Any]] = {}   # slot -> (id of the loaned array's base, its weak reference)
+        self._loan_bases: dict[int, tuple[int, int]] = {}   # id of a loaned base -> (slot, its bytes)
+        self._starved = False                      # the last wait for a slot ran out: do not wait again yet
         self._retired: list[Segment] = []
         self.placed = self.fallbacks = self.oversize = self.loaned = 0
+        self.waited = 0                            # messages that waited for a slot (back-pressure)
 
     def place(self, frames: Sequence[Any], readers: int = 0) -> tuple[bytes, list[Any], int] | None:
         """``(slot table, frames still to send, bytes placed)`` for ``[body, *buffers]``, or None (send as is).
@@ -262,43 +271,50 @@ class Pool:
 
         Publishing a message whose large arrays lie in it sends them without a copy; the array
         then belongs to the subscribers (the node must not write to it again)."""
-        nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        dtype = np.dtype(dtype)
+        nbytes = math.prod(shape) * dtype.itemsize
         need = _align(max(nbytes, 1))
         if nbytes < self.settings.min_bytes or need * 2 > self.settings.pool_bytes:
             return None
         seg = self.segment if self.segment is not None and self.segment.slot_bytes >= need else self._grow(need)
         slot = self._claim(seg, readers)
         if slot < 0:
-            self.fallbacks += 1
-            return None
+            return None                # a plain array: counted as a fallback if it cannot be placed either
         seg.gens[slot] = 0
-        array = np.frombuffer(seg.map, dtype, count=nbytes // np.dtype(dtype).itemsize, offset=seg.slot_at(slot))
-        self._loan_serial += 1
-        self._loans[slot] = self._loan_serial
-        weakref.finalize(array, self._unloan, seg, slot, self._loan_serial)
+        array = np.frombuffer(seg.map, dtype, count=nbytes // dtype.itemsize, offset=seg.slot_at(slot))
+        # every view of the loan (reshaped, sliced, the codec's byte view) has ``array`` as its base
+        key = id(array)
+        self._loans[slot] = (key, weakref.ref(array, lambda _, seg=seg, slot=slot, key=key: self._unloan(seg, slot, key)))
+        self._loan_bases[key] = (slot, nbytes)
         return array.reshape(shape)
 
     def _loaned_slot(self, frames: Sequence[Any], large: list[int], sizes: list[int]) -> tuple[int, list]:
         """The loaned slot every large buffer lies in, and where; ``(-1, [])`` if they do not."""
         seg = self.segment
-        start = self._data.ctypes.data
         found, where = -1, []
         for i, n in zip(large, sizes):
             src = frames[i]
-            addr = src.__array_interface__["data"][0] if isinstance(src, np.ndarray) else -1
-            slot = (addr - start - seg.data_offset) // seg.slot_bytes if addr >= start + seg.data_offset else -1
-            off = addr - start - seg.slot_at(slot) if slot >= 0 else -1
-            if slot not in self._loans or found not in (-1, slot) or off + n > seg.slot_bytes:
+            slot, whole = self._loan_bases.get(id(getattr(src, "base", None)), (-1, 0))
+            if slot < 0 or found not in (-1, slot):
                 return -1, []
+            if n == whole:
+                off = 0                    # a contiguous view as large as the loan is all of it
+            else:                          # part of the loan: where it starts
+                off = src.__array_interface__["data"][0] - self._data.ctypes.data - seg.slot_at(slot)
+                if off < 0 or off + n > seg.slot_bytes:
+                    return -1, []
             found = slot
             where.append((i - 1, off, n))
-        del self._loans[found]
+        key, _ = self._loans.pop(found)
+        del self._loan_bases[key]
         return found, where
 
-    def _unloan(self, seg: Segment, slot: int, serial: int) -> None:
+    def _unloan(self, seg: Segment, slot: int, key: int) -> None:
         """A loaned array died unpublished: its slot is free again."""
-        if self._loans.get(slot) == serial and seg is self.segment:
+        loan = self._loans.get(slot)
+        if loan is not None and loan[0] == key and seg is self.segment:
             del self._loans[slot]
+            self._loan_bases.pop(key, None)
             _lock(seg.fd, fcntl.F_UNLCK, _LOCK_SLOT + slot)
 
     def _grow(self, need: int) -> Segment:
@@ -310,12 +326,32 @@ class Pool:
         self._retire(keep_linked=True)         # messages in flight still name it: unlinked at the next growth
         self._serial += 1
         seg = Segment.create(f"{self.stem}-{self._serial}", slots, slot_bytes)
-        self.segment, self._local_gens, self._loans = seg, [0] * slots, {}
+        self.segment, self._local_gens, self._loans, self._loan_bases = seg, [0] * slots, {}, {}
         self._pending_since = 0                    # a new file: no reader has registered in it yet
         self._data = np.frombuffer(seg.map, np.uint8)
         return seg
 
     def _claim(self, seg: Segment, readers: int) -> int:
+        """A free slot, locked for writing, waiting for one (bounded, see the module's docstring); -1 if none."""
+        slot = self._try_claim(seg, readers)
+        if slot >= 0:
+            self._starved = False
+            return slot
+        if self._starved or self.settings.wait_ms <= 0:
+            return -1
+        self.waited += 1
+        deadline = time.monotonic() + self.settings.wait_ms / 1000
+        pause = 20e-6
+        while time.monotonic() < deadline:
+            time.sleep(pause)          # readers release slots without telling: poll, backing off to 0.5 ms
+            pause = min(2 * pause, 5e-4)
+            slot = self._try_claim(seg, readers)
+            if slot >= 0:
+                return slot
+        self._starved = True
+        return -1
+
+    def _try_claim(self, seg: Segment, readers: int) -> int:
         """The lowest slot no live reader holds or still waits for, locked for writing; -1 if none."""
         cells = seg.cells
         registered = int(np.count_nonzero(cells))
@@ -324,7 +360,7 @@ class Pool:
         elif self._pending_since is None:
             self._pending_since = self._gen
         for attempt in range(2):
-            floor = int(cells.min(where=cells != 0, initial=_NO_READER)) if registered else _NO_READER
+            floor = min(filter(None, cells.tolist()), default=_NO_READER) if registered else _NO_READER
             if self._pending_since is not None:
                 floor = min(floor, self._pending_since)
             for slot, gen in enumerate(self._local_gens):
@@ -391,12 +427,8 @@ class Reader:
         and the bytes they hold; None when the slot was already reused (counted in :attr:`stale`)."""
         try:
             name, slot, gen, where = _TABLE_DECODER.decode(table)
-            slot, gen = int(slot), int(gen)
-            where = [(int(k), int(off), int(n)) for k, off, n in where]
         except (ValueError, TypeError, msgspec.DecodeError) as exc:
             raise DecodeError(f"bad shared-memory slot table: {exc}") from None
-        if not isinstance(name, str):
-            raise DecodeError("bad shared-memory slot table: segment name is not a string")
         with self._lock:
             mapped = self._segments.get(name) or self._open(name)
             seg = mapped.segment

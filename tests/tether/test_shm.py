@@ -278,3 +278,50 @@ def test_a_loaned_array_is_published_without_a_copy() -> None:
         assert slot_of_dropped not in pool._loans
     finally:
         pool.close()
+
+
+def test_a_pinned_pool_costs_one_bounded_wait_then_frames_until_a_slot_frees() -> None:
+    pool, reader = shm.Pool("test.node.out", shm.Settings(pool_bytes=2 * MIB, wait_ms=5)), shm.Reader()
+    try:
+        kept = [_resolve(reader, pool.place(_frames(v), readers=1)) for v in (1, 2)]
+        assert all(pool.place(_frames(3 + i), readers=1) is None for i in range(4))
+        assert pool.fallbacks == 4 and pool.waited == 1            # one wait for the episode, not one per message
+        kept.pop()                                                 # a slot frees: waiting is allowed again
+        assert pool.place(_frames(7), readers=1) is not None and pool.place(_frames(8), readers=1) is None
+        assert pool.waited == 2 and pool.fallbacks == 5
+        assert (kept[0] == 1).all()                                # the held slot was never rewritten
+    finally:
+        pool.close()
+
+
+def test_a_publisher_waits_for_a_slot_a_subscriber_is_about_to_free() -> None:
+    """Back-pressure: a slot released during the wait carries the message (no frames, nothing rewritten early)."""
+    import threading
+
+    pool, reader = shm.Pool("test.node.out", shm.Settings(pool_bytes=2 * MIB, wait_ms=10_000)), shm.Reader()
+    try:
+        kept = [_resolve(reader, pool.place(_frames(v), readers=1)) for v in (1, 2)]
+        seen = []
+        timer = threading.Timer(0.05, lambda: (seen.append(int(kept[0][0])), kept.clear()))
+        timer.start()
+        placed = pool.place(_frames(3), readers=1)
+        timer.join()
+        assert placed is not None and pool.fallbacks == 0 and pool.waited == 1
+        assert seen == [1] and (_resolve(reader, placed) == 3).all()
+    finally:
+        pool.close()
+
+
+def test_part_of_a_loan_is_published_from_where_it_lies() -> None:
+    pool, reader = _pool(), shm.Reader()
+    try:
+        array = pool.loan((2, MIB // 2), np.dtype(np.uint8), readers=1)
+        array[0], array[1] = 4, 5
+        placed = pool.place([b"\x80", array[1].reshape(-1)], readers=1)
+        assert msgpack.unpackb(placed[0])[3] == [[0, MIB // 2, MIB // 2]] and pool.loaned == 1
+        assert (_resolve(reader, placed) == 5).all()
+        other = np.full(MIB, 6, np.uint8)                          # not a loan: copied into a slot
+        placed = pool.place([b"\x80", other], readers=1)
+        assert pool.loaned == 1 and pool.placed == 2 and (_resolve(reader, placed) == 6).all()
+    finally:
+        pool.close()

@@ -215,6 +215,8 @@ def test_a_loaned_array_crosses_without_a_copy(tmp_path: Path) -> None:
         _until(lambda: len(keeper.node.kept) == 4, "four loaned images")
     assert _values(keeper) == [1, 2, 3, 4]
     assert cam.shm_counters()["placed"] == 4
+    # ZeroMQ carried slot tables only: its receive queue is not sized (nor the socket replaced) for 1 MiB
+    assert keeper._largest_in["image"] < 4096 and keeper.inputs["image"].stats["received_bytes"] > 4 * MIB
 
 
 def test_node_statistics_and_node_info_carry_the_shared_memory_counters(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
