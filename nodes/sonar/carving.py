@@ -15,8 +15,8 @@ beam comes from *somewhere* on the arc of elevations across the vertical apertur
 
 Arc intersection then chooses the elevation: each arc, once ``settle_pings`` later pings have added
 their evidence, **votes** for its voxels of best score ``hits - miss_weight * misses - dark_weight *
-darks`` (where the arcs of many poses cross and no ping carved). The elevation extent of the arc's near-best voxels (score
->= ``near_best`` x best) is its elevation uncertainty: an arc no other view crosses (one ping, a pass
+darks`` (where the arcs of many poses cross and no ping carved). The elevation extent of the arc's
+near-best voxels (score >= ``near_best`` x best) is its elevation uncertainty: an arc no other view crosses (one ping, a pass
 that never changes the view) stays flat along its whole length, ``r s``, and says so; crossed by
 arcs of other poses it narrows to a few voxels. A voxel's ``sigma_m`` is the RMS over the arcs that
 voted for it of ``extent / sqrt(12)`` (a uniform spread), at least ``voxel / sqrt(12)``.
@@ -59,6 +59,7 @@ class CarvingParams:
     min_hits: int = 3                 # an arc votes only when its best voxel was hit by this many pings
     near_best: float = 0.8            # an arc's near-best voxels (its elevation extent): score >= this x best
     settle_pings: int = 20            # an arc votes once this many later pings have added evidence
+    carve_stride: int = 2             # a ping tests every carve_stride-th candidate in turn, counting for the others
     min_votes: int = 2                # a voxel is in the cloud when this many arcs voted for it
     min_support: float = 0.7          # ... and its score is still >= this x its hits (later views did not empty it)
     floor_margin_m: float = 0.15      # voxels this close to the seafloor are the seafloor, not the structure
@@ -74,8 +75,10 @@ class CarvingParams:
     def __post_init__(self) -> None:
         if not (self.voxel_m > 0 and self.margin_m >= 0 and 0 < self.arc_step_m <= self.voxel_m):
             raise ValueError("need voxel_m > 0, margin_m >= 0 and 0 < arc_step_m <= voxel_m")
-        if not (self.min_hits >= 1 and self.min_votes >= 1 and self.settle_pings >= 0 and 0 < self.near_best <= 1):
-            raise ValueError("need min_hits >= 1, min_votes >= 1, settle_pings >= 0 and 0 < near_best <= 1")
+        if not (self.min_hits >= 1 and self.min_votes >= 1 and self.carve_stride >= 1 and self.settle_pings >= 0
+                and 0 < self.near_best <= 1):
+            raise ValueError("need min_hits >= 1, min_votes >= 1, carve_stride >= 1, settle_pings >= 0 and "
+                             "0 < near_best <= 1")
         if self.returns not in ("front", "all") or not (0 < self.return_level < 1 and self.return_step_m > 0):
             raise ValueError("returns must be 'front' or 'all', 0 < return_level < 1, return_step_m > 0")
         if not (self.miss_weight >= 0 and self.dark_weight >= 0 and self.min_support <= 1):
@@ -155,7 +158,9 @@ class CarvingGrid:
         self._extent2 = np.zeros(0, np.float64)
         self._prec = np.zeros(0, np.float64)
         self._count = 0
-        self._alive = np.zeros(0, np.int64)             # candidate rows carving still tests
+        self._alive = np.zeros(0, np.int64)             # candidate rows carving still tests, their voxels, centres
+        self._alive_voxel = np.zeros(0, np.int64)
+        self._alive_centre = np.zeros((0, 3), np.float32)
         self._pending: deque[_PingArcs] = deque()      # arcs still settling, oldest first
         self.pings = 0
 
@@ -214,7 +219,11 @@ class CarvingGrid:
         if f == 1:
             return img, dr, 1
         m = img.shape[0] // f * f
-        small = cv2.resize(np.ascontiguousarray(img[:m]), (img.shape[1], m // f), interpolation=cv2.INTER_AREA)
+        if f == 2:                       # the usual case (2 cm cells, 10 cm voxels): one pass over strided rows
+            small = cv2.addWeighted(img[0:m:2], 0.5, img[1:m:2], 0.5, 0.0)
+        else:
+            small = img[:m].reshape(m // f, f, -1).mean(axis=1, dtype=np.float32)
+            small = np.rint(small).astype(img.dtype) if img.dtype.kind in "ui" else small
         return small, dr * f, f
 
     def _seafloor_rows(self, b: np.ndarray, m: int, dr: float, rot: np.ndarray, origin: np.ndarray,
@@ -238,14 +247,11 @@ class CarvingGrid:
              int(min(img.shape[0], max(float(np.nanmax(limit_rows, initial=0.0)), 0.0)))) // step * step
         if k < step:
             return None
-        rows = img[:k]
-        if img.dtype.kind == "f":
-            rows = np.nan_to_num(rows.astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-        full = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else 1.0
+        full = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else 1.0     # img is finite (_coarse)
         # the mean over each block (its speckle averaged, as a blur would), every other beam: neighbours lie a
         # few cm apart, well inside a voxel
-        block = cv2.resize(np.ascontiguousarray(rows[:, ::2]), (rows[:, ::2].shape[1], k // step),
-                           interpolation=cv2.INTER_AREA).astype(np.float32) * np.float32(1.0 / full)
+        cols = img[:k, ::2]
+        block = cols.reshape(k // step, step, cols.shape[1]).mean(axis=1, dtype=np.float32) * np.float32(1.0 / full)
         centre = (np.arange(k // step) + 0.5) * step
         level = np.where(centre[:, None] < limit_rows[::2][None, :], np.float32(p.return_level),
                          np.float32(p.floor_level))
@@ -272,39 +278,43 @@ class CarvingGrid:
             # a candidate carved far more than hit can never be an arc's best: stop testing it (it comes back
             # if hits lift its score again)
             rows = np.arange(self._count)
-            self._alive = rows[self._score(self._cand[rows]) > _DEAD]
-        alive = self._alive
-        if alive.size == 0:
+            self._set_alive(rows[self._score(self._cand[rows]) > _DEAD])
+        if self._alive.size == 0:
             return 0
-        local = (self._centre[alive] - origin.astype(np.float32)) @ rot.astype(np.float32)   # world -> sonar FRD
-        r2 = np.einsum("ij,ij->i", local, local)
         reach = float(max(free_m.max(initial=0.0), 0.0))
         if blocks is not None and p.dark_weight > 0:
             reach = max(reach, blocks.centre.size * blocks.step * blocks.dr)
-        near = np.flatnonzero((local[:, 0] > 0) & (r2 < reach * reach))
-        if near.size == 0:
+        # world -> sonar FRD as three contiguous rows (x, y, z); every test on squares, no gather until the end
+        # consecutive pings are a few cm apart and see nearly the same thing: each tests a share of the candidates
+        # in turn, and counts for the pings that skip them
+        stride = p.carve_stride
+        share = slice(self.pings % stride, None, stride)
+        voxels = self._alive_voxel[share]
+        x, y, z = rot.astype(np.float32).T @ (self._alive_centre[share] - origin.astype(np.float32)).T
+        r2 = x * x + y * y + z * z
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cell = self._bearing_cells(bearings, y / x)
+        ok = ((x > 0) & (r2 < np.float32(reach * reach)) & (z * z < np.float32(np.sin(half) ** 2) * r2)
+              & (cell >= 0) & (cell < self._lut[2].size))
+        sel = np.flatnonzero(ok)
+        if sel.size == 0:
             return 0
-        loc = local[near]
-        rr = np.sqrt(r2[near])
-        tan_b = loc[:, 1] / loc[:, 0]
-        beam, in_fan = self._beams(bearings, tan_b)
-        inside = np.flatnonzero(in_fan & (np.abs(loc[:, 2]) < np.float32(np.sin(half)) * rr))
-        rr, beam = rr[inside], beam[inside]
+        rr, beam = np.sqrt(r2[sel]), self._lut[2][cell[sel]]
         free = free_m[beam]
-        carve = rr < free
-        idx = self._cand[alive[near[inside[carve]]]]
-        self.misses[idx] = np.minimum(self.misses[idx].astype(np.int32) + 1, _U16)
+        idx = voxels[sel[rr < free]]
+        self.misses[idx] = np.minimum(self.misses[idx].astype(np.int32) + stride, _U16)
         if blocks is not None and p.dark_weight > 0:
             blk = (rr * np.float32(1.0 / (blocks.step * blocks.dr))).astype(np.int64)
             behind = np.flatnonzero((rr > free + 2 * p.margin_m) & (blk < blocks.centre.size))
             dark = ~blocks.near[blk[behind], np.minimum(beam[behind] // 2, blocks.near.shape[1] - 1)]
-            didx = self._cand[alive[near[inside[behind[dark]]]]]
-            self.darks[didx] = np.minimum(self.darks[didx].astype(np.int32) + 1, _U16)
+            didx = voxels[sel[behind[dark]]]
+            self.darks[didx] = np.minimum(self.darks[didx].astype(np.int32) + stride, _U16)
         return int(idx.size)
 
-    def _beams(self, bearings: np.ndarray, tan_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Beam of each direction by the tangent of its bearing (x > 0): a table of fine uniform bins over the
-        fan's tangents (cached per bearing table), no arctan or sorted search per candidate."""
+    def _bearing_cells(self, bearings: np.ndarray, tan_b: np.ndarray) -> np.ndarray:
+        """Cell of each direction's bearing tangent (x > 0) in a table of fine uniform bins over the fan
+        (``self._lut[2]`` maps a cell to its beam; outside the table: < 0 or >= its size). Cached per bearing
+        table: no arctan or sorted search per candidate."""
         key = bearings.tobytes()
         if self._lut_key != key:
             half_beam = 0.5 * float(np.median(np.diff(bearings)))
@@ -314,10 +324,8 @@ class CarvingGrid:
             centres = edges[0] + (np.arange(bins) + 0.5) * (edges[-1] - edges[0]) / bins
             lut = np.clip(np.searchsorted(edges, centres) - 1, 0, bearings.size - 1).astype(np.int32)
             self._lut, self._lut_key = (np.float32(edges[0]), np.float32(bins / (edges[-1] - edges[0])), lut), key
-        t0, scale, lut = self._lut
-        k = ((tan_b - t0) * scale).astype(np.int64)
-        ok = (k >= 0) & (k < lut.size)
-        return lut[np.clip(k, 0, lut.size - 1)], ok
+        t0, scale, _ = self._lut
+        return np.nan_to_num((tan_b - t0) * scale, nan=-1.0, posinf=-1.0, neginf=-1.0).astype(np.int32)
 
     def _score(self, voxels: np.ndarray) -> np.ndarray:
         """hits - miss_weight * misses - dark_weight * darks of ``voxels`` (float32)."""
@@ -336,18 +344,19 @@ class CarvingGrid:
         start = np.cumsum(per_arc) - per_arc
         phi = (-half + (np.arange(arc.size) - start[arc]) * (2 * half / (per_arc - 1))[arc]).astype(np.float32)
         r = ranges.astype(np.float32)[arc]
-        cb, sb = np.cos(bearings).astype(np.float32)[arc], np.sin(bearings).astype(np.float32)[arc]
-        cp, sp = np.cos(phi), np.sin(phi)
-        cols = rot.astype(np.float32)
-        rel = origin - self.origin
-        cell = np.empty((arc.size, 3), np.int64)
-        for axis in range(3):                          # world = origin + r (cp cb x + cp sb y + sp z) of the sonar
-            c = cols[axis]
-            w = r * (cp * (cb * c[0] + sb * c[1]) + sp * c[2]) + np.float32(rel[axis])
-            cell[:, axis] = np.floor(w * np.float32(1.0 / p.voxel_m))
-        ok = np.all((cell >= 0) & (cell < np.array(self.shape)), axis=1)
-        flat = np.ravel_multi_index(cell[ok].T, self.shape)
-        self._pending.append(_PingArcs(flat.astype(np.int64), arc[ok].astype(np.int32), (phi * r)[ok]))
+        along, across = r * np.cos(phi), r * np.sin(phi)       # along the beam's horizontal direction, along z
+        axes = rot.astype(np.float32)                          # columns: the sonar's x, y, z in the world
+        beam_dir = axes[:, :2] @ np.stack([np.cos(bearings), np.sin(bearings)]).astype(np.float32)   # (3, arcs)
+        rel = (origin - self.origin) * (1.0 / p.voxel_m)
+        flat = np.zeros(arc.size, np.int32)
+        ok = np.ones(arc.size, bool)
+        for axis, n in enumerate(self.shape):         # world = origin + along * beam_dir + across * z of the sonar
+            i = np.floor((along * beam_dir[axis][arc] + across * axes[axis, 2]) * np.float32(1.0 / p.voxel_m)
+                         + np.float32(rel[axis])).astype(np.int32)
+            ok &= (i >= 0) & (i < n)
+            flat = flat * np.int32(n) + i
+        flat = flat[ok].astype(np.int64)
+        self._pending.append(_PingArcs(flat, arc[ok].astype(np.int32), (phi * r)[ok]))
         self.hits[flat] = np.minimum(self.hits[flat].astype(np.int32) + 1, _U16)   # buffered: once per voxel per ping
         return self._slots_for(flat), int((~ok).sum())
 
@@ -368,7 +377,13 @@ class CarvingGrid:
             self._slot[new] = rows
             self._count = need
             self._alive = np.concatenate([self._alive, rows])
+            self._alive_voxel = np.concatenate([self._alive_voxel, new])
+            self._alive_centre = np.concatenate([self._alive_centre, self._centre[rows]])
         return int(new.size)
+
+    def _set_alive(self, rows: np.ndarray) -> None:
+        """The candidate rows carving tests, with their voxels and centres packed (no gather per ping)."""
+        self._alive, self._alive_voxel, self._alive_centre = rows, self._cand[rows], self._centre[rows]
 
     def _vote(self, arcs: _PingArcs) -> None:
         """Each arc of one ping votes for its best-scoring voxels, with the extent of its near-best ones."""
