@@ -16,10 +16,12 @@ beam comes from *somewhere* on the arc of elevations across the vertical apertur
 Arc intersection then chooses the elevation: each arc, once ``settle_pings`` later pings have added
 their evidence, **votes** for its voxels of best score ``hits - miss_weight * misses - dark_weight *
 darks`` (where the arcs of many poses cross and no ping carved). The elevation extent of the arc's
-near-best voxels (score >= ``near_best`` x best) is its elevation uncertainty: an arc no other view crosses (one ping, a pass
-that never changes the view) stays flat along its whole length, ``r s``, and says so; crossed by
-arcs of other poses it narrows to a few voxels. A voxel's ``sigma_m`` is the RMS over the arcs that
-voted for it of ``extent / sqrt(12)`` (a uniform spread), at least ``voxel / sqrt(12)``.
+near-best voxels (score >= ``near_best`` x best) is its elevation uncertainty: an arc no other view
+crosses (one ping, a pass that never changes the view) stays flat along its whole length, ``r s``,
+and says so; crossed by arcs of other poses it narrows to a few voxels. A voxel's ``sigma_m`` is the
+RMS over the arcs that voted for it of ``extent / sqrt(12)`` (a uniform spread), at least
+``voxel / sqrt(12)``. A voted voxel leaves the cloud when later views empty it (score <
+``min_support`` x hits).
 
 Returns are every beam's front end (``nodes.sonar.highlight.detect_front_ends``, in the region before
 the seafloor's near edge ``r_emin``, eq. 8) and, with ``returns="all"``, every bright range block
