@@ -228,6 +228,10 @@ class NodeRuntime(Context):
                 if to_shm:
                     _send(self.pub, self._shm_topics[topic], frames if placed is None else [placed[0], *placed[1]])
                 if plain or not to_shm:
+                    if placed is not None and self._pools[output].last_loaned:
+                        # the loaned slot is reused once shared-memory readers let go; a plain
+                        # subscriber's queue may still hold these frames then: it gets a copy
+                        frames = [frames[0], *(bytes(f) if shm._nbytes(f) >= self._shm.min_bytes else f for f in frames[1:])]
                     _send(self.pub, topic, frames)
                 self._published_bytes[output] += nbytes + len(topic)
             self._published[output] += 1

@@ -109,11 +109,19 @@ def shm_topic(topic: bytes) -> bytes:
 
 def _lock(fd: int, kind: int, offset: int) -> bool:
     """Take (or with ``F_UNLCK`` drop) an open-file-description lock on one byte, never waiting."""
+    request = _REQUESTS.get((kind, offset))
+    if request is None:
+        request = _REQUESTS[kind, offset] = _FLOCK.pack(kind, os.SEEK_SET, offset, 1, 0)
     try:
-        fcntl.fcntl(fd, fcntl.F_OFD_SETLK, _FLOCK.pack(kind, os.SEEK_SET, offset, 1, 0))
+        fcntl.fcntl(fd, _SETLK, request)
         return True
     except OSError:
         return False
+
+
+_SETLK = getattr(fcntl, "F_OFD_SETLK", 37)
+#: packed ``struct flock`` per (kind, byte): a few hundred at most (owner, slot and reader bytes)
+_REQUESTS: dict[tuple[int, int], bytes] = {}
 
 
 class ShmUnavailable(DecodeError):
@@ -222,6 +230,9 @@ class Pool:
         self._retired: list[Segment] = []
         self.placed = self.fallbacks = self.oversize = self.loaned = 0
         self.waited = 0                            # messages that waited for a slot (back-pressure)
+        #: the last :meth:`place` took a loaned slot as it was: the caller's buffers *are* that slot,
+        #: which is reused once the table's readers let go -- copy them before sending them elsewhere
+        self.last_loaned = False
 
     def place(self, frames: Sequence[Any], readers: int = 0) -> tuple[bytes, list[Any], int] | None:
         """``(slot table, frames still to send, bytes placed)`` for ``[body, *buffers]``, or None (send as is).
@@ -234,6 +245,7 @@ class Pool:
             return None
         sizes = [_nbytes(frames[i]) for i in large]
         slot, where = self._loaned_slot(frames, large, sizes) if self._loans else (-1, [])
+        self.last_loaned = slot >= 0
         if slot >= 0:
             seg = self.segment
             self.loaned += 1
@@ -353,14 +365,14 @@ class Pool:
 
     def _try_claim(self, seg: Segment, readers: int) -> int:
         """The lowest slot no live reader holds or still waits for, locked for writing; -1 if none."""
-        cells = seg.cells
-        registered = int(np.count_nonzero(cells))
+        live = [c for c in seg.cells.tolist() if c]
+        registered = len(live)
         if registered >= readers:
             self._pending_since = None
         elif self._pending_since is None:
             self._pending_since = self._gen
         for attempt in range(2):
-            floor = min(filter(None, cells.tolist()), default=_NO_READER) if registered else _NO_READER
+            floor = min(live) if live else _NO_READER
             if self._pending_since is not None:
                 floor = min(floor, self._pending_since)
             for slot, gen in enumerate(self._local_gens):
@@ -368,7 +380,7 @@ class Pool:
                     return slot
             if attempt or not self._reap_readers(seg):
                 return -1
-            registered = int(np.count_nonzero(cells))
+            live = [c for c in seg.cells.tolist() if c]
         return -1
 
     @staticmethod
@@ -434,8 +446,13 @@ class Reader:
             seg = mapped.segment
             if not 0 <= slot < seg.slots or gen <= 0:
                 raise DecodeError(f"slot {slot} generation {gen} is outside segment {name}")
-            end = max((off + n for _, off, n in where), default=0)
-            if any(off < 0 or n < 0 for _, off, n in where) or end > seg.slot_bytes:
+            end = 0
+            for _, off, n in where:
+                if off < 0 or n < 0:
+                    end = seg.slot_bytes + 1
+                elif off + n > end:
+                    end = off + n
+            if end > seg.slot_bytes:
                 raise DecodeError(f"slot table reaches past the {seg.slot_bytes}-byte slot of {name}")
             if not mapped.hold(slot, gen, register_gen=gen):
                 self.stale += 1

@@ -248,3 +248,41 @@ def test_node_statistics_and_node_info_carry_the_shared_memory_counters(tmp_path
     older = msgspec.msgpack.encode({"type": "std.NodeStats", "node_id": "old", "published": {"old/x": 2}})
     decoded = msgspec.msgpack.decode(older, type=NodeStats)
     assert decoded.node_id == "old" and decoded.shm_placed == 0 and decoded.shm_stale == 0
+
+
+class Taker(Node):
+    """Notes each image's value and lets the image go (its slot is free again at once)."""
+
+    inputs = {"image": Input(Image, depth=1000, max_queue_bytes=1 << 31)}
+
+    def setup(self) -> None:
+        self.values: list[int] = []
+
+    def on_image(self, msg: Image) -> None:
+        assert msg.data.min() == msg.data.max()
+        self.values.append(int(msg.data[0, 0]))
+
+
+def test_a_plain_subscriber_of_loaned_images_never_sees_a_reused_slot(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """Loaned slots are reused as soon as the shared-memory reader lets go; a plain subscriber that has
+    not read yet (its frames still queued in ZeroMQ) must still get each image as it was published."""
+    monkeypatch.setenv("TETHER_SHM_POOL_BYTES", str(2 * MIB))        # two slots: reused every other image
+    monkeypatch.setenv("TETHER_SHM_WAIT_MS", "10000")                 # each loan waits for the taker to let go
+    endpoint = f"ipc://{tmp_path}/cam"
+    cam = _cam(endpoint, 2, count=8, loan=True)
+    taker = NodeRuntime(RunSpec(graph="g", node_id="take", node="test:Taker",
+                                inputs={"image": Source(topic="cam/image", endpoint=endpoint)}), Taker)
+    plain = zmq.Context.instance().socket(zmq.SUB)
+    plain.rcvhwm = 100
+    plain.connect(endpoint)
+    plain.setsockopt(zmq.SUBSCRIBE, b"cam/image")
+    plain.rcvtimeo = 30_000
+    try:
+        with _running(taker, cam):
+            _until(lambda: len(taker.node.values) == 8, "eight images through shared memory")
+            got = [plain.recv_multipart() for _ in range(8)]            # read only now
+        assert taker.node.values == list(range(1, 9)) and cam.shm_counters()["loaned"] >= 4
+        assert [(f[2][0], f[2][-1], len(f[2])) for f in got] == [(v, v, MIB) for v in range(1, 9)]
+    finally:
+        plain.close(linger=0)
