@@ -13,8 +13,12 @@ true poses): the paper's highlight cloud (beam model, no seafloor fill) beside t
 (nodes.sonar.carving: free-space carving and arc voting), each scored against the tripod's surface:
 accuracy (distance from each cloud point to the surface: median, p90, fraction within 0.1 / 0.2 m)
 and completeness (fraction of the surface the pass saw -- model samples within 0.1 m of a true first
-hit -- with a cloud point within 0.2 m), and ms per ping. The carved cloud's knob is the largest
-elevation 1-sigma a published point may have (``max_sigma_m``); the headline is the node's default.
+hit -- with a cloud point within 0.2 m), and ms per ping (median over the pass, and over the pings
+with the structure in the fan). The carved cloud's knob is the largest elevation 1-sigma a published
+point may have (``max_sigma_m``); the headline is the node's default. Where completeness goes: the
+share of the visible surface near any voxel ever hit, near any voted voxel, near a published one; and
+what the pass geometry allows (``ambiguity``: visible points with a ghost elsewhere on their
+elevation arc that every view that saw them measures at the same range and bearing).
 
     python bench/sonar_cloud.py [--quick] [--json]
 """
@@ -145,6 +149,11 @@ def main() -> None:
                     highlight_completeness_0p2=hl["completeness_0p2"], highlight_ms_per_ping=demo["ms_highlight"],
                     highlight_points=hl["points"], demo_pings=demo["pings"],
                     ms_ratio_to_highlight=demo["ms_ratio"], ms_per_ping_front_only=demo["ms_front"],
+                    ms_per_ping_in_view=demo["ms_carving_in_view"],
+                    highlight_ms_per_ping_in_view=demo["ms_highlight_in_view"], pings_in_view=demo["pings_in_view"],
+                    completeness_candidates=demo["reach"]["candidates"],
+                    completeness_voted_any_sigma=demo["reach"]["voted"], ambiguous_frac=demo["ambiguous_frac"],
+                    ambiguous_uncarved_frac=demo["ambiguous_uncarved_frac"],
                     goals=dict(acc_frac_0p2=0.9, completeness_0p2=0.7, ms_per_ping=5.0), goal_ms_per_ping=5.0,
                     height_rmse_m=head["rmse"], detection_rate=head["rate"], height_ms_per_ping=head["ms"],
                     height_rmse_m_paper_model=paper["rmse"], speckle=1.0, sigma_px=1.5, beams=N_BEAMS,
@@ -170,6 +179,15 @@ def main() -> None:
     print(f"ms per ping (median): highlight {demo['ms_highlight']:.2f}, carving {demo['ms_carving']:.2f} (front ends "
           f"only {demo['ms_front']:.2f}); carving / highlight on the same ping: median {demo['ms_ratio']:.1f}x "
           f"(goal <= 5 ms)")
+    print(f"pings with the structure in the fan ({demo['pings_in_view']} of {demo['pings']}): highlight "
+          f"{demo['ms_highlight_in_view']:.2f}, carving {demo['ms_carving_in_view']:.2f} ms per ping (median)")
+    print(f"where completeness goes: every voxel ever hit {100 * demo['reach']['candidates']:.1f} %, voted (any sigma) "
+          f"{100 * demo['reach']['voted']:.1f} %, published (sigma <= {DEFAULT_SIGMA} m) "
+          f"{100 * carved['completeness_0p2']:.1f} %")
+    print(f"pass geometry: {100 * demo['ambiguous_frac']:.1f} % of the visible surface has a ghost > 0.2 m away that "
+          f"matches its range within {100 * demo['ambiguity_tol'][0]:.0f} cm and bearing within "
+          f"{demo['ambiguity_tol'][1]:g} deg in every view that saw it; {100 * demo['ambiguous_uncarved_frac']:.1f} % "
+          f"has one this run's carving left standing")
     print(f"headline (carved, all returns, sigma <= {DEFAULT_SIGMA} m): {100 * carved['acc_frac_0p2']:.1f} % within "
           f"0.2 m (goal >= 90), completeness {100 * carved['completeness_0p2']:.1f} % (goal >= 70)")
     print(f"cloud picture: {demo['plot']}")
@@ -186,13 +204,14 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
     scene = load_scene("tripod")
     floor = scene.seafloor.z_m
     rng = np.random.default_rng(0)
-    pings, hits = [], []
+    pings, hits, in_view = [], [], []
     times = np.arange(0.0, seconds, 1.0 / rate_hz)
     for k, t in enumerate(times):
         pose = scene.sonar_pose(float(t))
         r = render_ping(scene, pose, PingSettings(n_beams=512, range_m=20.0), rng=rng)
         pings.append((pose, r.intensities, r.bearings_rad, r.range_resolution_m, r.vertical_aperture_rad))
         hits.append(r.hits_m[r.hit_labels > 0])
+        in_view.append(bool(np.any(r.hit_labels > 0)))           # the structure is in the fan
         if k % 50 == 0:
             print(f"  rendering the demo pass: ping {k + 1}/{len(times)}", file=sys.stderr)
     surface, _ = sample_structures(scene, 0.03)
@@ -229,12 +248,67 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
                 best = c
     ms_carving = float(np.median(ms["all"]))
     ratio = float(np.median(np.asarray(ms["all"]) / np.maximum(ms["highlight"], 1e-6)))
+    view = np.asarray(in_view)
+    grid = grids["all"]
+    # where the completeness goes: every voxel ever hit (all the voting can choose from), then every voted one
+    reach = {"candidates": cloud_metrics(grid.candidate_points(), surface, visible)["completeness_0p2"],
+             "voted": next(r for r in rows if r["returns"] == "all" and r["max_sigma_m"] == np.inf)["completeness_0p2"]}
+    print("  the pass geometry: looking for ghosts of the visible surface", file=sys.stderr)
+    bound = ambiguity(visible, hits, [p[0] for p in pings], pings[0][4], grid)
     plot = out_dir / "sonar_cloud_demo.png"
     save_cloud_png(plot, np.concatenate(hl_pts), model, title="demo pass: highlight cloud (paper) and carved cloud, "
                    "true poses", carved=best.points_m, carved_sigma=best.sigma_m,
                    carved_label=f"carved cloud (sigma <= {DEFAULT_SIGMA} m)")
     return dict(rows=rows, highlight=highlight, ms_highlight=float(np.median(ms["highlight"])), ms_carving=ms_carving,
-                ms_ratio=ratio, ms_front=float(np.median(ms["front"])), pings=len(pings), plot=str(plot))
+                ms_ratio=ratio, ms_front=float(np.median(ms["front"])), pings=len(pings), plot=str(plot),
+                pings_in_view=int(view.sum()), ms_carving_in_view=float(np.median(np.asarray(ms["all"])[view])),
+                ms_highlight_in_view=float(np.median(np.asarray(ms["highlight"])[view])), reach=reach, **bound)
+
+
+def ambiguity(visible: np.ndarray, hits: list[np.ndarray], poses: list[np.ndarray], spread: float, grid: CarvingGrid,
+              *, samples: int = 1500, tol_r_m: float = 0.05, tol_b_deg: float = 0.25) -> dict:
+    """What the pass geometry lets any method resolve: for each sampled visible point, a *ghost* is a point of
+    its elevation arc (in the middle view that saw it) more than 0.2 m away, 0.15 m above the seafloor or more,
+    whose range and bearing match the point's within ``tol_r_m`` / ``tol_b_deg`` in every view that saw it
+    (its true first hits within 0.1 m). ``ambiguous_frac``: points with a ghost; ``ambiguous_uncarved_frac``:
+    with a ghost this run's carving left standing (fewer than 2 misses and 4 darks)."""
+    from scipy.spatial import cKDTree
+
+    ping_of = np.repeat(np.arange(len(hits)), [len(h) for h in hits])
+    tree = cKDTree(np.concatenate(hits))
+    pick = np.random.default_rng(0).choice(len(visible), min(samples, len(visible)), replace=False)
+    half, tol_b = 0.5 * spread, np.radians(tol_b_deg)
+    floor = grid.seafloor_z_m if grid.seafloor_z_m is not None else -np.inf
+
+    def polar(p: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        loc = (p - pose[:3, 3]) @ pose[:3, :3]
+        r = np.linalg.norm(loc, axis=-1)
+        return r, np.arctan2(loc[..., 1], loc[..., 0]), np.arcsin(np.clip(loc[..., 2] / r, -1, 1))
+
+    ghost, standing = np.zeros(len(pick), bool), np.zeros(len(pick), bool)
+    for n, i in enumerate(pick):
+        v = visible[i]
+        seen = np.unique(ping_of[tree.query_ball_point(v, 0.1)])
+        mid = poses[seen[len(seen) // 2]]
+        r0, b0, _ = polar(v, mid)
+        phi = np.linspace(-half, half, 200)
+        arc = np.stack([r0 * np.cos(phi) * np.cos(b0), r0 * np.cos(phi) * np.sin(b0), r0 * np.sin(phi)], 1)
+        g = arc @ mid[:3, :3].T + mid[:3, 3]
+        g = g[(np.linalg.norm(g - v, axis=1) > 0.2) & (g[:, 2] > floor + 0.15)]
+        fits = np.ones(len(g), bool)
+        for k in seen:
+            rv, bv, _ = polar(v, poses[k])
+            rg, bg, eg = polar(g, poses[k])
+            fits &= (np.abs(rg - rv) < tol_r_m) & (np.abs(bg - bv) < tol_b) & (np.abs(eg) < half)
+        g = g[fits]
+        ghost[n] = len(g) > 0
+        cell = np.floor((g - grid.origin) / grid.params.voxel_m).astype(int)
+        inside = np.all((cell >= 0) & (cell < np.array(grid.shape)), axis=1)
+        flat = np.ravel_multi_index(cell[inside].T, grid.shape)
+        emptied = (grid.misses[flat] >= 2) | (grid.darks[flat] >= 4)
+        standing[n] = np.any(~emptied) or np.any(~inside)
+    return dict(ambiguous_frac=float(ghost.mean()), ambiguous_uncarved_frac=float(standing.mean()),
+                ambiguity_samples=int(len(pick)), ambiguity_tol=(tol_r_m, tol_b_deg))
 
 
 def plot(rows, path: Path) -> None:

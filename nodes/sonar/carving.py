@@ -412,6 +412,10 @@ class CarvingGrid:
         ijk = np.stack(np.unravel_index(voxels, self.shape), axis=1)
         return ((ijk + 0.5) * self.params.voxel_m + self.origin).astype(np.float32)
 
+    def candidate_points(self) -> np.ndarray:
+        """World centres (K, 3) of every voxel ever hit: all the voting can choose from."""
+        return self._centre[:self._count].copy()
+
     @property
     def candidates(self) -> int:
         """Voxels ever hit (those carving tests in each ping)."""
