@@ -365,7 +365,7 @@ class Pool:
 
     def _try_claim(self, seg: Segment, readers: int) -> int:
         """The lowest slot no live reader holds or still waits for, locked for writing; -1 if none."""
-        live = [c for c in seg.cells.tolist() if c]
+        live = list(filter(None, seg.cells.tolist()))
         registered = len(live)
         if registered >= readers:
             self._pending_since = None
@@ -380,7 +380,7 @@ class Pool:
                     return slot
             if attempt or not self._reap_readers(seg):
                 return -1
-            live = [c for c in seg.cells.tolist() if c]
+            live = list(filter(None, seg.cells.tolist()))
         return -1
 
     @staticmethod
@@ -458,10 +458,15 @@ class Reader:
                 self.stale += 1
                 return None
         lease = np.frombuffer(seg.map, np.uint8, count=end, offset=seg.slot_at(slot))
-        lease.flags.writeable = False
+        lease.setflags(write=False)
         ref = weakref.ref(lease, self._release)
         self._leases[id(ref)] = (ref, mapped, slot)
         view = memoryview(lease)                      # its slices keep ``lease`` (and so the lease) alive
+        if len(where) == 1 and len(frames) == 1:      # the usual message: one large array, nothing else
+            k, off, n = where[0]
+            if k != 0:
+                raise DecodeError(f"slot table names buffer {k} of a message with one")
+            return [frames[0], view[off:off + n]], n
         body, rest = frames[0], iter(frames[1:])
         out: list[Any] = [None] * (len(frames) - 1 + len(where))
         for k, off, n in where:
@@ -532,7 +537,12 @@ class _Mapped:
         elif int(seg.gens[slot]) != gen:
             return False              # we hold a newer message of this slot; this one is gone
         self.held[slot] = count + 1
-        self._advance(register_gen)
+        reader = self.reader
+        if reader >= 0:               # _advance, inlined: once per message
+            if register_gen > int(seg.cells[reader]):
+                seg.cells[reader] = register_gen
+        else:
+            self._advance(register_gen)
         return True
 
     def _advance(self, gen: int) -> None:
