@@ -158,11 +158,10 @@ class CarvingGrid:
         self._centre = np.zeros((0, 3), np.float32)
         self._votes = np.zeros(0, np.int32)
         self._extent2 = np.zeros(0, np.float64)
-        self._prec = np.zeros(0, np.float64)
         self._count = 0
-        self._alive = np.zeros(0, np.int64)             # candidate rows carving still tests, their voxels, centres
-        self._alive_voxel = np.zeros(0, np.int64)
+        self._alive_voxel = np.zeros(0, np.int64)       # the candidates carving still tests: voxels, centres
         self._alive_centre = np.zeros((0, 3), np.float32)
+        self._n_alive = 0
         self._pending: deque[_PingArcs] = deque()      # arcs still settling, oldest first
         self.pings = 0
 
@@ -281,7 +280,7 @@ class CarvingGrid:
             # if hits lift its score again)
             rows = np.arange(self._count)
             self._set_alive(rows[self._score(self._cand[rows]) > _DEAD])
-        if self._alive.size == 0:
+        if self._n_alive == 0:
             return 0
         reach = float(max(free_m.max(initial=0.0), 0.0))
         if blocks is not None and p.dark_weight > 0:
@@ -291,8 +290,8 @@ class CarvingGrid:
         # in turn, and counts for the pings that skip them
         stride = p.carve_stride
         share = slice(self.pings % stride, None, stride)
-        voxels = self._alive_voxel[share]
-        x, y, z = rot.astype(np.float32).T @ (self._alive_centre[share] - origin.astype(np.float32)).T
+        voxels = self._alive_voxel[:self._n_alive][share]
+        x, y, z = rot.astype(np.float32).T @ (self._alive_centre[:self._n_alive][share] - origin.astype(np.float32)).T
         r2 = x * x + y * y + z * z
         with np.errstate(divide="ignore", invalid="ignore"):
             cell = self._bearing_cells(bearings, y / x)
@@ -373,19 +372,27 @@ class CarvingGrid:
                 self._cand, self._centre = np.resize(self._cand, cap), np.resize(self._centre, (cap, 3))
                 self._votes = np.concatenate([self._votes, np.zeros(cap - self._votes.size, np.int32)])
                 self._extent2 = np.concatenate([self._extent2, np.zeros(cap - self._extent2.size)])
-                self._prec = np.concatenate([self._prec, np.zeros(cap - self._prec.size)])
             rows = np.arange(self._count, need)
             self._cand[rows], self._centre[rows] = new, self.centres(new)
             self._slot[new] = rows
             self._count = need
-            self._alive = np.concatenate([self._alive, rows])
-            self._alive_voxel = np.concatenate([self._alive_voxel, new])
-            self._alive_centre = np.concatenate([self._alive_centre, self._centre[rows]])
+            self._add_alive(new, self._centre[rows])
         return int(new.size)
 
     def _set_alive(self, rows: np.ndarray) -> None:
-        """The candidate rows carving tests, with their voxels and centres packed (no gather per ping)."""
-        self._alive, self._alive_voxel, self._alive_centre = rows, self._cand[rows], self._centre[rows]
+        """The candidates carving tests: their voxels and centres packed (no gather per ping)."""
+        self._n_alive = 0
+        self._add_alive(self._cand[rows], self._centre[rows])
+
+    def _add_alive(self, voxels: np.ndarray, centres: np.ndarray) -> None:
+        """Append to the packed candidates carving tests (capacity doubles: no copy of all of them per ping)."""
+        n, need = self._n_alive, self._n_alive + voxels.size
+        if need > self._alive_voxel.size:
+            cap = max(need, 2 * self._alive_voxel.size, 4096)
+            self._alive_voxel = np.concatenate([self._alive_voxel[:n], np.zeros(cap - n, np.int64)])
+            self._alive_centre = np.concatenate([self._alive_centre[:n], np.zeros((cap - n, 3), np.float32)])
+        self._alive_voxel[n:need], self._alive_centre[n:need] = voxels, centres
+        self._n_alive = need
 
     def _vote(self, arcs: _PingArcs) -> None:
         """Each arc of one ping votes for its best-scoring voxels, with the extent of its near-best ones."""
@@ -404,7 +411,6 @@ class CarvingGrid:
         slots = self._slot[arcs.voxel[win]]
         np.add.at(self._votes, slots, 1)
         np.add.at(self._extent2, slots, extent[win].astype(np.float64) ** 2)
-        np.add.at(self._prec, slots, 1.0 / extent[win].astype(np.float64) ** 2)
 
     # -- results --------------------------------------------------------------------------
     def centres(self, voxels: np.ndarray) -> np.ndarray:
