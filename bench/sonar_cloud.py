@@ -16,9 +16,11 @@ and completeness (fraction of the surface the pass saw -- model samples within 0
 hit -- with a cloud point within 0.2 m), and ms per ping (median over the pass, and over the pings
 with the structure in the fan). The carved cloud's knob is the largest elevation 1-sigma a published
 point may have (``max_sigma_m``); the headline is the node's default. Where completeness goes: the
-share of the visible surface near any voxel ever hit, near any voted voxel, near a published one; and
-what the pass geometry allows (``ambiguity``: visible points with a ghost elsewhere on their
-elevation arc that every view that saw them measures at the same range and bearing).
+share of the visible surface near any voxel ever hit, near any voted voxel, near a published one; the
+headline's completeness over the surface seen by >= 5 pings (the rule above counts what one ping saw:
+reported beside it, the headline keeps the rule); and what the pass geometry allows (``ambiguity``:
+visible points with a ghost elsewhere on their elevation arc that every view that saw them measures
+at the same range and bearing).
 
     python bench/sonar_cloud.py [--quick] [--json]
 """
@@ -153,6 +155,7 @@ def main() -> None:
                     highlight_ms_per_ping_in_view=demo["ms_highlight_in_view"], pings_in_view=demo["pings_in_view"],
                     completeness_candidates=demo["reach"]["candidates"],
                     completeness_voted_any_sigma=demo["reach"]["voted"], ambiguous_frac=demo["ambiguous_frac"],
+                    completeness_0p2_seen5=demo["reach"]["seen5"], visible_seen5_frac=demo["reach"]["seen5_frac"],
                     ambiguous_uncarved_frac=demo["ambiguous_uncarved_frac"],
                     goals=dict(acc_frac_0p2=0.9, completeness_0p2=0.7, ms_per_ping=5.0), goal_ms_per_ping=5.0,
                     height_rmse_m=head["rmse"], detection_rate=head["rate"], height_ms_per_ping=head["ms"],
@@ -183,7 +186,8 @@ def main() -> None:
           f"{demo['ms_highlight_in_view']:.2f}, carving {demo['ms_carving_in_view']:.2f} ms per ping (median)")
     print(f"where completeness goes: every voxel ever hit {100 * demo['reach']['candidates']:.1f} %, voted (any sigma) "
           f"{100 * demo['reach']['voted']:.1f} %, published (sigma <= {DEFAULT_SIGMA} m) "
-          f"{100 * carved['completeness_0p2']:.1f} %")
+          f"{100 * carved['completeness_0p2']:.1f} %; over the surface seen by >= 5 pings "
+          f"({100 * demo['reach']['seen5_frac']:.0f} % of it) {100 * demo['reach']['seen5']:.1f} %")
     print(f"pass geometry: {100 * demo['ambiguous_frac']:.1f} % of the visible surface has a ghost > 0.2 m away that "
           f"matches its range within {100 * demo['ambiguity_tol'][0]:.0f} cm and bearing within "
           f"{demo['ambiguity_tol'][1]:g} deg in every view that saw it; {100 * demo['ambiguous_uncarved_frac']:.1f} % "
@@ -249,12 +253,8 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
     ms_carving = float(np.median(ms["all"]))
     ratio = float(np.median(np.asarray(ms["all"]) / np.maximum(ms["highlight"], 1e-6)))
     view = np.asarray(in_view)
-    grid = grids["all"]
-    # where the completeness goes: every voxel ever hit (all the voting can choose from), then every voted one
-    reach = {"candidates": cloud_metrics(grid.candidate_points(), surface, visible)["completeness_0p2"],
-             "voted": next(r for r in rows if r["returns"] == "all" and r["max_sigma_m"] == np.inf)["completeness_0p2"]}
-    print("  the pass geometry: looking for ghosts of the visible surface", file=sys.stderr)
-    bound = ambiguity(visible, hits, [p[0] for p in pings], pings[0][4], grid)
+    diagnosis = where_completeness_goes(grids["all"], best, rows, surface, visible, hits, [p[0] for p in pings],
+                                        pings[0][4])
     plot = out_dir / "sonar_cloud_demo.png"
     save_cloud_png(plot, np.concatenate(hl_pts), model, title="demo pass: highlight cloud (paper) and carved cloud, "
                    "true poses", carved=best.points_m, carved_sigma=best.sigma_m,
@@ -262,7 +262,30 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
     return dict(rows=rows, highlight=highlight, ms_highlight=float(np.median(ms["highlight"])), ms_carving=ms_carving,
                 ms_ratio=ratio, ms_front=float(np.median(ms["front"])), pings=len(pings), plot=str(plot),
                 pings_in_view=int(view.sum()), ms_carving_in_view=float(np.median(np.asarray(ms["all"])[view])),
-                ms_highlight_in_view=float(np.median(np.asarray(ms["highlight"])[view])), reach=reach, **bound)
+                ms_highlight_in_view=float(np.median(np.asarray(ms["highlight"])[view])), **diagnosis)
+
+
+def where_completeness_goes(grid: CarvingGrid, best, rows: list[dict], surface: np.ndarray, visible: np.ndarray,
+                            hits: list[np.ndarray], poses: list[np.ndarray], spread: float) -> dict:
+    """Completeness near every voxel ever hit (all the voting can choose from), near every voted one (any
+    sigma), over the surface seen by >= 5 pings (the visibility rule counts what one ping saw), and what the
+    pass geometry allows (:func:`ambiguity`)."""
+    reach = {"candidates": cloud_metrics(grid.candidate_points(), surface, visible)["completeness_0p2"],
+             "voted": next(r for r in rows if r["returns"] == "all" and r["max_sigma_m"] == np.inf)["completeness_0p2"]}
+    views = views_of(visible, hits)
+    reach["seen5"] = cloud_metrics(best.points_m, surface, visible[views >= 5])["completeness_0p2"]
+    reach["seen5_frac"] = float(np.mean(views >= 5))
+    print("  the pass geometry: looking for ghosts of the visible surface", file=sys.stderr)
+    return dict(reach=reach, **ambiguity(visible, hits, poses, spread, grid))
+
+
+def views_of(points: np.ndarray, hits: list[np.ndarray], within_m: float = 0.1) -> np.ndarray:
+    """How many pings have a true first hit within ``within_m`` of each of ``points``."""
+    from scipy.spatial import cKDTree
+
+    ping_of = np.repeat(np.arange(len(hits)), [len(h) for h in hits])
+    near = cKDTree(np.concatenate(hits)).query_ball_point(points, within_m)
+    return np.array([len(np.unique(ping_of[j])) for j in near], dtype=np.int64)
 
 
 def ambiguity(visible: np.ndarray, hits: list[np.ndarray], poses: list[np.ndarray], spread: float, grid: CarvingGrid,
