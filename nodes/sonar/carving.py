@@ -325,8 +325,9 @@ class CarvingGrid:
             centres = edges[0] + (np.arange(bins) + 0.5) * (edges[-1] - edges[0]) / bins
             lut = np.clip(np.searchsorted(edges, centres) - 1, 0, bearings.size - 1).astype(np.int32)
             self._lut, self._lut_key = (np.float32(edges[0]), np.float32(bins / (edges[-1] - edges[0])), lut), key
-        t0, scale, _ = self._lut
-        return np.nan_to_num((tan_b - t0) * scale, nan=-1.0, posinf=-1.0, neginf=-1.0).astype(np.int32)
+        t0, scale, lut = self._lut
+        cell = np.nan_to_num((tan_b - t0) * scale, nan=-1.0, posinf=-1.0, neginf=-1.0)
+        return np.clip(cell, -1.0, float(lut.size)).astype(np.int32)       # no cast overflow near x = 0
 
     def _score(self, voxels: np.ndarray) -> np.ndarray:
         """hits - miss_weight * misses - dark_weight * darks of ``voxels`` (float32)."""
