@@ -326,23 +326,3 @@ def test_part_of_a_loan_is_published_from_where_it_lies() -> None:
     finally:
         pool.close()
 
-
-def test_slots_found_leased_are_not_retried_first(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A subscriber's read-ahead holds a run of low slots: later claims skip them, not one system call each."""
-    pool, reader = _pool(slots=8), shm.Reader()
-    try:
-        held = [_resolve(reader, pool.place(_frames(v), readers=1)) for v in range(1, 5)]   # slots 0-3 leased
-        tries: list[int] = []
-        lock = shm._lock
-
-        def counting(fd: int, kind: int, offset: int) -> bool:
-            if kind == shm.fcntl.F_WRLCK:
-                tries.append(offset - shm._LOCK_SLOT)
-            return lock(fd, kind, offset)
-
-        monkeypatch.setattr(shm, "_lock", counting)
-        slots = [_slot(pool.place(_frames(v), readers=1)) for v in range(5, 9)]
-        assert sorted(slots) == [4, 5, 6, 7] and all((a == v).all() for v, a in zip(range(1, 5), held))
-        assert all(tries.count(s) <= 1 for s in range(4)) and len(tries) <= 8   # each leased slot refused once at most
-    finally:
-        pool.close()
