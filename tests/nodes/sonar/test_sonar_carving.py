@@ -20,16 +20,16 @@ BEARINGS = np.radians(np.linspace(-30.0, 30.0, 121))
 DR, ROWS = 0.02, 600
 
 
-def _target_ping(pose: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """A dark ping with one bright return where ``target`` (world) falls, if inside the fan."""
+def _target_ping(pose: np.ndarray, target: np.ndarray, dr: float = DR) -> np.ndarray:
+    """A dark ping with one bright return (8 cm deep) where ``target`` (world) falls, if inside the fan."""
     local = (target - pose[:3, 3]) @ pose[:3, :3]
     r = float(np.linalg.norm(local))
-    img = np.full((ROWS, BEARINGS.size), 5, np.uint8)
+    img = np.full((int(round(ROWS * DR / dr)), BEARINGS.size), 5, np.uint8)
     theta, phi = math.atan2(local[1], local[0]), math.asin(local[2] / r)
     if abs(phi) < SPREAD / 2 and BEARINGS[0] <= theta <= BEARINGS[-1]:
         j = int(np.argmin(np.abs(BEARINGS - theta)))
-        i = int(r / DR)
-        img[i:i + 4, max(j - 1, 0):j + 2] = 250
+        i = int(r / dr)
+        img[i:i + max(1, int(round(0.08 / dr))), max(j - 1, 0):j + 2] = 250
     return img
 
 
@@ -37,12 +37,13 @@ def _grid(**kw) -> CarvingGrid:
     return CarvingGrid(((-6, -2, -8), (6, 14, 0)), CarvingParams(returns="front", **kw))
 
 
-def test_arcs_from_different_heights_cross_at_the_target_and_pin_it() -> None:
+@pytest.mark.parametrize("dr", [DR, 0.008, 0.05])      # ping averaged over 2 range cells, over 5, not at all
+def test_arcs_from_different_heights_cross_at_the_target_and_pin_it(dr: float) -> None:
     target = np.array([0.3, 8.0, -3.0])
     grid = _grid(settle_pings=100, min_votes=1)          # every arc votes at the end, with all the evidence
     for z in np.linspace(-0.5, -5.5, 21):                 # a vertical baseline: arcs cross at wide angles
         pose = sonar_frame(np.array([0.0, 0.0, z]), math.pi / 2, 0.0)
-        grid.integrate(_target_ping(pose, target), BEARINGS, DR, pose, SPREAD)
+        grid.integrate(_target_ping(pose, target, dr), BEARINGS, dr, pose, SPREAD)
     cloud = grid.cloud(flush=True)
     best = cloud.points_m[np.argmax(cloud.votes)]
     assert np.linalg.norm(best - target) < 0.2
