@@ -375,9 +375,9 @@ class Pool:
             floor = min(live) if live else _NO_READER
             if self._pending_since is not None:
                 floor = min(floor, self._pending_since)
-            # Lowest first: a subscriber that keeps up leaves the same few slots warm in cache, which
-            # makes the copy into them ~20 % faster than skipping leased low slots for colder ones
-            # (measured: that saves a refused lock, a system call, per leased slot, and loses more).
+            # Lowest first: a subscriber that keeps up leaves the same few slots warm in cache. Skipping
+            # low slots found leased saves a refused lock (a system call) each, but sends the copy into
+            # colder slots: slower in 5 of 6 paired runs of the node-unchanged 1 MiB stream.
             for slot, gen in enumerate(self._local_gens):
                 if gen <= floor and _lock(seg.fd, fcntl.F_WRLCK, _LOCK_SLOT + slot):
                     return slot
