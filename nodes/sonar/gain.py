@@ -72,9 +72,12 @@ def compensate_row_gains(intensities: np.ndarray, row_gains: np.ndarray, gamma: 
     if bad:
         rows = np.arange(g.size)
         g = np.interp(rows, rows[good], g[good])
+    status: GainStatus = "repaired" if bad else "applied"
+    if np.all(g == 1.0):
+        return GainResult(img, status, bad)      # unit gains (the simulator's, a fixed-gain sonar's): nothing to divide
     gamma = float(gamma) if np.isfinite(gamma) and 0 < gamma <= 1 else 1.0
     scale = (1.0 / g ** gamma).astype(np.float32)[:, None]
     out = img.astype(np.float32) * scale
     if img.dtype.kind in "ui":
         out = np.clip(np.rint(out), 0, full_scale(img.dtype)).astype(img.dtype)
-    return GainResult(out, "repaired" if bad else "applied", bad)
+    return GainResult(out, status, bad)
