@@ -269,7 +269,7 @@ def _stereo(m: Any) -> Converted:
 
 
 def _cloud(m: Any) -> Converted:
-    return [("", point_cloud(m.points_m, m.stamp_ns, _frame(m), intensity=m.intensity))]
+    return [("", point_cloud(m.points_m, m.stamp_ns, _frame(m), intensity=m.intensity, sigma_m=m.sigma_m))]
 
 
 def _flow(m: Any) -> Converted:

@@ -139,6 +139,11 @@ def test_point_cloud_fields_and_values():
     bad = PointCloud(points_m=np.array([[0, 0, 0], [np.nan, 1, 1], [1, 2, 3]], np.float32))
     kept = decoded(convert("sensor.PointCloud", bad)[0][1])
     assert len(kept.data) == 2 * kept.point_stride                 # the NaN point is left out
+    sonar = PointCloud(points_m=np.array([[0, 0, 0], [np.nan, 1, 1], [1, 2, 3]], np.float32),
+                       intensity=np.array([3, 4, 5], np.float32), sigma_m=np.array([0.1, 0.2, 0.3], np.float32))
+    both = decoded(convert("sensor.PointCloud", sonar)[0][1])
+    assert [f.name for f in both.fields] == ["x", "y", "z", "intensity", "sigma_m"]
+    np.testing.assert_allclose(np.frombuffer(both.data, "<f4").reshape(2, 5)[:, 4], [0.1, 0.3])   # colour by sigma
 
 
 def test_grid_corner_cells_and_forbidden_cells():
