@@ -241,8 +241,8 @@ class SceneFlow:
 def scene_flow(flow_back: DenseFlow, depth_prev: np.ndarray, depth_cur: np.ndarray,
                motion: tuple[float, float, float], dt_s: float, intr: Intrinsics, mount: Mount = Mount(), *,
                stride_px: int = 4, min_depth_m: float = 0.4, max_depth_m: float = 8.0, edge_rel: float = 0.1,
-               max_speed_mps: float = 3.0, usable_prev: np.ndarray | None = None,
-               usable_cur: np.ndarray | None = None) -> SceneFlow:
+               max_speed_mps: float = 3.0, max_vertical_mps: float = np.inf, border_px: int = 0,
+               usable_prev: np.ndarray | None = None, usable_cur: np.ndarray | None = None) -> SceneFlow:
     """3D points of the current frame and their own velocities.
 
     Parameters
@@ -256,6 +256,13 @@ def scene_flow(flow_back: DenseFlow, depth_prev: np.ndarray, depth_cur: np.ndarr
         (:func:`relative_motion`); (0, 0, 0) for a static robot.
     dt_s : float
         Time between the frames (> 0).
+    max_vertical_mps : float
+        Points rising or falling faster than this are flow outliers: the robot drives on the floor
+        and people walk on it, so a large vertical velocity witnesses a wrong match (inf = off).
+    border_px : int
+        Points within this many pixels of the image edge, in either frame, are dropped: the flow's
+        patches are cut there and a person entering or leaving the view is matched badly
+        (students003: a head at u = 7 px got 2.6 m/s toward the robot, and the guard stopped for it).
     usable_prev, usable_cur : ndarray of bool, optional
         Precomputed :func:`depth_usable` masks (the caller can keep the previous one).
 
@@ -271,13 +278,16 @@ def scene_flow(flow_back: DenseFlow, depth_prev: np.ndarray, depth_cur: np.ndarr
     ok_prev = depth_usable(depth_prev, **kw) if usable_prev is None else usable_prev
     ok_cur = depth_usable(depth_cur, **kw) if usable_cur is None else usable_cur
     vv, uu = np.mgrid[stride_px // 2:h:stride_px, stride_px // 2:w:stride_px]
-    keep = ok_cur[vv, uu]
+    keep = ok_cur[vv, uu] & (uu >= border_px) & (uu < w - border_px) & (vv >= border_px) & (vv < h - border_px)
     u, v = uu[keep], vv[keep]
     if not len(u):
         return _empty()
     z_cur = depth_cur[v, u].astype(np.float64)
     f = flow_back.at(u, v).astype(np.float64)
     up, vp = u + f[:, 0], v + f[:, 1]
+    if border_px > 0:
+        inside = (up >= border_px) & (up <= w - 1 - border_px) & (vp >= border_px) & (vp <= h - 1 - border_px)
+        u, v, z_cur, up, vp = u[inside], v[inside], z_cur[inside], up[inside], vp[inside]
     z_prev, ok = _bilinear_depth(np.asarray(depth_prev), ok_prev, up, vp)
     if not ok.any():
         return _empty()
@@ -290,7 +300,7 @@ def scene_flow(flow_back: DenseFlow, depth_prev: np.ndarray, depth_cur: np.ndarr
                         p_cur[:, 2]], axis=1)
     d = (in_prev - p_prev) / dt_s                                        # own velocity, previous robot frame
     vel = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)   # current frame
-    sane = np.linalg.norm(vel, axis=1) <= max_speed_mps
+    sane = (np.linalg.norm(vel, axis=1) <= max_speed_mps) & (np.abs(vel[:, 2]) <= max_vertical_mps)
     return SceneFlow(p_cur[sane].astype(np.float32), vel[sane].astype(np.float32),
                      np.stack([u, v], axis=1)[sane].astype(np.int32))
 
@@ -311,14 +321,15 @@ class FlowTracker:
 
     def __init__(self, mount: Mount = Mount(), *, preset: str = "dis_fast", scale: float = 1.0,
                  ego_prior: bool = True, stride_px: int = 4, min_depth_m: float = 0.4, max_depth_m: float = 8.0,
-                 edge_rel: float = 0.1, max_speed_mps: float = 3.0, min_height_m: float = 0.15,
-                 max_height_m: float = 2.2, max_gap_s: float = 0.5) -> None:
+                 edge_rel: float = 0.1, max_speed_mps: float = 3.0, max_vertical_mps: float = np.inf,
+                 border_px: int = 0, min_height_m: float = 0.15, max_height_m: float = 2.2,
+                 max_gap_s: float = 0.5) -> None:
         if stride_px < 1 or not 0 <= min_depth_m < max_depth_m or max_gap_s <= 0:
             raise ValueError("need stride_px >= 1, 0 <= min_depth_m < max_depth_m and max_gap_s > 0")
         self.mount, self.estimator, self.ego_prior = mount, OpticalFlow(preset, scale), ego_prior
         self.stride_px, self.min_depth_m, self.max_depth_m, self.edge_rel = stride_px, min_depth_m, max_depth_m, edge_rel
         self.max_speed_mps, self.min_height_m, self.max_height_m = max_speed_mps, min_height_m, max_height_m
-        self.max_gap_s = max_gap_s
+        self.max_gap_s, self.max_vertical_mps, self.border_px = max_gap_s, max_vertical_mps, border_px
         self._prev: tuple[float, np.ndarray, np.ndarray, np.ndarray, tuple[float, float, float] | None] | None = None
 
     def reset(self) -> None:
@@ -348,6 +359,6 @@ class FlowTracker:
         sf = scene_flow(self.estimator(grey, prev[1], prior=prior), prev[2], depth, motion, t_s - prev[0], intr,
                         self.mount, stride_px=self.stride_px, min_depth_m=self.min_depth_m,
                         max_depth_m=self.max_depth_m, edge_rel=self.edge_rel, max_speed_mps=self.max_speed_mps,
-                        usable_prev=prev[3], usable_cur=usable)
+                        max_vertical_mps=self.max_vertical_mps, border_px=self.border_px, usable_prev=prev[3], usable_cur=usable)
         keep = (sf.points_m[:, 2] >= self.min_height_m) & (sf.points_m[:, 2] <= self.max_height_m)
         return SceneFlow(sf.points_m[keep], sf.velocity_mps[keep], sf.pixels[keep])

@@ -28,6 +28,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     min_height_m: float = 0.15        # points below this (the floor) are not output
     max_height_m: float = 2.2
     max_speed_mps: float = 3.0        # faster points are flow outliers
+    max_vertical_mps: float = 0.5     # ... and so are points rising or falling faster (people walk on the floor)
+    border_px: int = 16               # points this near the image edge (either frame) are dropped: cut flow patches
     max_gap_s: float = 0.5            # frames further apart than this restart the flow
     max_extrapolate_s: float = 0.2    # odometry may lag a frame by this much (extrapolated with its twist)
     frame_id: str = "base_link"
@@ -47,7 +49,8 @@ class RgbdFlow(Node):
         self.tracker = FlowTracker(Mount(cfg.camera_x_m, cfg.camera_y_m, cfg.camera_z_m), preset=cfg.method,
                                    scale=cfg.scale, ego_prior=cfg.ego_prior, stride_px=cfg.stride_px,
                                    min_depth_m=cfg.min_depth_m, max_depth_m=cfg.max_depth_m, edge_rel=cfg.edge_rel,
-                                   max_speed_mps=cfg.max_speed_mps, min_height_m=cfg.min_height_m,
+                                   max_speed_mps=cfg.max_speed_mps, max_vertical_mps=cfg.max_vertical_mps,
+                                   border_px=cfg.border_px, min_height_m=cfg.min_height_m,
                                    max_height_m=cfg.max_height_m, max_gap_s=cfg.max_gap_s)
         self._odom: deque[tuple[int, float, float, float, float, float]] = deque(maxlen=400)
         self._prev_stamp: int | None = None

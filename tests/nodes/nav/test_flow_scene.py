@@ -183,3 +183,46 @@ def test_flow_tracker_keeps_state_between_frames_and_restarts_after_a_gap():
     assert tracker.update(DT + 2.0, rgb, depth, INTR, world.pose) is None      # 2 s later: restart
     with pytest.raises(ValueError, match="differ in size"):
         tracker.update(3.0, rgb[:10], depth, INTR)
+
+
+def _static_pair():
+    world = CrowdWorld({"name": "s", "walls": ROOM}, camera=CAM)
+    world.step(0.5, 0.5, 0.5)
+    _, d0 = world.render()
+    pose0 = world.pose
+    world.step(0.5, 0.5, DT)
+    _, d1 = world.render()
+    motion = relative_motion(pose0, world.pose)
+    return d0, d1, motion, ego_flow_prior(d1, motion, INTR, MOUNT, d1.shape)
+
+
+def test_points_at_the_image_border_are_dropped_where_the_flow_patches_are_cut():
+    d0, d1, motion, prior = _static_pair()
+    bad = prior.copy()
+    bad[:, :12] += (3.0, 0.0)             # a wrong match at the left edge (students003: a head at u = 7 px)
+    flow = DenseFlow(bad, 1.0, d1.shape)
+    loose = scene_flow(flow, d0, d1, motion, DT, INTR, MOUNT)
+    assert (np.linalg.norm(loose.velocity_mps, axis=1)[loose.pixels[:, 0] < 12] > 0.3).any()
+    sf = scene_flow(flow, d0, d1, motion, DT, INTR, MOUNT, border_px=16)
+    assert sf.pixels[:, 0].min() >= 16 and sf.pixels[:, 0].max() < CAM.width_px - 16
+    clean = scene_flow(DenseFlow(prior, 1.0, d1.shape), d0, d1, motion, DT, INTR, MOUNT, border_px=16)
+    np.testing.assert_array_equal(sf.pixels, clean.pixels)          # the wrong matches are all gone
+    np.testing.assert_allclose(sf.velocity_mps, clean.velocity_mps)
+    # a match that lands within the border of the previous frame is dropped too
+    out = prior.copy()
+    out[:, 40:60, 0] = -45.0 - np.arange(40, 60)[None, :].astype(np.float32)   # previous pixel u < 0
+    sf = scene_flow(DenseFlow(out, 1.0, d1.shape), d0, d1, motion, DT, INTR, MOUNT, border_px=16)
+    assert not ((sf.pixels[:, 0] >= 40) & (sf.pixels[:, 0] < 60)).any()
+
+
+def test_points_rising_or_falling_fast_are_flow_outliers():
+    d0, d1, motion, prior = _static_pair()
+    wrong = prior.copy()
+    wrong[100:140, 100:200, 1] += 6.0     # a vertical mismatch: the static wall seems to sink
+    flow = DenseFlow(wrong, 1.0, d1.shape)
+    loose = scene_flow(flow, d0, d1, motion, DT, INTR, MOUNT)
+    band = (loose.pixels[:, 1] >= 100) & (loose.pixels[:, 1] < 140) & (loose.pixels[:, 0] >= 100) & (loose.pixels[:, 0] < 200)
+    assert np.abs(loose.velocity_mps[band, 2]).min() > 0.5
+    sf = scene_flow(flow, d0, d1, motion, DT, INTR, MOUNT, max_vertical_mps=0.5)
+    assert np.abs(sf.velocity_mps[:, 2]).max() <= 0.5
+    assert len(sf.points_m) == len(loose.points_m) - band.sum()
