@@ -11,6 +11,7 @@ Frames: bearing 0 is straight ahead (+y in the image), positive to starboard (+x
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -201,7 +202,7 @@ def _fractional_beam(theta: np.ndarray, geometry: FanGeometry) -> np.ndarray:
 
 
 def render_fan(intensities: np.ndarray, lut: FanLut, *, interpolation: str = "bilinear",
-               backend: str = "numpy") -> np.ndarray:
+               backend: str = "numpy", out: np.ndarray | None = None) -> np.ndarray:
     """Cartesian fan image of one ping.
 
     Parameters
@@ -213,10 +214,13 @@ def render_fan(intensities: np.ndarray, lut: FanLut, *, interpolation: str = "bi
     interpolation : {"nearest", "bilinear"}
     backend : {"numpy", "cv2"}
         ``cv2`` uses ``cv2.remap`` on the cached fractional indices (same geometry, same mask).
+    out : (H, W) array of the ping's dtype, optional
+        Where to write the image (a node's ``self.loan``: the fan then crosses to its subscribers
+        without a copy); a fresh array when None.
 
     Returns
     -------
-    (H, W) array, same dtype as ``intensities``; 0 outside the fan.
+    (H, W) array, same dtype as ``intensities`` (``out`` when given); 0 outside the fan.
     """
     if interpolation not in INTERPOLATIONS:
         raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
@@ -225,11 +229,16 @@ def render_fan(intensities: np.ndarray, lut: FanLut, *, interpolation: str = "bi
     m, n = lut.geometry.n_ranges, len(lut.geometry.bearings_rad)
     if intensities.shape != (m, n):
         raise ValueError(f"ping is {intensities.shape}, the lookup table was built for {(m, n)}; rebuild it")
+    if out is not None and (out.shape != lut.shape or out.dtype != intensities.dtype):
+        raise ValueError(f"out is {out.shape} {out.dtype}, the fan is {lut.shape} {intensities.dtype}")
     if backend == "cv2":
-        return _render_cv2(intensities, lut, interpolation)
+        return _render_cv2(intensities, lut, interpolation, out)
     padded = np.concatenate([intensities.ravel(), np.zeros(n + 2, intensities.dtype)])
     if interpolation == "nearest":
-        return padded.take(lut.nearest).reshape(lut.shape)
+        if out is None:
+            return padded.take(lut.nearest).reshape(lut.shape)
+        padded.take(lut.nearest, out=out.reshape(-1))
+        return out
     inside, idx, wr, wc = lut.bilinear_tables()
     a, b = padded.take(idx), padded.take(idx + 1)
     c, d = padded.take(idx + n), padded.take(idx + n + 1)
@@ -238,19 +247,29 @@ def render_fan(intensities: np.ndarray, lut: FanLut, *, interpolation: str = "bi
     bottom -= top
     bottom *= wr
     bottom += top
-    out = np.zeros(lut.shape[0] * lut.shape[1], intensities.dtype)
-    out[inside] = _cast_like(bottom, intensities.dtype)
-    return out.reshape(lut.shape)
+    flat = np.zeros(lut.shape[0] * lut.shape[1], intensities.dtype) if out is None else out.reshape(-1)
+    if out is not None:
+        flat[:] = 0
+    flat[inside] = _cast_like(bottom, intensities.dtype)
+    return flat.reshape(lut.shape) if out is None else out
 
 
-def _render_cv2(intensities: np.ndarray, lut: FanLut, interpolation: str) -> np.ndarray:
+def _render_cv2(intensities: np.ndarray, lut: FanLut, interpolation: str, out: np.ndarray | None = None) -> np.ndarray:
     src = intensities
     if src.dtype not in (np.uint8, np.uint16, np.int16, np.float32):
         src = src.astype(np.float32)
     flag = cv2.INTER_NEAREST if interpolation == "nearest" else cv2.INTER_LINEAR
     map_x, map_y = lut.cv2_maps()
-    out = cv2.remap(src, map_x, map_y, flag, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return _cast_like(out, intensities.dtype)
+    direct = out is not None and src.dtype == out.dtype
+    image = cv2.remap(src, map_x, map_y, flag, dst=out if direct else None, borderMode=cv2.BORDER_CONSTANT,
+                      borderValue=0)
+    if direct:
+        return out
+    image = _cast_like(image, intensities.dtype)
+    if out is None:
+        return image
+    out[...] = image
+    return out
 
 
 def _cast_like(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
@@ -276,10 +295,15 @@ class FanRenderer:
         self.builds = 0
 
     def render(self, intensities: np.ndarray, bearings_rad: np.ndarray, range_resolution_m: float,
-               r_min_m: float = 0.0) -> tuple[np.ndarray, FanLut]:
-        """``(image, lut)`` for one ping; raises ``ValueError`` on an inconsistent ping."""
+               r_min_m: float = 0.0, alloc: Callable[[tuple[int, ...], np.dtype], np.ndarray] | None = None,
+               ) -> tuple[np.ndarray, FanLut]:
+        """``(image, lut)`` for one ping; raises ``ValueError`` on an inconsistent ping.
+
+        ``alloc(shape, dtype)`` gives the array to render into (a node passes its ``loan``)."""
         geometry = FanGeometry.of(intensities, bearings_rad, range_resolution_m, r_min_m)
         if self.lut is None or self.lut.geometry != geometry:
             self.lut = build_lut(geometry, width_px=self.width_px, height_px=self.height_px)
             self.builds += 1
-        return render_fan(intensities, self.lut, interpolation=self.interpolation, backend=self.backend), self.lut
+        out = alloc(self.lut.shape, intensities.dtype) if alloc is not None else None
+        return render_fan(intensities, self.lut, interpolation=self.interpolation, backend=self.backend,
+                          out=out), self.lut

@@ -7,6 +7,7 @@ is rendered unscaled and counted in ``gain_problems``; a few bad rows take their
 """
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import msgspec
@@ -49,6 +50,7 @@ class PolarImager(Node):
         self.dropped = 0
         self.gain_problems = {"invalid": 0, "mismatch": 0, "repaired": 0}
         self._warned: set[str] = set()
+        self._mask: np.ndarray | None = None
 
     def on_ping(self, ping: SonarPing) -> dict[str, FanImage] | None:
         resolution = ping.range_resolution_m
@@ -63,15 +65,26 @@ class PolarImager(Node):
                                 gained.bad_rows, "; rendered unscaled" if gained.status != "repaired" else "")
             intensities = gained.image
         try:
-            image, lut = self._renderer.render(intensities, np.asarray(ping.bearings_rad), resolution)
+            image, lut = self._renderer.render(intensities, np.asarray(ping.bearings_rad), resolution,
+                                               alloc=self._loan_image_and_mask)
         except ValueError as exc:
             self.dropped += 1
             self._warn_once(str(exc).split(",")[0], "dropping ping %d: %s", ping.ping_id, exc)
             return None
         self.rendered += 1
-        return {"image": FanImage(stamp_ns=ping.stamp_ns, frame_id=ping.frame_id, image=image, mask=lut.mask,
+        mask, self._mask = self._mask, None
+        mask[...] = lut.mask
+        return {"image": FanImage(stamp_ns=ping.stamp_ns, frame_id=ping.frame_id, image=image, mask=mask,
                                   m_per_px=lut.m_per_px, origin_row_px=lut.origin_row_px,
                                   origin_col_px=lut.origin_col_px, ping_id=ping.ping_id)}
+
+    def _loan_image_and_mask(self, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+        """The fan image's array, with room for the mask behind it: one loan, so in a live graph both
+        cross to the subscribers without a copy (a message's large buffers must share one slot)."""
+        nbytes = math.prod(shape) * np.dtype(dtype).itemsize
+        block = self.loan("image", (nbytes + math.prod(shape),), np.uint8)
+        self._mask = block[nbytes:].reshape(shape)
+        return block[:nbytes].view(dtype).reshape(shape)
 
     def teardown(self) -> None:
         self.log.info("polar imager: %d pings rendered, %d dropped, %d lookup-table builds, row-gain problems %s",

@@ -155,3 +155,25 @@ def test_real_oculus_ping_numpy_and_cv2_agree(shared_data) -> None:
     a = render_fan(ping, lut, interpolation="bilinear", backend="numpy").astype(int)
     b = render_fan(ping, lut, interpolation="bilinear", backend="cv2").astype(int)
     assert np.abs(a - b).max() <= 3 and a[lut.mask > 0].mean() == pytest.approx(ping.mean(), rel=0.35)
+
+
+@pytest.mark.parametrize("interpolation,backend", MODES)
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float64])
+def test_rendering_into_a_given_array_is_the_same_image(interpolation: str, backend: str, dtype) -> None:
+    """What a node's loan receives: every pixel written (the loaned slot holds an older image), no other array."""
+    rng = np.random.default_rng(5)
+    bearings = np.deg2rad(np.linspace(-65, 65, 128))
+    ping = (rng.random((300, 128)) * 200).astype(dtype)
+    lut = build_lut(FanGeometry.of(ping, bearings, 0.05), width_px=400)
+    fresh = render_fan(ping, lut, interpolation=interpolation, backend=backend)
+    slot = np.full(lut.shape, 99, dtype)                       # stale contents of a reused slot
+    got = render_fan(ping, lut, interpolation=interpolation, backend=backend, out=slot)
+    assert got is slot
+    np.testing.assert_array_equal(slot, fresh)
+    with pytest.raises(ValueError, match="out is"):
+        render_fan(ping, lut, interpolation=interpolation, backend=backend, out=np.zeros((3, 3), dtype))
+    loans = []
+    renderer = FanRenderer(width_px=400, interpolation=interpolation, backend=backend)
+    image, _ = renderer.render(ping, bearings, 0.05, alloc=lambda shape, dt: loans.append(np.empty(shape, dt)) or loans[-1])
+    assert image is loans[0] and len(loans) == 1
+    np.testing.assert_array_equal(image, fresh)

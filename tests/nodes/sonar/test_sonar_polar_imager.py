@@ -6,6 +6,7 @@ import pytest
 
 from msgs.sonar import FanImage, SonarPing
 from nodes.sonar.polar_imager import PolarImager
+from tether import Input, Node
 from tether.errors import ConfigError
 from tether.testing import Harness
 
@@ -56,3 +57,86 @@ def test_config_is_validated() -> None:
         PolarImager.make_config({"interpolation": "cubic"})
     with pytest.raises(ConfigError):
         PolarImager.make_config({"width_px": 1})
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_image_and_mask_share_one_loan_and_each_ping_gets_its_own(dtype) -> None:
+    """The node renders into one loaned block (image, then mask) per ping: right pixels, right mask, and
+    no ping overwrites another's (a live graph's zero-copy path is tests/tether/test_shm_runtime.py's)."""
+    from nodes.sonar.polar import FanGeometry, build_lut, render_fan
+
+    pings = [_ping(k) for k in (4, 5)]
+    pings = [SonarPing(**{**{f: getattr(p, f) for f in p.__struct_fields__},
+                          "intensities": p.intensities.astype(dtype) * (257 if dtype == np.uint16 else 1)})
+             for p in pings]
+    with Harness(PolarImager, params={"width_px": 300, "backend": "cv2"}) as h:
+        h.feed([(0.0, "ping", pings[0]), (0.1, "ping", pings[1])])
+        first, second = h.of("image")
+    for msg, ping in ((first, pings[0]), (second, pings[1])):
+        lut = build_lut(FanGeometry.of(ping.intensities, ping.bearings_rad, 0.05), width_px=300)
+        np.testing.assert_array_equal(msg.image, render_fan(ping.intensities, lut, backend="cv2"))
+        np.testing.assert_array_equal(msg.mask, lut.mask)
+        assert msg.image.dtype == dtype and msg.mask.dtype == np.uint8    # the first ping's image survived the second
+    assert not np.array_equal(first.image, second.image)
+
+
+class _Pings(Node):
+    """Publishes three pings 0.3 s apart (the imager samples its input: latest only), then idles."""
+
+    outputs = {"ping": SonarPing}
+
+    def run(self) -> None:
+        for k in (6, 7, 8):
+            self.publish("ping", _ping(k, n_beams=128, n_ranges=300))
+            self.stopping.wait(0.3)
+        self.stopping.wait()
+
+
+class _FanKeeper(Node):
+    inputs = {"image": Input(FanImage, depth=10)}
+
+    def setup(self) -> None:
+        self.kept: list[FanImage] = []
+
+    def on_image(self, msg: FanImage) -> None:
+        self.kept.append(msg)
+
+
+def test_in_a_live_graph_the_fan_crosses_without_a_copy(tmp_path) -> None:
+    import threading
+    import time
+
+    from nodes.sonar.polar import FanGeometry, build_lut, render_fan
+    from tether import shm
+    from tether.runtime import NodeRuntime, RunSpec, Source
+
+    if not shm.Settings.from_env().enabled:
+        pytest.skip("no /dev/shm or OFD locks here")
+    pings_at, fans_at = f"ipc://{tmp_path}/pings", f"ipc://{tmp_path}/fans"
+    source = NodeRuntime(RunSpec(graph="g", node_id="sonar", node="t:_Pings", binds=[pings_at],
+                                 expect_subscribers={"sonar/ping": 1}, wait_subscribers_s=30), _Pings)
+    imager = NodeRuntime(RunSpec(graph="g", node_id="imager", node="t:PolarImager", binds=[fans_at],
+                                 params={"width_px": 400}, inputs={"ping": Source(topic="sonar/ping", endpoint=pings_at)},
+                                 expect_subscribers={"imager/image": 1}, wait_subscribers_s=30), PolarImager)
+    keeper = NodeRuntime(RunSpec(graph="g", node_id="keep", node="t:_FanKeeper",
+                                 inputs={"image": Source(topic="imager/image", endpoint=fans_at)}), _FanKeeper)
+    threads = [threading.Thread(target=rt.serve, daemon=True) for rt in (keeper, imager, source)]
+    for t in threads:
+        t.start()
+    try:
+        deadline = time.monotonic() + 20
+        while len(keeper.node.kept) < 3 and time.monotonic() < deadline:   # a loaded machine may skip a ping
+            time.sleep(0.01)
+        counters = imager.shm_counters()
+    finally:
+        for rt in (source, imager, keeper):
+            rt.stop()
+        for t in threads:
+            t.join(30)
+    kept = keeper.node.kept
+    assert kept and counters["placed"] == counters["loaned"] == imager.node.rendered   # image and mask: one loan
+    for msg in kept:
+        ping = _ping(msg.ping_id, n_beams=128, n_ranges=300)
+        lut = build_lut(FanGeometry.of(ping.intensities, ping.bearings_rad, 0.05), width_px=400)
+        np.testing.assert_array_equal(msg.image, render_fan(ping.intensities, lut, backend="cv2"))
+        np.testing.assert_array_equal(msg.mask, lut.mask)
