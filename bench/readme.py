@@ -100,19 +100,36 @@ def social_nav(d: dict) -> list[Row]:
     n = len(sc)
     closer = [k for k in sc if d["goals"][k]["closest_ge_dwa"]]
     timely = [k for k in sc if d["goals"][k]["time_within_15pct"]]
-    ratio = {k: sc[k]["irl"]["time_s"] / sc[k]["human"]["time_s"] for k in sc}
-    irl_own = sum(v["irl"]["collisions_robot"] for v in sc.values())
-    irl_all = sum(v["irl"]["collisions"] for v in sc.values())
-    dwa_all = sum(v["dwa"]["collisions"] for v in sc.values())
-    dwa_own = sum(v["dwa"]["collisions_robot"] for v in sc.values())
-    late = ", ".join(f"{k} {ratio[k]:.2f}x" for k in sc if k not in timely)
-    return [(f"`social_nav.py` {n} scenarios (4 synthetic, 2 real crowds)",
-             f"IRL planner: closest distance >= DWA's on {len(closer)} of {n}"
-             + (f" (not {', '.join(k for k in sc if k not in closer)})" if len(closer) < n else "")
-             + f"; contacts {irl_all}, {irl_own} of them caused by the robot; time within 15 % of the human on "
-             f"{len(timely)} of {n}" + (f" (late: {late})" if late else ""),
-             f"DWA: {dwa_all} contacts, {dwa_own} of them its own; the human reference",
-             f"time goal: {_met(len(timely) == n)} (see issue 4)")]
+    ratio = {k: sc[k]["irl"]["time_s"] / sc[k]["human"]["time_s"] for k in sc
+             if sc[k]["irl"]["time_s"] is not None and sc[k]["human"]["time_s"]}
+    late = ", ".join(f"{k} {ratio[k]:.2f}x" if k in ratio else f"{k} no goal" for k in sc if k not in timely)
+    if "robot_contacts_strict" not in d:     # before the fair bench (issue 22): the old headline
+        irl_own = sum(v["irl"]["collisions_robot"] for v in sc.values())
+        irl_all = sum(v["irl"]["collisions"] for v in sc.values())
+        return [(f"`social_nav.py` {n} scenarios (4 synthetic, 2 real crowds)",
+                 f"IRL planner: closest distance >= DWA's on {len(closer)} of {n}; contacts {irl_all}, {irl_own} "
+                 f"of them caused by the robot; time within 15 % of the human on {len(timely)} of {n}",
+                 "DWA; the human reference", f"time goal: {_met(len(timely) >= n - 1)}")]
+    dwa = d["dwa"]
+    rows = [(f"`social_nav.py` {n} scenarios (4 synthetic, 2 real crowds), person_cost {d['person_cost']:g}, weights learnt "
+             f"on {', '.join(d['weights_from'])} (none of them evaluated)",
+             f"IRL planner: robot-caused contacts {d['robot_contacts']} (strict, at touching distance: "
+             f"{d['robot_contacts_strict']}; any contact while moving {d['contacts_strict_moving']}); closest >= DWA's on "
+             f"{len(closer)} of {n}" + (f" (not {', '.join(k for k in sc if k not in closer)})" if len(closer) < n else "")
+             + f", median {d['closest_median_m']:.2f} m; on time (<= 1.15x the human) {len(timely)} of {n}"
+             + (f" (late: {late})" if late else "") + f"; the guard brakes in {100 * d['guard_frac']:.0f} % of ticks at "
+             f"worst (median {100 * d['guard_frac_median']:.0f} %)",
+             f"DWA, predicting people too: robot contacts {dwa['robot_contacts']} (strict {dwa['robot_contacts_strict']}), "
+             f"median closest {dwa['closest_median_m']:.2f} m, on time {dwa['time_ok_count']} of {n}, guard "
+             f"{100 * dwa['guard_frac']:.0f} %",
+             f"0 contacts: {_met(d['robot_contacts'] == 0 and d['robot_contacts_strict'] == 0)}; closest >= DWA on all: "
+             f"{_met(len(closer) == n)}; on time >= 5 of 6: {_met(len(timely) >= n - 1)}; guard < 5 %: "
+             f"{_met(d['guard_frac'] < 0.05)}")]
+    spread = d.get("start_spread")
+    if isinstance(spread, dict) and "closest_ge_dwa" in spread:
+        rows.append((f"`social_nav.py` every scenario from {spread.get('starts', '?')} start times",
+                     f"closest >= DWA's in {spread['closest_ge_dwa']}", "DWA", "—"))
+    return rows
 
 
 def nav_plan(d: dict) -> list[Row]:
