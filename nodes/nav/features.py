@@ -196,7 +196,9 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
     where it is (a standing person blocks its cell at every time); a moving one is
     extrapolated every ``step_s`` up to ``horizon_s`` and marks the cell it reaches at tau
     when the cell lies ``robot_speed_mps * tau`` (within ``slack_m``) from the robot. A cell
-    needs ``min_points`` such points (a single flow outlier marks nothing).
+    needs ``min_points`` such points (a single flow outlier marks nothing). Points move with the
+    median velocity of the grid cell they stand in (:func:`cell_motion`): a few wrong flow
+    vectors on a person (their edge during a fast turn) no longer throw cells ahead of them.
     """
     pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
     vel = np.asarray(velocity_mps, dtype=np.float64).reshape(-1, 3)
@@ -205,14 +207,13 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
         raise ValueError(f"points ({len(pts)}) and velocities ({len(vel)}) must pair up")
     ok = np.all(np.isfinite(pts), axis=1) & np.all(np.isfinite(vel), axis=1)
     ok &= (pts[:, 2] >= min_height_m) & (pts[:, 2] <= max_height_m)
-    p, v = pts[ok, :2], vel[ok, :2]
-    counts = np.zeros((rows, cols), np.int64)
-    if not len(p):
-        return counts > 0
+    if not ok.any():
+        return np.zeros((rows, cols), bool)
+    xy, v, n = cell_motion(pts[ok, :2], vel[ok, :2], grid.resolution_m, (grid.x_min_m, grid.y_min_m))
     still = np.hypot(v[:, 0], v[:, 1]) < moving_mps
-    index = np.arange(len(p))
-    pairs = [(index[still], *_cell_rc(grid, p[still]))]
-    pm, vm, im = p[~still], v[~still], index[~still]
+    index = np.arange(len(xy))
+    pairs = [(index[still], *_cell_rc(grid, xy[still]))]
+    pm, vm, im = xy[~still], v[~still], index[~still]
     if len(pm) and horizon_s > 0:
         for tau in np.arange(step_s, horizon_s + 1e-9, step_s):
             q = pm + vm * tau
@@ -220,9 +221,36 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
             pairs.append((im[hit], *_cell_rc(grid, q[hit])))
     i, r, c = (np.concatenate(a) for a in zip(*pairs))
     inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
-    flat = np.unique(i[inside] * (rows * cols) + r[inside] * cols + c[inside]) % (rows * cols)   # a point once per cell
-    counts = np.bincount(flat, minlength=rows * cols).reshape(rows, cols)
-    return counts >= max(min_points, 1)
+    key = np.unique(i[inside] * (rows * cols) + r[inside] * cols + c[inside])      # a source cell once per cell
+    counts = np.bincount(key % (rows * cols), weights=n[key // (rows * cols)], minlength=rows * cols)
+    return counts.reshape(rows, cols) >= max(min_points, 1)
+
+
+def cell_motion(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
+                corner_xy_m: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points grouped by the square cell (side ``cell_m``, lattice through ``corner_xy_m``) they stand in:
+    per occupied cell the median position (K, 2) m, the median velocity (K, 2) m/s and the point count (K,).
+
+    Dense flow is wrong on a minority of pixels (occlusion edges, a person leaving the image,
+    fast turns); the median over a cell's points keeps the motion of what fills the cell.
+    Inputs must be finite.
+    """
+    p = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    v = np.asarray(velocity_xy, dtype=np.float64).reshape(-1, 2)
+    if not cell_m > 0:
+        raise ValueError(f"cell_m must be > 0, got {cell_m}")
+    if len(p) == 0:
+        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64)
+    ij = np.floor((p - np.asarray(corner_xy_m, float)) / cell_m).astype(np.int64)
+    _, group, n = np.unique(ij, axis=0, return_inverse=True, return_counts=True)
+    group = group.reshape(-1)
+    start = np.concatenate([[0], np.cumsum(n)[:-1]])
+    mid_lo, mid_hi = start + (n - 1) // 2, start + n // 2
+    out = []
+    for col in (p[:, 0], p[:, 1], v[:, 0], v[:, 1]):
+        s = col[np.lexsort((col, group))]              # sorted by cell, then by value
+        out.append(0.5 * (s[mid_lo] + s[mid_hi]))
+    return np.column_stack(out[:2]), np.column_stack(out[2:]), n
 
 
 def _cell_rc(grid: GridSpec, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
