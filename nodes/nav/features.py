@@ -242,13 +242,16 @@ def cell_motion(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
     if len(p) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64)
     ij = np.floor((p - np.asarray(corner_xy_m, float)) / cell_m).astype(np.int64)
-    _, group, n = np.unique(ij, axis=0, return_inverse=True, return_counts=True)
-    group = group.reshape(-1)
-    start = np.concatenate([[0], np.cumsum(n)[:-1]])
-    mid_lo, mid_hi = start + (n - 1) // 2, start + n // 2
+    ij -= ij.min(axis=0)
+    key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]          # one integer per cell
+    sorted_key = np.sort(key)
+    first = np.flatnonzero(np.r_[True, sorted_key[1:] != sorted_key[:-1]])
+    n = np.diff(np.r_[first, len(key)])
+    mid_lo, mid_hi = first + (n - 1) // 2, first + n // 2
     out = []
     for col in (p[:, 0], p[:, 1], v[:, 0], v[:, 1]):
-        s = col[np.lexsort((col, group))]              # sorted by cell, then by value
+        lo, span = col.min(), np.ptp(col) * 1.001 + 1e-9
+        s = col[np.argsort(key + (col - lo) / span)]   # by cell, then by value (the fraction never crosses a cell)
         out.append(0.5 * (s[mid_lo] + s[mid_hi]))
     return np.column_stack(out[:2]), np.column_stack(out[2:]), n
 
