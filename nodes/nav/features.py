@@ -196,8 +196,8 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
     where it is (a standing person blocks its cell at every time); a moving one is
     extrapolated every ``step_s`` up to ``horizon_s`` and marks the cell it reaches at tau
     when the cell lies ``robot_speed_mps * tau`` (within ``slack_m``) from the robot. A cell
-    needs ``min_points`` such points (a single flow outlier marks nothing). Points move with the
-    median velocity of the grid cell they stand in (:func:`cell_motion`): a few wrong flow
+    needs ``min_points`` such points (a single flow outlier marks nothing). Every point moves with
+    the median velocity of the grid cell it stands in (:func:`cell_motion`): a few wrong flow
     vectors on a person (their edge during a fast turn) no longer throw cells ahead of them.
     """
     pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
@@ -209,11 +209,13 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
     ok &= (pts[:, 2] >= min_height_m) & (pts[:, 2] <= max_height_m)
     if not ok.any():
         return np.zeros((rows, cols), bool)
-    xy, v, n = cell_motion(pts[ok, :2], vel[ok, :2], grid.resolution_m, (grid.x_min_m, grid.y_min_m))
+    p = pts[ok, :2]
+    _, cell_v, _, of_point = cell_motion(p, vel[ok, :2], grid.resolution_m, (grid.x_min_m, grid.y_min_m))
+    v = cell_v[of_point]                               # each point moves with its cell's median velocity
     still = np.hypot(v[:, 0], v[:, 1]) < moving_mps
-    index = np.arange(len(xy))
-    pairs = [(index[still], *_cell_rc(grid, xy[still]))]
-    pm, vm, im = xy[~still], v[~still], index[~still]
+    index = np.arange(len(p))
+    pairs = [(index[still], *_cell_rc(grid, p[still]))]
+    pm, vm, im = p[~still], v[~still], index[~still]
     if len(pm) and horizon_s > 0:
         for tau in np.arange(step_s, horizon_s + 1e-9, step_s):
             q = pm + vm * tau
@@ -221,15 +223,17 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
             pairs.append((im[hit], *_cell_rc(grid, q[hit])))
     i, r, c = (np.concatenate(a) for a in zip(*pairs))
     inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
-    key = np.unique(i[inside] * (rows * cols) + r[inside] * cols + c[inside])      # a source cell once per cell
-    counts = np.bincount(key % (rows * cols), weights=n[key // (rows * cols)], minlength=rows * cols)
-    return counts.reshape(rows, cols) >= max(min_points, 1)
+    flat = np.unique(i[inside] * (rows * cols) + r[inside] * cols + c[inside]) % (rows * cols)   # a point once per cell
+    counts = np.bincount(flat, minlength=rows * cols).reshape(rows, cols)
+    return counts >= max(min_points, 1)
 
 
 def cell_motion(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
-                corner_xy_m: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                corner_xy_m: tuple[float, float] = (0.0, 0.0)
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points grouped by the square cell (side ``cell_m``, lattice through ``corner_xy_m``) they stand in:
-    per occupied cell the median position (K, 2) m, the median velocity (K, 2) m/s and the point count (K,).
+    per occupied cell the median position (K, 2) m, the median velocity (K, 2) m/s and the point count (K,),
+    and per point the index (N,) of its cell.
 
     Dense flow is wrong on a minority of pixels (occlusion edges, a person leaving the image,
     fast turns); the median over a cell's points keeps the motion of what fills the cell.
@@ -240,12 +244,16 @@ def cell_motion(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
     if not cell_m > 0:
         raise ValueError(f"cell_m must be > 0, got {cell_m}")
     if len(p) == 0:
-        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64)
+        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64)
     ij = np.floor((p - np.asarray(corner_xy_m, float)) / cell_m).astype(np.int64)
     ij -= ij.min(axis=0)
     key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]          # one integer per cell
-    sorted_key = np.sort(key)
-    first = np.flatnonzero(np.r_[True, sorted_key[1:] != sorted_key[:-1]])
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    starts = np.r_[True, sorted_key[1:] != sorted_key[:-1]]
+    first = np.flatnonzero(starts)
+    of_point = np.empty(len(key), np.int64)
+    of_point[order] = np.cumsum(starts) - 1
     n = np.diff(np.r_[first, len(key)])
     mid_lo, mid_hi = first + (n - 1) // 2, first + n // 2
     out = []
@@ -253,7 +261,7 @@ def cell_motion(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
         lo, span = col.min(), np.ptp(col) * 1.001 + 1e-9
         s = col[np.argsort(key + (col - lo) / span)]   # by cell, then by value (the fraction never crosses a cell)
         out.append(0.5 * (s[mid_lo] + s[mid_hi]))
-    return np.column_stack(out[:2]), np.column_stack(out[2:]), n
+    return np.column_stack(out[:2]), np.column_stack(out[2:]), n, of_point
 
 
 def _cell_rc(grid: GridSpec, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -359,9 +359,9 @@ def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: Gri
                       moving_mps: float = 0.3, min_points: int = 5) -> np.ndarray:
     """Cells (rows, cols) bool where a moving point will be when the robot could be there too.
 
-    Points (robot frame, N x 3 positions and velocities) are grouped by the grid cell they
-    stand in, each cell with its median position and velocity (:func:`nodes.nav.features.cell_motion`);
-    a cell of at least ``min_points`` points moving faster than ``moving_mps`` is
+    Points (robot frame, N x 3 positions and velocities) move with the median velocity of the
+    grid cell they stand in (:func:`nodes.nav.features.cell_motion`); each point of a cell of at
+    least ``min_points`` points moving faster than ``moving_mps`` is
     extrapolated at constant velocity for ``horizon_s``; the cell it reaches
     at time tau is marked when the robot, driving at ``robot_speed_mps``, would also be about
     that far away then (within ``slack_m``). The Figure 3 direction features look one or two
@@ -378,8 +378,10 @@ def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: Gri
     if not ok.any() or horizon_s <= 0:
         return mask
     corner = (frame.origin_x_m - 0.5 * frame.resolution_m, frame.origin_y_m - 0.5 * frame.resolution_m)
-    p, v, n = cell_motion(p[ok], v[ok], frame.resolution_m, corner)
-    keep = (n >= min_points) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
+    p = p[ok]
+    _, cell_v, n, of_point = cell_motion(p, v[ok], frame.resolution_m, corner)
+    v = cell_v[of_point]                             # each point moves with its cell's median velocity
+    keep = (n[of_point] >= min_points) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
     p, v = p[keep], v[keep]
     if len(p) == 0:
         return mask

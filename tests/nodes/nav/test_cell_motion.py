@@ -28,13 +28,14 @@ def test_cell_motion_takes_each_cells_median():
     va = np.tile([1.0, 0.0], (50, 1))
     va[:10] = [-5.0, 9.0]                                  # a fifth of the vectors are wrong
     vb = np.tile([0.0, -0.5], (30, 1))
-    xy, v, n = cell_motion(np.vstack([a, b]), np.vstack([va, vb]), 0.25)
+    xy, v, n, of_point = cell_motion(np.vstack([a, b]), np.vstack([va, vb]), 0.25)
     order = np.argsort(xy[:, 0])
     assert n[order].tolist() == [50, 30]
     assert v[order].tolist() == [[1.0, 0.0], [0.0, -0.5]]
     assert np.all((xy[order[0]] >= 0) & (xy[order[0]] < 0.25))       # the median stays in its cell
+    assert np.array_equal(of_point, np.r_[np.full(50, order[0]), np.full(30, order[1])])
     empty = cell_motion(np.zeros((0, 2)), np.zeros((0, 2)), 0.25)
-    assert [x.shape[0] for x in empty] == [0, 0, 0]
+    assert [x.shape[0] for x in empty] == [0, 0, 0, 0]
     with pytest.raises(ValueError, match="cell_m"):
         cell_motion(a, va, 0.0)
 
