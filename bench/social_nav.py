@@ -398,6 +398,13 @@ def plot(cases: dict, runs: dict, filename: str = "social_nav.png") -> Path:
         ax.set_aspect("equal"), ax.set_title(name), ax.legend(fontsize=7, loc="best")
     for ax in axes.ravel()[n:]:
         ax.axis("off")
+    return _save(fig, filename)
+
+
+def _save(fig, filename: str) -> Path:
+    """Write ``fig`` to out/``filename`` and close it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     out = ROOT / "out"
     out.mkdir(exist_ok=True)
@@ -467,12 +474,7 @@ def tradeoff_plot(report: dict, filename: str = "social_nav_tradeoff.png") -> Pa
     ax.axvline(0.4, color="k", ls=":", lw=1, label="bodies touch (0.4 m)")
     ax.set_xlabel("closest approach to a pedestrian (m, centres)"), ax.set_ylabel("time / human reference time")
     ax.set_title("social_nav: speed against closeness (up-left is worse)"), ax.legend(fontsize=8)
-    fig.tight_layout()
-    out = ROOT / "out"
-    out.mkdir(exist_ok=True)
-    fig.savefig(out / filename, dpi=100)
-    plt.close(fig)
-    return out / filename
+    return _save(fig, filename)
 
 
 SPREAD_KEYS = ("closest_m", "time_s", "robot_contacts_strict", "contacts_strict_moving", "guard_frac")
