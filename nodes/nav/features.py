@@ -197,7 +197,7 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
     extrapolated every ``step_s`` up to ``horizon_s`` and marks the cell it reaches at tau
     when the cell lies ``robot_speed_mps * tau`` (within ``slack_m``) from the robot. A cell
     needs ``min_points`` such points (a single flow outlier marks nothing). Every point moves with
-    the median velocity of the grid cell it stands in (:func:`cell_motion`): a few wrong flow
+    the median velocity of the grid cell it stands in (:func:`cell_velocity`): a few wrong flow
     vectors on a person (their edge during a fast turn) no longer throw cells ahead of them.
     """
     pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
@@ -210,7 +210,7 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
     if not ok.any():
         return np.zeros((rows, cols), bool)
     p = pts[ok, :2]
-    _, cell_v, _, of_point = cell_motion(p, vel[ok, :2], grid.resolution_m, (grid.x_min_m, grid.y_min_m))
+    cell_v, _, of_point = cell_velocity(p, vel[ok, :2], grid.resolution_m, (grid.x_min_m, grid.y_min_m))
     v = cell_v[of_point]                               # each point moves with its cell's median velocity
     still = np.hypot(v[:, 0], v[:, 1]) < moving_mps
     index = np.arange(len(p))
@@ -237,14 +237,31 @@ def cell_motion(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
 
     Dense flow is wrong on a minority of pixels (occlusion edges, a person leaving the image,
     fast turns); the median over a cell's points keeps the motion of what fills the cell.
-    Inputs must be finite.
+    Inputs must be finite. The predictions need only the velocities: :func:`cell_velocity`.
     """
     p = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
-    v = np.asarray(velocity_xy, dtype=np.float64).reshape(-1, 2)
+    (x, y, vx, vy), n, of_point = _cell_medians(p, np.asarray(velocity_xy, dtype=np.float64).reshape(-1, 2),
+                                                cell_m, corner_xy_m, with_points=True)
+    return np.column_stack([x, y]), np.column_stack([vx, vy]), n, of_point
+
+
+def cell_velocity(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
+                  corner_xy_m: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`cell_motion` without the median positions: (median velocity (K, 2), count (K,), cell of each point (N,))."""
+    p = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    (vx, vy), n, of_point = _cell_medians(p, np.asarray(velocity_xy, dtype=np.float64).reshape(-1, 2),
+                                          cell_m, corner_xy_m, with_points=False)
+    return np.column_stack([vx, vy]), n, of_point
+
+
+def _cell_medians(p: np.ndarray, v: np.ndarray, cell_m: float, corner_xy_m: tuple[float, float], *,
+                  with_points: bool) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Per occupied cell the median of each column (x, y, then vx, vy; or vx, vy only), counts, cell of each point."""
     if not cell_m > 0:
         raise ValueError(f"cell_m must be > 0, got {cell_m}")
+    columns = (p[:, 0], p[:, 1], v[:, 0], v[:, 1]) if with_points else (v[:, 0], v[:, 1])
     if len(p) == 0:
-        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return [np.zeros(0) for _ in columns], np.zeros(0, np.int64), np.zeros(0, np.int64)
     ij = np.floor((p - np.asarray(corner_xy_m, float)) / cell_m).astype(np.int64)
     ij -= ij.min(axis=0)
     key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]          # one integer per cell
@@ -257,11 +274,11 @@ def cell_motion(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
     n = np.diff(np.r_[first, len(key)])
     mid_lo, mid_hi = first + (n - 1) // 2, first + n // 2
     out = []
-    for col in (p[:, 0], p[:, 1], v[:, 0], v[:, 1]):
+    for col in columns:
         lo, span = col.min(), np.ptp(col) * 1.001 + 1e-9
         s = col[np.argsort(key + (col - lo) / span)]   # by cell, then by value (the fraction never crosses a cell)
         out.append(0.5 * (s[mid_lo] + s[mid_hi]))
-    return np.column_stack(out[:2]), np.column_stack(out[2:]), n, of_point
+    return out, n, of_point
 
 
 def _cell_rc(grid: GridSpec, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.ndimage import grey_dilation
 
 from nodes.nav.dijkstra import GridGraph, backtrack, cost_from, smooth_path
-from nodes.nav.features import cell_motion
+from nodes.nav.features import cell_velocity
 from nodes.nav.grid_frame import GridFrame, densify, extract_waypoint, inflate, plan_on_map, steer, to_robot, to_world
 
 
@@ -360,7 +360,7 @@ def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: Gri
     """Cells (rows, cols) bool where a moving point will be when the robot could be there too.
 
     Points (robot frame, N x 3 positions and velocities) move with the median velocity of the
-    grid cell they stand in (:func:`nodes.nav.features.cell_motion`); each point of a cell of at
+    grid cell they stand in (:func:`nodes.nav.features.cell_velocity`); each point of a cell of at
     least ``min_points`` points moving faster than ``moving_mps`` is
     extrapolated at constant velocity for ``horizon_s``; the cell it reaches
     at time tau is marked when the robot, driving at ``robot_speed_mps``, would also be about
@@ -379,7 +379,7 @@ def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: Gri
         return mask
     corner = (frame.origin_x_m - 0.5 * frame.resolution_m, frame.origin_y_m - 0.5 * frame.resolution_m)
     p = p[ok]
-    _, cell_v, n, of_point = cell_motion(p, v[ok], frame.resolution_m, corner)
+    cell_v, n, of_point = cell_velocity(p, v[ok], frame.resolution_m, corner)
     v = cell_v[of_point]                             # each point moves with its cell's median velocity
     keep = (n[of_point] >= min_points) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
     p, v = p[keep], v[keep]
