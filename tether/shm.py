@@ -64,6 +64,7 @@ log = logging.getLogger("tether.shm")
 
 SHM_DIR = "/dev/shm"
 TOPIC_PREFIX = b"@shm/"
+DRAFT_PREFIX = ".tether-draft-"     # + uid: a segment being made, before it has its name
 DUAL_PREFIX = b"@dual/"          # marker: this subscriber takes slot tables but is subscribed plain too, for now
 MAGIC = b"TETHSHM1"
 MAX_SLOTS = 256
@@ -152,19 +153,34 @@ class Segment:
 
     @classmethod
     def create(cls, name: str, slots: int, slot_bytes: int) -> "Segment":
-        """A new file, 0600, never one that exists (``O_EXCL``) nor a planted symlink (``O_NOFOLLOW``)."""
+        """A new file, 0600, never one that exists nor a planted symlink, owner-locked before it has its name.
+
+        It is made under a private draft name that :func:`sweep_stale_segments` sweeps only when
+        no one holds it, written and locked, then linked under ``name``: another process's sweep
+        must never find a named file unlocked and take it for a dead publisher's (it did, once in
+        a few hundred creations, when the name came first)."""
         data_offset, size = cls.layout(slots, slot_bytes)
-        fd = os.open(os.path.join(SHM_DIR, name), os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
-        try:
-            os.fchmod(fd, 0o600)
-            os.ftruncate(fd, size)                 # sparse: tmpfs pages exist only once written
-            os.pwrite(fd, _HEAD.pack(MAGIC, 1, slots, slot_bytes, data_offset, MAX_READERS), 0)
-            _lock(fd, fcntl.F_WRLCK, _LOCK_OWNER)   # alive while we are: see sweep_stale_segments
-            return cls(name, fd, slots, slot_bytes, data_offset, size)
-        except BaseException:
+        path = os.path.join(SHM_DIR, name)
+        for attempt in range(3):
+            draft = os.path.join(SHM_DIR, f"{DRAFT_PREFIX}{os.getuid()}-{os.urandom(8).hex()}")
+            fd = os.open(draft, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+            try:
+                os.fchmod(fd, 0o600)
+                os.ftruncate(fd, size)             # sparse: tmpfs pages exist only once written
+                os.pwrite(fd, _HEAD.pack(MAGIC, 1, slots, slot_bytes, data_offset, MAX_READERS), 0)
+                if _lock(fd, fcntl.F_WRLCK, _LOCK_OWNER):   # alive while we are
+                    os.link(draft, path, follow_symlinks=False)   # refuses an existing name
+                    os.unlink(draft)
+                    return cls(name, fd, slots, slot_bytes, data_offset, size)
+            except FileNotFoundError:              # a sweep took the draft before we locked it
+                pass
+            except BaseException:
+                os.close(fd)
+                _unlink(os.path.basename(draft))
+                raise
             os.close(fd)
-            os.unlink(os.path.join(SHM_DIR, name))
-            raise
+            _unlink(os.path.basename(draft))
+        raise OSError(f"cannot create the shared-memory segment {name}: its draft was swept three times")
 
     @classmethod
     def open(cls, name: str) -> "Segment":
@@ -580,9 +596,9 @@ class _Mapped:
 def sweep_stale_segments() -> int:
     """Unlink this user's pool files whose publisher is gone (killed with SIGKILL); return how many."""
     removed = 0
-    prefix = f"tether-{os.getuid()}-"
+    prefixes = (f"tether-{os.getuid()}-", f"{DRAFT_PREFIX}{os.getuid()}-")
     try:
-        names = [n for n in os.listdir(SHM_DIR) if n.startswith(prefix)]
+        names = [n for n in os.listdir(SHM_DIR) if n.startswith(prefixes)]
     except OSError:
         return 0
     for name in names:

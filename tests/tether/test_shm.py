@@ -259,6 +259,31 @@ def test_stale_segments_of_killed_publishers_are_swept() -> None:
         live.close()
 
 
+def test_a_sweep_in_another_process_never_unlinks_a_segment_being_created() -> None:
+    """Two publishers starting at once: one's sweep must not take the other's fresh file for a dead one's."""
+    sweeper = _child("""
+        import time
+        from tether import shm
+        print("ready", flush=True)
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:
+            shm.sweep_stale_segments()
+    """)
+    try:
+        assert sweeper.stdout.readline().strip() == "ready"
+        lost = []
+        for i in range(400):
+            seg = shm.Segment.create(f"tether-{os.getuid()}-{os.getpid()}-race-{i}", 2, 64 << 10)
+            if not Path(shm.SHM_DIR, seg.name).exists():
+                lost.append(seg.name)
+            shm._unlink(seg.name)
+            seg.close()
+        assert lost == []
+    finally:
+        sweeper.kill()
+        sweeper.wait(30)
+
+
 def test_a_loaned_array_is_published_without_a_copy() -> None:
     pool, reader = _pool(), shm.Reader()
     try:
