@@ -28,6 +28,7 @@ from tether.runtime import RunSpec
 #: libraries whose thread pools do not survive a fork: a launcher that imported one (validating a
 #: node that uses it) starts fresh interpreters instead
 FORK_UNSAFE = ("jax", "jaxlib", "torch", "tensorflow")
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 def can_fork() -> bool:
@@ -40,12 +41,19 @@ class ForkedNode:
 
     def __init__(self, spec: RunSpec, env: dict[str, str]) -> None:
         read, write = os.pipe()
-        pid = os.fork()
+        # Stop signals wait until the child has its own handlers: one that arrived between the
+        # fork and then would run the launcher's handler in the child, and the node never stop.
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            pid = os.fork()
+        except BaseException:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+            raise
         if pid == 0:
             code = 70
             try:
                 os.close(read)
-                code = _run_child(spec, env, write)
+                code = _run_child(spec, env, write, mask)
             except BaseException:      # noqa: BLE001 - the child must never run on in the launcher's code
                 try:
                     traceback.print_exc()
@@ -53,6 +61,7 @@ class ForkedNode:
                     pass
             finally:
                 os._exit(code)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         os.close(write)
         self.pid = pid
         self.returncode: int | None = None
@@ -85,11 +94,12 @@ class ForkedNode:
         self.send_signal(signal.SIGKILL)
 
 
-def _run_child(spec: RunSpec, env: dict[str, str], out_fd: int) -> int:
+def _run_child(spec: RunSpec, env: dict[str, str], out_fd: int, mask: set) -> int:
     """In the forked child: become a node process like ``python -m tether.runner`` would be."""
     os.setsid()                                    # Ctrl-C in the terminal reaches the launcher only
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, signal.SIG_DFL)
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_DFL)         # a stop before the node's own handlers: just exit
+    signal.pthread_sigmask(signal.SIG_SETMASK, mask)
     os.dup2(out_fd, 1)
     os.dup2(out_fd, 2)
     os.close(out_fd)
@@ -107,6 +117,7 @@ def _run_child(spec: RunSpec, env: dict[str, str], out_fd: int) -> int:
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr, force=True)
     faulthandler.enable(file=sys.stderr, all_threads=True)
+    faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)   # the launcher asks for stacks
     try:
         transport.reload_env()                      # this node's own TETHER_* knobs, not the launcher's
         runtime.PUB_QUEUE_BYTES = transport.PUB_QUEUE_BYTES

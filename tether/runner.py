@@ -105,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
     faulthandler.enable(all_threads=True)      # a crash in native code leaves its Python stack in the log
+    faulthandler.register(signal.SIGUSR1, all_threads=True)   # and the launcher asks for stacks with SIGUSR1
     if not argv:
         print("usage: python -m tether.runner -   (RunSpec JSON on stdin)", file=sys.stderr)
         return 2

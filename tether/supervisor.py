@@ -4,6 +4,7 @@ from __future__ import annotations
 import fnmatch
 import json
 import logging
+import math
 import os
 import signal
 import subprocess
@@ -51,6 +52,35 @@ class Child:
     exit_codes: list[int] = field(default_factory=list)
 
 
+def _stop_timeout() -> float:
+    """``TETHER_STOP_TIMEOUT_S``: how long nodes get to stop after SIGTERM before SIGKILL (default 10 s)."""
+    text = os.environ.get("TETHER_STOP_TIMEOUT_S", "")
+    try:
+        value = float(text) if text else STOP_TIMEOUT_S
+    except ValueError:
+        value = math.nan
+    if not 0.1 <= value <= 3600:
+        raise ConfigError(f"TETHER_STOP_TIMEOUT_S={text!r}: give seconds between 0.1 and 3600")
+    return value
+
+
+def signal_node(pid: int, sig: int, *, group: bool = True) -> None:
+    """Signal a node's process group (the node and anything it started), or the node alone.
+
+    A node leaves the launcher's group first thing; one that has not yet (just forked) has
+    no group of its own and gets the signal directly, instead of none at all."""
+    try:
+        if group:
+            try:
+                os.killpg(pid, sig)
+                return
+            except ProcessLookupError:
+                pass
+        os.kill(pid, sig)
+    except ProcessLookupError:
+        pass                     # gone already
+
+
 def spawn(module: str, spec_json: bytes, *, env: dict[str, str] | None = None) -> subprocess.Popen:
     """Start ``python -m module -`` and hand it ``spec_json`` on its stdin.
 
@@ -81,6 +111,7 @@ class Supervisor:
         self.machine = machine or ""
         self.out = out or sys.stdout
         self.stop_event = threading.Event()
+        self.stop_timeout_s = _stop_timeout()
         self._write_lock = threading.Lock()
         if launch.machines and self.machine not in launch.machines:
             raise ConfigError(f"{launch.path}: --machine must be one of {sorted(launch.machines)}")
@@ -182,18 +213,23 @@ class Supervisor:
     def _terminate_all(self) -> None:
         live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
         for child in live:
-            try:
-                os.killpg(child.proc.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-        deadline = time.monotonic() + STOP_TIMEOUT_S
+            signal_node(child.proc.pid, signal.SIGTERM)
+        deadline = time.monotonic() + self.stop_timeout_s
         for child in live:
             try:
                 child.proc.wait(max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                log.error("node %s did not stop within %.0f s: killed", child.id, STOP_TIMEOUT_S)
-                os.killpg(child.proc.pid, signal.SIGKILL)
-                child.proc.wait()
+                # Its stack first (every node dumps all threads' stacks on SIGUSR1 into its log), then kill.
+                log.error("node %s did not stop within %g s: its stacks follow, then it is killed",
+                          child.id, self.stop_timeout_s)
+                signal_node(child.proc.pid, signal.SIGUSR1, group=False)
+                time.sleep(0.3)
+                signal_node(child.proc.pid, signal.SIGKILL)
+                try:
+                    child.proc.wait(STOP_TIMEOUT_S)
+                except subprocess.TimeoutExpired:
+                    log.error("node %s (pid %d) survived SIGKILL for %.0f s: left behind", child.id,
+                              child.proc.pid, STOP_TIMEOUT_S)
                 child.failed = True
 
     # -- main loop --------------------------------------------------------------------
@@ -246,9 +282,9 @@ class Supervisor:
             return
         self.recorder.send_signal(signal.SIGTERM)
         try:
-            code = self.recorder.wait(STOP_TIMEOUT_S)
+            code = self.recorder.wait(self.stop_timeout_s)
         except subprocess.TimeoutExpired:
-            log.error("the recorder did not stop within %.0f s: killed", STOP_TIMEOUT_S)
+            log.error("the recorder did not stop within %g s: killed", self.stop_timeout_s)
             self.recorder.kill()
             code = self.recorder.wait()
         if code != 0:

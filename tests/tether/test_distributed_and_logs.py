@@ -78,7 +78,7 @@ def test_recorder_killed_with_sigkill_leaves_a_readable_log(tmp_path: Path, runt
     log = tmp_path / "killed.mcap"
     launch = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", "launch/counter.yaml",
                                "--param", "counter.rate_hz=50"], cwd=REPO, env=runtime_env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         wait_for_topic("scale/value", runtime_env, alive=launch)
         rec = subprocess.Popen([sys.executable, "-m", "tether.cli", "record", "-o", str(log)], cwd=REPO,
@@ -88,7 +88,8 @@ def test_recorder_killed_with_sigkill_leaves_a_readable_log(tmp_path: Path, runt
         rec.wait(10)
     finally:
         launch.send_signal(signal.SIGINT)
-        launch.wait(30)
+        _, err = launch.communicate(timeout=30)      # (once, in a loaded full run: did not exit in 30 s)
+    assert launch.returncode == 0, err[-3000:]
     reader = LogReader(log)
     assert reader.recovered                      # no footer: read by streaming
     msgs = [reader.decode(r) for r in reader.messages(["counter/value"])]

@@ -1,33 +1,84 @@
-"""Nodes forked from the launcher: exit codes, error lines on the pipe, and each node's own environment."""
+"""Nodes forked from the launcher: exit codes, error lines on the pipe, each node's own environment,
+stop signals right after the fork, and a node that cannot stop.
+
+Forks happen in a fresh interpreter: the suite's own process has imported JAX, whose threads
+do not survive a fork (the launcher itself never forks then, see ``forked.FORK_UNSAFE``)."""
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+import textwrap
 
 import pytest
 
+from conftest import REPO, tether
 from tether import forked
-from tether.runtime import RunSpec
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
 
+_PRELUDE = """
+import os, signal, sys, time
+from tether import forked
+from tether.runtime import RunSpec
+from tether.supervisor import signal_node
 
-def _crasher() -> RunSpec:
-    return RunSpec(graph="f", node_id="crash", node="nodes.std.chaos:Crasher", params={"after_s": 0.1},
+def crasher(**params):
+    return RunSpec(graph="f", node_id="crash", node="nodes.std.chaos:Crasher", params=params or {"after_s": 0.1},
                    parent_pid=os.getpid())
+"""
+
+
+def _fork_script(code: str, env: dict) -> subprocess.CompletedProcess:
+    out = subprocess.run([sys.executable, "-c", _PRELUDE + textwrap.dedent(code)], cwd=REPO, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out
 
 
 def test_a_forked_node_reports_its_exit_code(runtime_env: dict) -> None:
-    proc = forked.ForkedNode(_crasher(), dict(os.environ))
-    proc.stdout.read()                          # until the child's end of the pipe closes
-    assert proc.wait(60) == 3 and proc.poll() == 3
+    out = _fork_script("""
+        proc = forked.ForkedNode(crasher(), dict(os.environ))
+        proc.stdout.read()                          # until the child's end of the pipe closes
+        print(proc.wait(60), proc.poll())
+    """, runtime_env)
+    assert out.stdout.split() == ["3", "3"]
 
 
 def test_a_forked_node_reads_its_own_environment(runtime_env: dict) -> None:
-    env = {**os.environ, "TETHER_PUB_QUEUE_BYTES": "12"}      # invalid: only this child sees it
-    proc = forked.ForkedNode(_crasher(), env)
-    out = proc.stdout.read()
-    assert proc.wait(60) == 2 and "TETHER_PUB_QUEUE_BYTES='12'" in out
-    assert os.environ.get("TETHER_PUB_QUEUE_BYTES") != "12"   # the launcher's own is untouched
+    out = _fork_script("""
+        env = {**os.environ, "TETHER_PUB_QUEUE_BYTES": "12"}      # invalid: only this child sees it
+        proc = forked.ForkedNode(crasher(), env)
+        text = proc.stdout.read()
+        print(proc.wait(60), "TETHER_PUB_QUEUE_BYTES='12'" in text, os.environ.get("TETHER_PUB_QUEUE_BYTES") == "12")
+    """, runtime_env)
+    assert out.stdout.split() == ["2", "True", "False"]   # the launcher's own environment is untouched
+
+
+def test_a_stop_signal_right_after_the_fork_is_never_lost(runtime_env: dict) -> None:
+    """SIGTERM sent the moment fork returns reaches a child that has not yet left the launcher's
+    group nor set its own handlers: it stops at once (before: the launcher's handler ran in the
+    child, swallowed it, and the node ran on until killed)."""
+    out = _fork_script("""
+        signal.signal(signal.SIGTERM, lambda *_: None)       # the launcher's handler, which a child inherits
+        slow = []
+        for _ in range(40):
+            proc = forked.ForkedNode(crasher(after_s=60.0), dict(os.environ))
+            signal_node(proc.pid, signal.SIGTERM)
+            t0 = time.monotonic()
+            try:
+                code = proc.wait(10)
+            except Exception:
+                proc.kill()
+                code = proc.wait()
+            proc.stdout.close()
+            slow.append(round(time.monotonic() - t0, 2))
+            if code not in (0, -signal.SIGTERM):
+                break                                        # swallowed: ran on until killed
+        print(len(slow), max(slow))
+    """, runtime_env)
+    runs, slowest = out.stdout.split()
+    assert int(runs) == 40 and float(slowest) < 10.0
 
 
 def test_fork_is_not_used_when_asked_or_unsafe(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -36,3 +87,24 @@ def test_fork_is_not_used_when_asked_or_unsafe(monkeypatch: pytest.MonkeyPatch) 
     monkeypatch.delenv("TETHER_SPAWN")
     monkeypatch.setitem(__import__("sys").modules, "torch", object())
     assert not forked.can_fork()
+
+
+@pytest.mark.parametrize("spawn", ["fork", "exec"])
+def test_a_node_that_cannot_stop_is_killed_after_the_stop_timeout_with_its_stacks(
+        tmp_path, runtime_env: dict, spawn: str) -> None:
+    path = tmp_path / "hang.yaml"
+    path.write_text(textwrap.dedent("""
+        name: hang
+        nodes:
+          - {id: counter, node: "nodes.std.demo:Counter", params: {rate_hz: 20}}
+          - {id: hang, node: "nodes.std.chaos:Hang", params: {after_s: 0.2}}
+    """))
+    env = {**runtime_env, "TETHER_STOP_TIMEOUT_S": "1", "TETHER_SPAWN": spawn}
+    out = tether("launch", str(path), "--duration", "2", env=env, timeout=60)
+    assert out.returncode == 1, out.stderr[-2000:]
+    assert "node hang did not stop within 1 s: its stacks follow, then it is killed" in out.stderr
+    assert "failed: hang" in out.stderr and "counter" not in out.stderr.split("failed:")[-1]
+    stacks = [line for line in out.stdout.splitlines() if line.startswith("[hang] ")]
+    assert any("in on_tick" in line for line in stacks), out.stdout[-2000:]   # faulthandler's dump, on SIGUSR1
+    bad = tether("launch", str(path), "--duration", "1", env={**env, "TETHER_STOP_TIMEOUT_S": "soon"})
+    assert bad.returncode == 2 and "TETHER_STOP_TIMEOUT_S='soon'" in bad.stderr and "Traceback" not in bad.stderr
