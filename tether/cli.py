@@ -197,6 +197,30 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return _replay_publish(args, window, LogReader(args.file), play)
 
 
+def _wait_subscribers(sock: Any, topics: Any, n: int, timeout_s: float, stop: threading.Event) -> int:
+    """Read an XPUB's subscriptions until ``n`` cover every topic, or for ``timeout_s``; the least count.
+
+    A subscription covers a topic it is a prefix of (a recorder of everything subscribes to
+    ``""``); Tether's own markers (``@shm/``, ``@dual/``) stand beside a plain subscription and
+    are not counted."""
+    counts = {t.encode(): 0 for t in topics}
+    deadline = time.monotonic() + timeout_s
+    while counts and min(counts.values()) < n and not stop.is_set():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        if not sock.poll(min(left, 0.1) * 1000):
+            continue
+        event = sock.recv()
+        if event[:1] not in (b"\x00", b"\x01") or event[1:2] == b"@":
+            continue
+        change = 1 if event[0] == 1 else -1
+        for topic in counts:
+            if topic.startswith(event[1:]):
+                counts[topic] += change
+    return min(counts.values()) if counts else n
+
+
 def _nothing_done(count: int, args: argparse.Namespace, why: str) -> int:
     """Zero work is not success: one warning and exit 1, unless --allow-empty."""
     if count > 0 or getattr(args, "allow_empty", False):
@@ -216,8 +240,12 @@ def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: An
     info = reader.info()
     topics = {t: info.topics[t] for t in select_topics(info.topics, args.topics)}
     endpoint = ipc_endpoint("replay", "log", uuid.uuid4().hex[:8])
-    sock = zmq.Context.instance().socket(zmq.PUB)
+    if args.wait_subscribers < 0:
+        raise ConfigError(f"--wait-subscribers {args.wait_subscribers}: give a count >= 0")
+    sock = zmq.Context.instance().socket(zmq.XPUB if args.wait_subscribers else zmq.PUB)
     sock.sndhwm = 10000
+    if args.wait_subscribers:
+        sock.xpub_verbose = True      # every subscriber's subscription, not only a topic's first
     sock.bind(endpoint)
     entry = registry.register({"name": f"replay-{reader.path.stem}", "machine": "", "nodes": {},
                                "topics": {t: {"type": tp, "endpoint": endpoint} for t, tp in topics.items()}})
@@ -227,7 +255,14 @@ def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: An
     total = sum(info.counts.get(t, 0) for t in topics)
     progress = _Progress()
     try:
-        stop.wait(args.delay)   # subscribers that attach within this time miss nothing
+        if args.wait_subscribers:
+            delay = 30.0 if args.delay is None else args.delay
+            least = _wait_subscribers(sock, topics, args.wait_subscribers, delay, stop)
+            if least < args.wait_subscribers and not stop.is_set():
+                print(f"tether: warning: {least} of {args.wait_subscribers} subscribers on every topic after "
+                      f"{delay:g} s: playing anyway", file=sys.stderr)
+        else:
+            stop.wait(0.5 if args.delay is None else args.delay)   # who attaches within this time misses nothing
         def show(k: int, rec: Any) -> None:
             lap = f"loop {(k - 1) // total + 1}, " if args.loop and total else ""
             shown = (k - 1) % total + 1 if args.loop and total else k
@@ -734,7 +769,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--end", type=float, help="seconds from the log's start")
     p.add_argument("--loop", action="store_true", help="start again at the end (publishing only)")
     p.add_argument("--topics", nargs="+", help="only these topics (names or globs like 'sonar/*')")
-    p.add_argument("--delay", type=float, default=0.5, help="seconds to let subscribers attach before playing")
+    p.add_argument("--delay", type=float, help="seconds to let subscribers attach before playing (0.5; "
+                   "with --wait-subscribers the most it waits, 30)")
+    p.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+                   help="play once N subscribers take every replayed topic (or --delay has passed: a warning)")
     p.add_argument("--into", metavar="MODULE:Class", help="run this node on the log")
     p.add_argument("--map", action="append", metavar="INPUT=TOPIC", help="with --into: feed INPUT from TOPIC")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="with --into: a Config parameter")

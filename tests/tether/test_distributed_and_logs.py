@@ -210,13 +210,14 @@ def test_replay_then_record_gives_the_same_messages(tmp_path: Path, runtime_env:
             w.write("cam/image", Image(data=np.full((64, 32), i, np.uint8), stamp_ns=10**9 + i, seq=i + 1),
                     log_time_ns=10**9 + i * 10**7)
             w.write("cam/name", String(data=f"frame {i}", stamp_ns=10**9 + i, seq=i + 1), log_time_ns=10**9 + i * 10**7)
-    replay = subprocess.Popen([sys.executable, "-m", "tether.cli", "replay", str(src), "--delay", "8"], cwd=REPO,
+    replay = subprocess.Popen([sys.executable, "-m", "tether.cli", "replay", str(src), "--wait-subscribers", "1",
+                               "--delay", "60"], cwd=REPO,
                               env=runtime_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         wait_for_topic("cam/name", runtime_env, alive=replay)
         rec = subprocess.Popen([sys.executable, "-m", "tether.cli", "record", "-o", str(dst)], cwd=REPO,
                                env=runtime_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert replay.wait(60) == 0                 # replay starts after its --delay and ends by itself
+        assert replay.wait(90) == 0                 # replay starts once the recorder subscribes, ends by itself
         time.sleep(1.0)                             # the recorder drains what is in flight
         rec.send_signal(signal.SIGINT)
         assert rec.wait(30) == 0
@@ -226,6 +227,9 @@ def test_replay_then_record_gives_the_same_messages(tmp_path: Path, runtime_env:
     a = [(r.topic, r.data) for r in LogReader(src).messages()]
     b = [(r.topic, r.data) for r in LogReader(dst).messages()]
     assert sorted(a) == sorted(b) and len(b) == 80
+    alone = tether("replay", str(src), "--wait-subscribers", "2", "--delay", "0.3", env=runtime_env)
+    assert alone.returncode == 0 and "0 of 2 subscribers on every topic after 0.3 s: playing anyway" in alone.stderr
+    assert "replayed 80 messages" in alone.stdout
 
 
 def test_random_frames_on_the_live_accept_path_never_raise(runtime_env: dict) -> None:
