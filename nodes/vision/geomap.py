@@ -106,14 +106,14 @@ def brighton_frames() -> list[tuple[np.ndarray, dict]]:
     return [(cv2.imread(str(DATA / "frames_1000px" / r["file"])), r) for r in rows]
 
 
-def register_brighton(method: str = "sift") -> tuple[np.ndarray, list, list[dict], np.ndarray]:
+def register_brighton(method: str = "sift", every: int = 1) -> tuple[np.ndarray, list, list[dict], np.ndarray]:
     """The ortho image, each real frame's registration to it, the GPS rows and their east-north
-    positions (metres from the first frame)."""
+    positions (metres from the first frame); ``every`` > 1 takes every n-th frame (about 1 s each)."""
     from nodes.vision.georegister import MapFeatures, register
 
     ortho = cv2.imread(str(DATA / "ortho_render_brighton_beach.jpg"))
     mf = MapFeatures.of(ortho, method=method)
-    frames = brighton_frames()
+    frames = brighton_frames()[::every]
     rows = [r for _, r in frames]
     lat = np.array([float(r["lat"]) for r in rows])
     lon = np.array([float(r["lon"]) for r in rows])

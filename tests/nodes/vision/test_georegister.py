@@ -101,9 +101,9 @@ def test_localisation_mode_falls_back_to_search_after_failures(world):
 def test_real_frames_georeference_the_ortho_to_gps_accuracy():
     from nodes.vision.geomap import georeference, register_brighton
 
-    ortho, fixes, rows, enu = register_brighton()
+    ortho, fixes, rows, enu = register_brighton(every=2)         # 9 of the 18 frames (the bench takes all)
     ok = [k for k, f in enumerate(fixes) if f.ok]
-    assert len(ok) >= 16
+    assert len(ok) >= 8
     C = np.array([fixes[k].centre_px for k in ok])
     errs, heading = [], []
     for i in range(len(ok)):                                     # leave one frame out
