@@ -64,6 +64,23 @@ def _stop_timeout() -> float:
     return value
 
 
+def _wait_delivered(pid: int, sig: int, timeout_s: float) -> None:
+    """Wait (bounded) until ``sig`` is no longer pending for ``pid``: its handler has run (Linux /proc)."""
+    bit = 1 << (sig - 1)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            status = Path(f"/proc/{pid}/status").read_text()
+        except OSError:
+            time.sleep(0.3)                  # not Linux, or gone: a fixed pause
+            return
+        pending = [int(line.split()[1], 16) for line in status.splitlines() if line.startswith(("SigPnd", "ShdPnd"))]
+        if pending and not any(p & bit for p in pending):
+            time.sleep(0.05)                 # the handler runs once delivered: let it write
+            return
+        time.sleep(0.02)
+
+
 def signal_node(pid: int, sig: int, *, group: bool = True) -> None:
     """Signal a node's process group (the node and anything it started), or the node alone.
 
@@ -134,6 +151,7 @@ class Supervisor:
         self.recorder_segments: list[str] = []
         self.recorder_failures = 0
         self._registry_path: Path | None = None
+        self._pumps: list[threading.Thread] = []
 
     def _recorded(self, patterns: list[str] | None, exclude: list[str] | None) -> dict[str, str]:
         """Topics of this machine's nodes to record (fnmatch patterns), with their endpoints."""
@@ -182,7 +200,9 @@ class Supervisor:
                 child.proc = forked.ForkedNode(child.spec, env)
         else:
             child.proc = spawn("tether.runner", msgspec.json.encode(child.spec), env=env)
-        threading.Thread(target=self._pump, args=(child.id, child.proc.stdout), daemon=True).start()
+        pump = threading.Thread(target=self._pump, args=(child.id, child.proc.stdout), daemon=True)
+        pump.start()
+        self._pumps.append(pump)
         self._register()
 
     def _pump(self, node_id: str, stream: IO[str]) -> None:
@@ -223,7 +243,7 @@ class Supervisor:
                 log.error("node %s did not stop within %g s: its stacks follow, then it is killed",
                           child.id, self.stop_timeout_s)
                 signal_node(child.proc.pid, signal.SIGUSR1, group=False)
-                time.sleep(0.3)
+                _wait_delivered(child.proc.pid, signal.SIGUSR1, 2.0)
                 signal_node(child.proc.pid, signal.SIGKILL)
                 try:
                     child.proc.wait(STOP_TIMEOUT_S)
@@ -254,6 +274,9 @@ class Supervisor:
                     break
         finally:
             self._terminate_all()
+            drained = time.monotonic() + 2.0          # the nodes' last lines (and stacks) reach the output
+            for pump in self._pumps:
+                pump.join(max(0.0, drained - time.monotonic()))
             for child in self.children:
                 if child.proc is not None and child.proc.returncode not in (0, None, -signal.SIGTERM):
                     if not child.done:
