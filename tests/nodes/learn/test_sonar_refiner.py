@@ -143,24 +143,56 @@ def test_real_pings_load_when_present():
     assert len(real) == 3 and all(r.shape == (703, 256) and r.dtype == np.uint8 for r in real)
 
 
-def test_refiner_sits_between_the_simulator_and_the_imager(tmp_path):
-    """launch/sonar_refined.yaml end to end: simulated pings pass the refiner into the imager."""
+def test_refiner_sits_between_the_simulator_and_the_imager(monkeypatch):
+    """launch/sonar_refined.yaml end to end: simulated pings pass the refiner into the imager. The
+    launch runs until the imager's first image arrives here (at most 90 s), then stops on SIGINT."""
     import os
     import re
+    import signal
     import subprocess
     import sys
     import tempfile
+    import time
     from pathlib import Path
+
+    from msgs.sonar import FanImage
+    from tether.codec import Codec
+    from tether.errors import TetherError
+    from tether.introspect import subscribe
 
     if not DEFAULT_WEIGHTS.is_file():
         pytest.skip("no shipped sonar refiner weights")
     repo = Path(__file__).resolve().parents[3]
     base = tempfile.mkdtemp(prefix="tr-", dir="/tmp")          # short: ipc paths have a length limit
-    env = dict(os.environ, TETHER_RUNTIME_DIR=os.path.join(base, "rt"), TETHER_KEYS_DIR=os.path.join(base, "keys"))
-    run = subprocess.run([sys.executable, "-m", "tether.cli", "launch", str(repo / "launch" / "sonar_refined.yaml"),
-                          "--duration", "15"], cwd=repo, env=env, capture_output=True, text=True, timeout=120)
-    out = run.stdout + run.stderr
-    assert run.returncode == 0, out
+    monkeypatch.setenv("TETHER_RUNTIME_DIR", os.path.join(base, "rt"))
+    monkeypatch.setenv("TETHER_KEYS_DIR", os.path.join(base, "keys"))
+    launch = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", str(repo / "launch" / "sonar_refined.yaml"),
+                               "--duration", "120"], cwd=repo, env=dict(os.environ), stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True)
+    image = None
+    try:
+        deadline = time.monotonic() + 90
+        while launch.poll() is None and time.monotonic() < deadline:
+            try:
+                _, sock = subscribe("imager/image")
+                break
+            except TetherError:
+                time.sleep(0.2)
+        else:
+            pytest.fail("imager/image was never registered")
+        try:
+            while image is None and launch.poll() is None and time.monotonic() < deadline:
+                if sock.poll(500):
+                    frames = sock.recv_multipart(copy=False)
+                    if frames[0].bytes == b"imager/image":
+                        image = Codec().decode(FanImage, frames[1:])
+        finally:
+            sock.close(linger=0)
+    finally:
+        launch.send_signal(signal.SIGINT)
+        out, _ = launch.communicate(timeout=60)
+    assert launch.returncode == 0, out
+    assert isinstance(image, FanImage) and np.asarray(image.image).size > 0, out
     refined = re.search(r"refiner: (\d+) pings refined, (\d+) dropped", out)
     assert refined and int(refined.group(1)) >= 1 and int(refined.group(2)) == 0, out
     assert "Traceback" not in out
