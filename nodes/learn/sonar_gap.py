@@ -18,6 +18,7 @@ Pure: numpy in, floats out (the discriminator trains with JAX + Optax, seeded).
 """
 from __future__ import annotations
 
+import functools
 from typing import Sequence
 
 import cv2
@@ -97,18 +98,9 @@ def discriminator_gap(real_train: np.ndarray, fake_train: np.ndarray, real_test:
     (``|2 auc - 1|``) and ``train_acc`` (on the last training batches: a classifier that cannot
     even fit its training data would make every gap look small).
     """
-    import flax.linen as nn
     import jax
     import jax.numpy as jnp
-    import optax
     from sklearn.metrics import roc_auc_score
-
-    class Classifier(nn.Module):
-        @nn.compact
-        def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
-            for f in (16, 32, 32):
-                x = nn.leaky_relu(nn.Conv(f, (3, 3), strides=(2, 2))(x), 0.2)
-            return nn.Dense(1)(x.mean(axis=(1, 2)))[:, 0]
 
     def signed(a: np.ndarray) -> np.ndarray:
         return np.asarray(a, np.float32) / 127.5 - 1.0
@@ -117,10 +109,44 @@ def discriminator_gap(real_train: np.ndarray, fake_train: np.ndarray, real_test:
                     ("fake_test", fake_test)):
         if np.asarray(a).ndim != 4 or len(a) == 0:
             raise ValueError(f"{name}: expected a non-empty (N, H, W, 1) patch set, got shape {np.shape(a)}")
-    net = Classifier()
+    net, tx, step, score = _gap_classifier(lr)
     params = net.init(jax.random.PRNGKey(seed), jnp.zeros((1, *real_train.shape[1:]), jnp.float32))
-    tx = optax.adam(lr)
     opt = tx.init(params)
+
+    rng = np.random.default_rng(seed)
+    half = batch // 2
+    y = np.concatenate([np.ones(half, np.float32), np.zeros(half, np.float32)])
+    accs = []
+    for _ in range(steps):
+        x = np.concatenate([signed(real_train[rng.integers(len(real_train), size=half)]),
+                            signed(fake_train[rng.integers(len(fake_train), size=half)])])
+        params, opt, acc = step(params, opt, x, y)
+        accs.append(float(acc))
+    s_real = np.concatenate([np.asarray(score(params, signed(real_test[i:i + 256]))) for i in range(0, len(real_test), 256)])
+    s_fake = np.concatenate([np.asarray(score(params, signed(fake_test[i:i + 256]))) for i in range(0, len(fake_test), 256)])
+    labels = np.concatenate([np.ones(len(s_real)), np.zeros(len(s_fake))])
+    auc = float(roc_auc_score(labels, np.concatenate([s_real, s_fake])))
+    return {"auc": auc, "gap": abs(2.0 * auc - 1.0), "train_acc": float(np.mean(accs[-20:]))}
+
+
+@functools.lru_cache(maxsize=4)
+def _gap_classifier(lr: float) -> tuple:
+    """The real-vs-fake patch classifier, its optimiser, jitted update and scorer: built once per
+    process, so every :func:`discriminator_gap` call of a sweep (and of the tests) shares one compile."""
+    import flax.linen as nn
+    import jax
+    import jax.numpy as jnp
+    import optax
+
+    class Classifier(nn.Module):
+        @nn.compact
+        def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
+            for f in (16, 32, 32):
+                x = nn.leaky_relu(nn.Conv(f, (3, 3), strides=(2, 2))(x), 0.2)
+            return nn.Dense(1)(x.mean(axis=(1, 2)))[:, 0]
+
+    net = Classifier()
+    tx = optax.adam(lr)
 
     def loss_fn(p, x, y):
         logits = net.apply(p, x)
@@ -132,18 +158,4 @@ def discriminator_gap(real_train: np.ndarray, fake_train: np.ndarray, real_test:
         u, o = tx.update(g, o, p)
         return optax.apply_updates(p, u), o, jnp.mean((logits > 0) == (y > 0.5))
 
-    rng = np.random.default_rng(seed)
-    half = batch // 2
-    y = np.concatenate([np.ones(half, np.float32), np.zeros(half, np.float32)])
-    accs = []
-    for _ in range(steps):
-        x = np.concatenate([signed(real_train[rng.integers(len(real_train), size=half)]),
-                            signed(fake_train[rng.integers(len(fake_train), size=half)])])
-        params, opt, acc = step(params, opt, x, y)
-        accs.append(float(acc))
-    score = jax.jit(net.apply)
-    s_real = np.concatenate([np.asarray(score(params, signed(real_test[i:i + 256]))) for i in range(0, len(real_test), 256)])
-    s_fake = np.concatenate([np.asarray(score(params, signed(fake_test[i:i + 256]))) for i in range(0, len(fake_test), 256)])
-    labels = np.concatenate([np.ones(len(s_real)), np.zeros(len(s_fake))])
-    auc = float(roc_auc_score(labels, np.concatenate([s_real, s_fake])))
-    return {"auc": auc, "gap": abs(2.0 * auc - 1.0), "train_acc": float(np.mean(accs[-20:]))}
+    return net, tx, step, jax.jit(net.apply)
