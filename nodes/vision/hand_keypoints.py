@@ -82,8 +82,14 @@ def init_params(seed: int = 0, width: int = 16) -> Any:
     """Fresh parameters of :class:`KeypointNet`, drawn with XLA's RngBitGenerator ("rbg" keys): the
     default threefry keys cost this net's initialisation 20-30 s of XLA compilation on this CPU
     (one truncated-normal kernel per layer shape), rbg keys 3 s; seeded and reproducible alike."""
-    return jax.jit(KeypointNet(width).init)(jax.random.key(seed, impl="rbg"),
-                                            jnp.zeros((1, INPUT_PX, INPUT_PX, 3)))["params"]
+    return _init(width)(jax.random.key(seed, impl="rbg"), jnp.zeros((1, INPUT_PX, INPUT_PX, 3)))["params"]
+
+
+@functools.lru_cache(maxsize=4)
+def _init(width: int) -> Any:
+    """The jitted initialiser of one width, compiled once per process (each new ``jax.jit`` of a
+    fresh module's ``init`` compiled again: 4-6 s here)."""
+    return jax.jit(KeypointNet(width).init)
 
 
 def to_input(image: np.ndarray) -> np.ndarray:
