@@ -23,6 +23,18 @@ RMS over the arcs that voted for it of ``extent / sqrt(12)`` (a uniform spread),
 ``voxel / sqrt(12)``. A voted voxel leaves the cloud when later views empty it (score <
 ``min_support`` x hits).
 
+Occlusion (``occlusion``): a return behind its beam's front end comes from a surface the sonar sees, but
+its arc also crosses the inside of the nearer structure (a column's core at the range of its far side),
+and every view of a straight pass measures those ghosts alike. Such an arc does not vote for samples that
+lie ``occlusion_margin_m`` or more behind a *front surface* on their line of sight in their own ping: the
+voxels front-end arcs voted for (a front end has no such ghosts: nothing is nearer at any elevation), as a
+z-buffer over 0.5 deg bearing x elevation cells. With ``shadow_darks`` the same z-buffer keeps shadows
+from counting as dark (empty) evidence: a pass from the other side no longer carves the surfaces the
+structure hides from it. Both are off by default: measured in ``bench/sonar_cloud.py`` they move the
+cloud along the accuracy / completeness trade rather than past it -- occlusion publishes more points of
+narrower extent (tripod demo pass better, square pier and two piles alike, wall and block worse), and
+the darks they withhold refuted ghosts on single passes (tripod there and back: completeness up).
+
 Returns are every beam's front end (``nodes.sonar.highlight.detect_front_ends``, in the region before
 the seafloor's near edge ``r_emin``, eq. 8) and, with ``returns="all"``, every bright range block
 behind it: brighter than ``return_level`` before ``r_emin``, than ``floor_level`` beyond it (a structure
@@ -73,6 +85,10 @@ class CarvingParams:
     sigma_beam_px: float = 0.5
     threshold: float = 0.12
     guard_px: float | None = None
+    occlusion: bool = False           # an arc behind its beam's front end does not vote for what front surfaces shadow
+    occlusion_margin_m: float = 0.15  # ... a hypothesis this far behind a front surface on its line of sight
+    occlusion_bin_rad: float = 0.0087 # angular cells (bearing x elevation) of the shadow test (0.5 deg)
+    shadow_darks: bool = False        # no dark evidence where a front surface shadows the candidate (revisits)
 
     def __post_init__(self) -> None:
         if not (self.voxel_m > 0 and self.margin_m >= 0 and 0 < self.arc_step_m <= self.voxel_m):
@@ -85,6 +101,8 @@ class CarvingParams:
             raise ValueError("returns must be 'front' or 'all', 0 < return_level < 1, return_step_m > 0")
         if not (self.miss_weight >= 0 and self.dark_weight >= 0 and self.min_support <= 1):
             raise ValueError("need miss_weight >= 0, dark_weight >= 0 and min_support <= 1 (-inf: no support test)")
+        if not (self.occlusion_margin_m >= 0 and 0 < self.occlusion_bin_rad < 0.5):
+            raise ValueError("need occlusion_margin_m >= 0 and 0 < occlusion_bin_rad < 0.5")
 
 
 @dataclass(frozen=True)
@@ -112,11 +130,20 @@ class VotedCloud:
 
 @dataclass(frozen=True)
 class _PingArcs:
-    """One ping's arc samples: voxel, arc (0..n-1 in the ping), elevation along the arc (m)."""
+    """One ping's arc samples: voxel, arc (0..n-1 in the ping; the first ``n_front`` are front ends), elevation
+    along the arc (m); for the shadow test, each sample's range (m) and bearing and elevation (rad), and the
+    ping's pose."""
 
     voxel: np.ndarray
     arc: np.ndarray
     along: np.ndarray
+    n_front: int = 0
+    rng: np.ndarray | None = None
+    bearing: np.ndarray | None = None
+    phi: np.ndarray | None = None
+    rot: np.ndarray | None = None
+    origin: np.ndarray | None = None
+    half: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -158,6 +185,7 @@ class CarvingGrid:
         self._centre = np.zeros((0, 3), np.float32)
         self._votes = np.zeros(0, np.int32)
         self._extent2 = np.zeros(0, np.float64)
+        self._front_votes = np.zeros(0, np.int32)      # votes from front-end arcs (the surfaces that shadow)
         self._count = 0
         self._alive_voxel = np.zeros(0, np.int64)       # the candidates carving still tests: voxels, centres
         self._alive_centre = np.zeros((0, 3), np.float32)
@@ -204,7 +232,7 @@ class CarvingGrid:
         if p.returns == "all":
             more_r, more_b = self._bright(blocks, b, rows)
             r_hit, b_hit = np.concatenate([r_hit, more_r]), np.concatenate([b_hit, more_b])
-        hit, outside = self._hit(rot, origin, r_hit, b_hit, 0.5 * spread_rad)
+        hit, outside = self._hit(rot, origin, r_hit, b_hit, 0.5 * spread_rad, int(detected.sum()))
         self.pings += 1
         while len(self._pending) > p.settle_pings:
             self._vote(self._pending.popleft())
@@ -308,6 +336,12 @@ class CarvingGrid:
             blk = (rr * np.float32(1.0 / (blocks.step * blocks.dr))).astype(np.int64)
             behind = np.flatnonzero((rr > free + 2 * p.margin_m) & (blk < blocks.centre.size))
             dark = ~blocks.near[blk[behind], np.minimum(beam[behind] // 2, blocks.near.shape[1] - 1)]
+            if p.shadow_darks:                        # a shadow is not empty water: unknown
+                zbuf = self._front_zbuffer(rot.astype(np.float32), origin.astype(np.float32), half)
+                if zbuf is not None:
+                    s_ = sel[behind]
+                    bear = np.arctan2(y[s_], x[s_])
+                    dark &= ~self._behind(zbuf, half, bear, np.arcsin(np.clip(z[s_] / rr[behind], -1, 1)), rr[behind])
             didx = voxels[sel[behind[dark]]]
             self.darks[didx] = np.minimum(self.darks[didx].astype(np.int32) + stride, _U16)
         return int(idx.size)
@@ -336,8 +370,9 @@ class CarvingGrid:
                 - np.float32(p.dark_weight) * self.darks[voxels])
 
     def _hit(self, rot: np.ndarray, origin: np.ndarray, ranges: np.ndarray, bearings: np.ndarray,
-             half: float) -> tuple[int, int]:
-        """A hit on every voxel each return's elevation arc passes through (once per ping per voxel)."""
+             half: float, n_front: int) -> tuple[int, int]:
+        """A hit on every voxel each return's elevation arc passes through (once per ping per voxel); the first
+        ``n_front`` returns are front ends."""
         if ranges.size == 0:
             return 0, 0
         p = self.params
@@ -358,7 +393,12 @@ class CarvingGrid:
             ok &= (i >= 0) & (i < n)
             flat = flat * np.int32(n) + i
         flat = flat[ok].astype(np.int64)
-        self._pending.append(_PingArcs(flat, arc[ok].astype(np.int32), (phi * r)[ok]))
+        arc = arc[ok].astype(np.int32)
+        if p.occlusion:
+            self._pending.append(_PingArcs(flat, arc, (phi * r)[ok], n_front, r[ok], bearings.astype(np.float32)[arc],
+                                           phi[ok], rot.astype(np.float32), origin.astype(np.float32), half))
+        else:
+            self._pending.append(_PingArcs(flat, arc, (phi * r)[ok], n_front))
         self.hits[flat] = np.minimum(self.hits[flat].astype(np.int32) + 1, _U16)   # buffered: once per voxel per ping
         return self._slots_for(flat), int((~ok).sum())
 
@@ -373,6 +413,7 @@ class CarvingGrid:
                 self._cand, self._centre = np.resize(self._cand, cap), np.resize(self._centre, (cap, 3))
                 self._votes = np.concatenate([self._votes, np.zeros(cap - self._votes.size, np.int32)])
                 self._extent2 = np.concatenate([self._extent2, np.zeros(cap - self._extent2.size)])
+                self._front_votes = np.concatenate([self._front_votes, np.zeros(cap - self._front_votes.size, np.int32)])
             rows = np.arange(self._count, need)
             self._cand[rows], self._centre[rows] = new, self.centres(new)
             self._slot[new] = rows
@@ -401,6 +442,8 @@ class CarvingGrid:
         if arcs.voxel.size == 0:
             return
         score = self._score(arcs.voxel)
+        if p.occlusion and arcs.n_front < arcs.arc[-1] + 1:
+            score = np.where(self._shadowed(arcs), np.float32(-np.inf), score)
         starts = np.flatnonzero(np.r_[True, arcs.arc[1:] != arcs.arc[:-1]])
         counts = np.diff(np.r_[starts, arcs.arc.size])
         best = np.repeat(np.maximum.reduceat(score, starts), counts)
@@ -411,7 +454,53 @@ class CarvingGrid:
         win = (score >= best) & (best >= p.min_hits)
         slots = self._slot[arcs.voxel[win]]
         np.add.at(self._votes, slots, 1)
+        np.add.at(self._front_votes, slots[arcs.arc[win] < arcs.n_front], 1)
         np.add.at(self._extent2, slots, extent[win].astype(np.float64) ** 2)
+
+    def _shadowed(self, arcs: _PingArcs) -> np.ndarray:
+        """The samples of arcs behind their beam's front end that a front surface shadows in that ping.
+
+        A return behind the front end comes from a surface the sonar sees; its arc also crosses the inside of
+        the nearer structure (a column's core at the range of its far side), which every view measures alike.
+        The front ends' own arcs have no such hypotheses (nothing is nearer than a front end at any elevation):
+        the voxels they voted for are the surfaces that shadow (:meth:`_front_zbuffer`).
+        """
+        shadowed = np.zeros(arcs.voxel.size, bool)
+        zbuf = self._front_zbuffer(arcs.rot, arcs.origin, arcs.half)
+        if zbuf is not None:
+            behind = np.flatnonzero(arcs.arc >= arcs.n_front)
+            shadowed[behind] = self._behind(zbuf, arcs.half, arcs.bearing[behind], arcs.phi[behind], arcs.rng[behind])
+        return shadowed
+
+    def _front_zbuffer(self, rot: np.ndarray, origin: np.ndarray, half: float) -> np.ndarray | None:
+        """Nearest range (m) of a front surface (a voxel some front-end arc voted for) over (bearing, elevation)
+        cells of ``occlusion_bin_rad`` in a ping at ``rot``, ``origin`` (float32), each voxel over 3 x 3 cells;
+        None without front surfaces."""
+        p = self.params
+        rows = np.flatnonzero(self._front_votes[:self._count] > 0)
+        if rows.size == 0:
+            return None
+        w = p.occlusion_bin_rad
+        nb, ne = int(np.ceil(np.pi / w)) + 4, int(np.ceil(2 * half / w)) + 4
+        x, y, z = rot.T @ (self._centre[rows] - origin).T
+        r = np.sqrt(x * x + y * y + z * z)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            phi = np.arcsin(np.clip(z / r, -1.0, 1.0))
+        keep = (x > 0) & (np.abs(phi) < half + w)
+        bi = np.clip(np.floor((np.arctan2(y[keep], x[keep]) + np.pi / 2) / w).astype(np.int64) + 2, 0, nb - 1)
+        ei = np.clip(np.floor((phi[keep] + half) / w).astype(np.int64) + 2, 0, ne - 1)
+        zbuf = np.full((nb, ne), np.inf, np.float32)
+        np.minimum.at(zbuf, (bi, ei), r[keep])
+        return cv2.erode(zbuf, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)   # 3 x 3 minimum
+
+    def _behind(self, zbuf: np.ndarray, half: float, bearing: np.ndarray, phi: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """Whether points at ``bearing``, ``phi`` (rad) and range ``r`` (m) lie ``occlusion_margin_m`` or more
+        behind a front surface of ``zbuf`` (:meth:`_front_zbuffer`)."""
+        w = self.params.occlusion_bin_rad
+        nb, ne = zbuf.shape
+        bi = np.clip(np.floor((bearing + np.pi / 2) / w).astype(np.int64) + 2, 0, nb - 1)
+        ei = np.clip(np.floor((phi + half) / w).astype(np.int64) + 2, 0, ne - 1)
+        return zbuf[bi, ei] < r - np.float32(self.params.occlusion_margin_m)
 
     # -- results --------------------------------------------------------------------------
     def centres(self, voxels: np.ndarray) -> np.ndarray:

@@ -63,10 +63,11 @@ def test_a_target_that_later_views_see_empty_leaves_the_cloud() -> None:
     assert grid.misses.max() > 0 and len(grid.cloud(flush=True).points_m) == 0
 
 
-def test_a_single_view_keeps_the_whole_arc_as_its_uncertainty() -> None:
+@pytest.mark.parametrize("occlusion", [False, True])
+def test_a_single_view_keeps_the_whole_arc_as_its_uncertainty(occlusion: bool) -> None:
     target = np.array([0.0, 8.0, -3.0])
     pose = sonar_frame(np.array([0.0, 0.0, -1.5]), math.pi / 2, math.radians(10.0))
-    grid = _grid(settle_pings=0, min_hits=3, min_votes=1)
+    grid = _grid(settle_pings=0, min_hits=3, min_votes=1, occlusion=occlusion, shadow_darks=occlusion)
     for _ in range(5):                                    # the same view five times: no revisit, no new angle
         grid.integrate(_target_ping(pose, target), BEARINGS, DR, pose, SPREAD)
     cloud = grid.cloud(flush=True)
@@ -86,9 +87,10 @@ def _run(scene, times, n_beams: int = 256, range_m: float = 15.0, *, poses=(), *
     return grid
 
 
-def test_flat_seafloor_gives_no_point_in_the_water() -> None:
+@pytest.mark.parametrize("occlusion", [False, True])
+def test_flat_seafloor_gives_no_point_in_the_water(occlusion: bool) -> None:
     scene = load_scene("flat")
-    grid = _run(scene, np.arange(0.0, 6.0, 0.25))
+    grid = _run(scene, np.arange(0.0, 6.0, 0.25), occlusion=occlusion, shadow_darks=occlusion)
     assert len(grid.cloud(flush=True).points_m) == 0         # at any sigma
     assert len(grid.cloud(flush=True, max_sigma_m=np.inf).points_m) == 0
 
@@ -138,6 +140,28 @@ def test_a_single_pass_says_how_little_it_resolves_and_a_revisit_narrows_it(bloc
     two = both.cloud(flush=True, max_sigma_m=np.inf)
     assert np.median(two.sigma_m) < 0.85 * np.median(one.sigma_m)
     assert len(both.cloud(max_sigma_m=0.3).points_m) > 1.2 * len(block_pass.cloud(max_sigma_m=0.3).points_m)
+
+
+def test_a_front_surface_shadows_what_lies_behind_it_on_its_line_of_sight_only() -> None:
+    # the occlusion test's z-buffer: one voxel a front-end arc voted for, 8 m ahead of a level sonar
+    grid = _grid(occlusion=True)
+    pose = sonar_frame(np.array([0.0, 0.0, -3.0]), math.pi / 2, 0.0)
+    front = np.array([0.05, 8.05, -2.95])                      # a voxel centre straight ahead
+    voxel = np.ravel_multi_index(tuple(np.floor((front - grid.origin) / 0.1).astype(int)), grid.shape)
+    grid._slots_for(np.array([voxel]))
+    rot, origin, half = pose[:3, :3].astype(np.float32), pose[:3, 3].astype(np.float32), SPREAD / 2
+    assert grid._front_zbuffer(rot, origin, half) is None      # no front surface yet: nothing is shadowed
+    grid._front_votes[grid._slot[voxel]] = 1
+    zbuf = grid._front_zbuffer(rot, origin, half)
+    local = (grid.centres(np.array([voxel]))[0] - origin) @ rot
+    bearing, phi = math.atan2(local[1], local[0]), math.asin(local[2] / np.linalg.norm(local))
+    r = float(np.linalg.norm(local))
+    cases = {"behind": (bearing, phi, r + 0.5), "just behind": (bearing, phi, r + 0.05),
+             "in front": (bearing, phi, r - 0.5), "beside": (bearing + math.radians(3), phi, r + 0.5),
+             "above": (bearing, phi - math.radians(3), r + 0.5)}
+    shadowed = {k: bool(grid._behind(zbuf, half, np.array([b]), np.array([e]), np.array([rr], np.float32))[0])
+                for k, (b, e, rr) in cases.items()}
+    assert shadowed == {"behind": True, "just behind": False, "in front": False, "beside": False, "above": False}
 
 
 def test_bad_input_is_refused_with_a_reason() -> None:
