@@ -40,6 +40,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     spread_rad: float = math.radians(20.0)   # vertical aperture, used when the ping does not carry one
     returns: Literal["front", "all"] = "all"
     settle_pings: int = 20                   # an arc votes once this many later pings added their evidence
+    occlusion: bool = False                  # arcs behind a front end skip what front surfaces shadow (carving.py)
+    shadow_darks: bool = False               # a front surface's shadow is unknown, not empty (several passes)
     max_sigma_m: float = 0.3                 # publish points whose elevation 1-sigma is at most this
     body_frame: Literal["frd", "flu"] = "frd"
     publish_every: int = 10
@@ -72,7 +74,8 @@ class CarvedCloud(Node):
     def setup(self) -> None:
         cfg = self.config
         v = cfg.voxel_m
-        params = CarvingParams(voxel_m=v, arc_step_m=v, returns=cfg.returns, settle_pings=cfg.settle_pings)
+        params = CarvingParams(voxel_m=v, arc_step_m=v, returns=cfg.returns, settle_pings=cfg.settle_pings,
+                               occlusion=cfg.occlusion, shadow_darks=cfg.shadow_darks)
         self.grid = CarvingGrid((cfg.bounds_m[:3], cfg.bounds_m[3:]), params, seafloor_z_m=cfg.seafloor_z_m)
         self._poses = PoseBuffer(span_ns=int(cfg.pose_buffer_s * 1e9))
         self._pending: deque[tuple[int, SonarPing]] = deque()
