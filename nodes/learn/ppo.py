@@ -167,6 +167,20 @@ def _optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
 
 
 @functools.lru_cache(maxsize=16)
+def _compiled_init(act_dim: int, cfg: PPOConfig, obs_dim: int) -> Callable[..., Any]:
+    """Fresh actor and critic weights from an "rbg" key, under one jit compiled once per shape: the
+    default threefry keys compiled an orthogonal initialiser (a QR) per layer shape, eagerly."""
+    actor, critic = _networks(cfg, act_dim)
+    dummy = jnp.zeros((1, obs_dim))
+
+    def init(key: jax.Array) -> tuple[Any, Any]:
+        ka, kc = jax.random.split(key)
+        return actor.init(ka, dummy), critic.init(kc, dummy)
+
+    return jax.jit(init)
+
+
+@functools.lru_cache(maxsize=16)
 def _compiled_update(kind: str, act_dim: int, cfg: PPOConfig) -> Callable[..., Any]:
     """The jitted PPO update for a policy shape and hyper-parameters: compiled once per process,
     shared by every agent of that shape (compiling costs seconds; agents are made by the dozen
@@ -226,11 +240,10 @@ class PPO:
         self.obs_dim = int(np.prod(self.obs_shape))
         cfg = self.config
         self.actor, self.critic = _networks(cfg, self.act_dim)
-        key = jax.random.PRNGKey(seed)
-        self.key, ka, kc = jax.random.split(key, 3)
-        dummy = jnp.zeros((1, self.obs_dim))
-        self.params = {"actor": self.actor.init(ka, dummy), "critic": self.critic.init(kc, dummy),
-                       "log_std": jnp.full((self.act_dim,), cfg.init_log_std)}
+        self.key = jax.random.split(jax.random.PRNGKey(seed), 3)[0]
+        actor, critic = _compiled_init(self.act_dim, cfg, self.obs_dim)(jax.random.key(seed, impl="rbg"))
+        self.params = {"actor": actor, "critic": critic, "log_std": jnp.full((self.act_dim,), cfg.init_log_std, jnp.float32)}
+        # (float32 explicitly: a weak-typed log_std made the second update compile again, 4-7 s)
         self.opt_state = _optimizer(cfg).init(self.params)
         self.obs_rms = RunningMeanStd.of((self.obs_dim,))
         self.ret_rms = RunningMeanStd.of(())
