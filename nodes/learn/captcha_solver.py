@@ -82,13 +82,14 @@ def _compiled(cfg: SolverConfig) -> dict[str, Any]:
         updates, opt = tx.update(g, opt, p)
         return optax.apply_updates(p, updates), opt, ce, acc
 
-    return {"net": net, "tx": tx, "step": step, "logits": jax.jit(net.apply)}
+    return {"net": net, "tx": tx, "step": step, "logits": jax.jit(net.apply), "init": jax.jit(net.init)}
 
 
 def init_solver(cfg: SolverConfig, image_shape: tuple[int, int, int], *, seed: int = 0) -> dict[str, Any]:
-    """Fresh parameters, optimiser state and step 0."""
+    """Fresh parameters (from an "rbg" key under one jit: threefry keys compiled a kernel per layer
+    shape), optimiser state and step 0."""
     c = _compiled(cfg)
-    params = c["net"].init(jax.random.PRNGKey(seed), jnp.zeros((1, *image_shape), jnp.float32))
+    params = c["init"](jax.random.key(seed, impl="rbg"), jnp.zeros((1, *image_shape), jnp.float32))
     return {"params": params, "opt": c["tx"].init(params), "step": np.zeros((), np.int64)}
 
 

@@ -166,16 +166,21 @@ def _compiled(cfg: SimGANConfig) -> dict[str, Callable[..., Any]]:
         updates, opt = tx_d.update(g, opt, pd)
         return optax.apply_updates(pd, updates), opt, info
 
-    return {"r_step": r_step, "d_step": d_step, "refine": jax.jit(r_net.apply), "r_net": r_net,
+    def init(key: jax.Array, x: jnp.ndarray) -> tuple[Any, Any]:
+        kr, kd = jax.random.split(key)
+        return r_net.init(kr, x), d_net.init(kd, x)
+
+    return {"r_step": r_step, "d_step": d_step, "refine": jax.jit(r_net.apply), "init": jax.jit(init), "r_net": r_net,
             "d_net": d_net, "tx_r": tx_r, "tx_d": tx_d}
 
 
 def init_simgan(cfg: SimGANConfig, image_shape: tuple[int, int, int], *, seed: int = 0) -> dict[str, Any]:
-    """Fresh refiner, discriminator, optimiser states, an empty history buffer and step 0."""
+    """Fresh refiner, discriminator, optimiser states, an empty history buffer and step 0.
+
+    The weights are drawn from an "rbg" key under one jit (threefry keys compiled one
+    truncated-normal kernel per layer shape, eagerly: seconds each on a small CPU)."""
     c = _compiled(cfg)
-    kr, kd = jax.random.split(jax.random.PRNGKey(seed))
-    x = jnp.zeros((1, *image_shape), jnp.float32)
-    pr, pd = c["r_net"].init(kr, x), c["d_net"].init(kd, x)
+    pr, pd = c["init"](jax.random.key(seed, impl="rbg"), jnp.zeros((1, *image_shape), jnp.float32))
     return {"r": pr, "d": pd, "opt_r": c["tx_r"].init(pr), "opt_d": c["tx_d"].init(pd),
             "buffer": np.zeros((cfg.history, *image_shape), np.float32), "buffer_n": np.zeros((), np.int64),
             "step": np.zeros((), np.int64)}
