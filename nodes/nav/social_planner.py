@@ -319,7 +319,18 @@ class SocialPlanner:
         sub = cells[np.flatnonzero(ok)[k]]
         corners = smooth_path(cost, backtrack(pred, tuple(sub)))
         path_xy = to_world(pose, np.vstack([np.zeros((1, 2)), frame.xy_of(corners[1:])]))
-        return Decision("local", event, extract_waypoint(path_xy, self.p.waypoint_m), path_xy)
+        return Decision("local", event, extract_waypoint(path_xy, self._waypoint_reach(path_xy)), path_xy)
+
+    def _waypoint_reach(self, path_xy: np.ndarray) -> float:
+        """How far along the local path (m) the waypoint lies: ``waypoint_m``, but not past the path's
+        first corner. The path is string-pulled (:func:`smooth_path`), so its first corner is the farthest
+        point the robot can drive straight at over cells no dearer than the path's own; steering at a
+        point beyond it cuts the corner through what the cost priced. hallway (t = 3.7 s): the waypoint
+        2 m along a path that swerved around an oncoming walker lay on the walker, the robot turned
+        toward them and the guard stopped it 1.3 s."""
+        if len(path_xy) < 3:
+            return self.p.waypoint_m
+        return min(self.p.waypoint_m, float(np.hypot(*(path_xy[1] - path_xy[0]))))
 
     def _remaining_m(self, pose: tuple[float, float, float], xy: np.ndarray) -> np.ndarray:
         """Distance (m) from world points (n, 2) to the global goal along the global path (ahead of the robot)."""

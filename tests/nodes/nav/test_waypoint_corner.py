@@ -1,0 +1,45 @@
+"""The local planner's waypoint lies no farther along its path than the path's first corner: steering
+straight at a point beyond the corner cuts through what the cost priced (hallway: a waypoint 2 m
+along a path that swerved around an oncoming walker lay on the walker)."""
+from __future__ import annotations
+
+import numpy as np
+
+from nodes.nav.grid_frame import GridFrame
+from nodes.nav.social_planner import PlannerParams, SocialPlanner
+
+FRAME = GridFrame((25, 25), 0.25, -0.5, -3.0)          # robot frame: x -0.5..5.5 m, y -3..3 m
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    t = float(np.clip(np.dot(p - a, b - a) / max(np.dot(b - a, b - a), 1e-12), 0.0, 1.0))
+    return float(np.hypot(*(p - (a + t * (b - a)))))
+
+
+def test_the_waypoint_does_not_cut_the_corner_around_a_person():
+    x, y = FRAME.xy_of(np.argwhere(np.ones(FRAME.shape, bool))).T
+    x, y = x.reshape(FRAME.shape), y.reshape(FRAME.shape)
+    person_xy = np.array([1.5, 0.2])
+    person = np.hypot(x - person_xy[0], y - person_xy[1]) <= 0.3
+    cost = np.where(person, 60.0, 2.0)
+    planner = SocialPlanner(PlannerParams(memory_s=0.0))
+    planner.set_goal((10.0, 0.0))
+    d = planner.update((0.0, 0.0, 0.0), cost, FRAME, person, 0.0)
+    assert d.mode == "local", d
+    assert len(d.path_xy) >= 3                                   # the path bends around the person
+    corner = float(np.hypot(*d.path_xy[1]))
+    assert corner < PlannerParams().waypoint_m                   # ... before the waypoint distance
+    assert _segment_distance(d.waypoint, d.path_xy[0], d.path_xy[1]) < 1e-9     # on the first leg
+    # the robot steers straight at it: that line keeps its body (0.35 m) off the person (0.3 m)
+    assert _segment_distance(person_xy, np.zeros(2), d.waypoint) > 0.65
+
+
+def test_a_straight_path_keeps_the_full_waypoint_distance():
+    planner = SocialPlanner(PlannerParams(memory_s=0.0))
+    planner.set_goal((10.0, 0.0))
+    far = np.zeros(FRAME.shape, bool)
+    far[0, 0] = True                                             # a crowd cell in range: plan locally
+    d = planner.update((0.0, 0.0, 0.0), np.full(FRAME.shape, 2.0), FRAME, far, 0.0)
+    assert d.mode == "local", d
+    assert np.hypot(*d.waypoint) == np.float64(PlannerParams().waypoint_m) or \
+        abs(np.hypot(*d.waypoint) - PlannerParams().waypoint_m) < 0.05
