@@ -577,8 +577,9 @@ def main() -> None:
             runs[name][stack.name] = ep
             for k, v in ep.stage_ms.items():
                 stage_ms.setdefault(k, []).extend(v)
-        if not args.json:
-            print(f"{name}: done", file=sys.stderr)
+            m = metrics(ep)     # progress on stderr, also with --json (stdout keeps the one JSON line)
+            print(f"{name} {stack.name}: {m['time_s']} s, closest {m['closest_m']} m, guard {m['guard_frac']}",
+                  file=sys.stderr, flush=True)
     report = {name: {m: metrics(e) for m, e in r.items()} for name, r in runs.items()}
     med = {k: float(np.median(v)) for k, v in stage_ms.items()}
     pipeline_ms = med.get("flow+features", np.nan) + med.get("cost", np.nan) + med.get("plan", np.nan)
