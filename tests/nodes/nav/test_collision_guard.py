@@ -115,8 +115,8 @@ def test_a_person_walking_into_the_path_stops_the_robot_before_they_arrive():
         assert cmds(outs)[-1][0] == expected
 
 
-def test_one_wrong_flow_vector_on_a_passing_walker_does_not_brake_the_robot():
-    """A walker 0.85 m to the side, coming along the corridor: 12 points in one 0.25 m cell. One of
+def test_one_wrong_flow_vector_on_a_passing_walker_does_not_brake_the_robot_with_cell_medians():
+    """With ``cell_m`` 0.25: a walker 0.85 m to the side, coming along the corridor: 12 points in one 0.25 m cell. One of
     them has a wrong vector (1.5 m/s across, toward the path): alone it would be predicted onto the
     path; with its cell's median velocity it walks on past the robot, which keeps its speed."""
     rng = np.random.default_rng(0)
@@ -124,15 +124,16 @@ def test_one_wrong_flow_vector_on_a_passing_walker_does_not_brake_the_robot():
     vel = np.tile([-0.5, 0.0, 0.0], (12, 1))
     straight = Twist2D(vx_mps=0.8)
 
-    def speed(velocity: np.ndarray) -> float:
+    def speed(velocity: np.ndarray, cell_m: float = 0.25) -> float:
         flow = FlowPoints(points_m=body.astype(np.float32), velocity_mps=velocity.astype(np.float32))
-        with Harness(CollisionGuard, params={"stride_px": 2}) as h:
+        with Harness(CollisionGuard, params={"stride_px": 2, "cell_m": cell_m}) as h:
             return cmds(h.feed([(0.0, "rgbd", post(5.0)), (0.0, "points", flow), (0.01, "cmd", straight)]))[-1][0]
 
     wrong = vel.copy()
     wrong[0] = [0.0, 1.5, 0.0]
     assert speed(vel) == 0.8
     assert speed(wrong) == 0.8
+    assert speed(wrong, cell_m=0.0) == 0.0                 # the default: every vector counts, the robot stops
     crossing = np.tile([0.0, 1.5, 0.0], (12, 1))          # the whole walker turns into the path: a threat
     assert speed(crossing) < 0.8
 
