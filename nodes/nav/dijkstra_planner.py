@@ -27,6 +27,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     obstacle_radius_m: float = _DEFAULT.obstacle_radius_m
     subgoal_m: float = _DEFAULT.subgoal_m
     waypoint_m: float = _DEFAULT.waypoint_m
+    waypoint_min_m: float = _DEFAULT.waypoint_min_m
     waypoint_timeout_s: float = _DEFAULT.waypoint_timeout_s
     stray_m: float = _DEFAULT.stray_m
     robot_radius_m: float = _DEFAULT.robot_radius_m

@@ -33,6 +33,7 @@ class PlannerParams:
     obstacle_radius_m: float = 4.0
     subgoal_m: float = 4.0
     waypoint_m: float = 2.0       # 1 m made the robot weave (turn-in-place on every new waypoint): bench/social_nav.py
+    waypoint_min_m: float = 0.0   # ... but not past the local path's first corner, unless that is nearer than this
     waypoint_timeout_s: float = 3.0
     stray_m: float = 1.5
     robot_radius_m: float = 0.35
@@ -330,7 +331,8 @@ class SocialPlanner:
         toward them and the guard stopped it 1.3 s."""
         if len(path_xy) < 3:
             return self.p.waypoint_m
-        return min(self.p.waypoint_m, float(np.hypot(*(path_xy[1] - path_xy[0]))))
+        corner = float(np.hypot(*(path_xy[1] - path_xy[0])))
+        return min(self.p.waypoint_m, max(corner, self.p.waypoint_min_m))
 
     def _remaining_m(self, pose: tuple[float, float, float], xy: np.ndarray) -> np.ndarray:
         """Distance (m) from world points (n, 2) to the global goal along the global path (ahead of the robot)."""

@@ -16,15 +16,18 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     return float(np.hypot(*(p - (a + t * (b - a)))))
 
 
+def _around_a_person(waypoint_min_m: float, person: np.ndarray, cost: np.ndarray):
+    planner = SocialPlanner(PlannerParams(memory_s=0.0, waypoint_min_m=waypoint_min_m))
+    planner.set_goal((10.0, 0.0))
+    return planner.update((0.0, 0.0, 0.0), cost, FRAME, person, 0.0)
+
+
 def test_the_waypoint_does_not_cut_the_corner_around_a_person():
     x, y = FRAME.xy_of(np.argwhere(np.ones(FRAME.shape, bool))).T
     x, y = x.reshape(FRAME.shape), y.reshape(FRAME.shape)
     person_xy = np.array([1.5, 0.2])
     person = np.hypot(x - person_xy[0], y - person_xy[1]) <= 0.3
-    cost = np.where(person, 60.0, 2.0)
-    planner = SocialPlanner(PlannerParams(memory_s=0.0))
-    planner.set_goal((10.0, 0.0))
-    d = planner.update((0.0, 0.0, 0.0), cost, FRAME, person, 0.0)
+    d = _around_a_person(0.0, person, np.where(person, 60.0, 2.0))
     assert d.mode == "local", d
     assert len(d.path_xy) >= 3                                   # the path bends around the person
     corner = float(np.hypot(*d.path_xy[1]))
@@ -43,3 +46,12 @@ def test_a_straight_path_keeps_the_full_waypoint_distance():
     assert d.mode == "local", d
     assert np.hypot(*d.waypoint) == np.float64(PlannerParams().waypoint_m) or \
         abs(np.hypot(*d.waypoint) - PlannerParams().waypoint_m) < 0.05
+
+
+def test_waypoint_min_m_at_the_waypoint_distance_is_the_plain_carrot():
+    x, y = FRAME.xy_of(np.argwhere(np.ones(FRAME.shape, bool))).T
+    person = (np.hypot(x - 1.5, y - 0.2) <= 0.3).reshape(FRAME.shape)
+    d = _around_a_person(PlannerParams().waypoint_m, person, np.where(person, 60.0, 2.0))
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(d.path_xy, axis=0).T))])
+    assert along[1] < PlannerParams().waypoint_m < along[-1]
+    assert _segment_distance(d.waypoint, d.path_xy[1], d.path_xy[2]) < 1e-9          # past the corner
