@@ -150,7 +150,12 @@ def sonar_cloud(d: dict) -> list[Row]:
              f"sigma <= {d['max_sigma_m']:g} m)",
              f"{100 * d['acc_frac_0p2']:.1f} % of points within 0.2 m of the structure (p90 {d['acc_p90_m']:.2f} m), "
              f"completeness {100 * d['completeness_0p2']:.1f} %, {d['ms_per_ping']:.1f} ms per ping "
-             f"({d['ms_per_ping_in_view']:.1f} ms on the pings with the structure in view)",
+             f"({d['ms_per_ping_in_view']:.1f} ms on the pings with the structure in view)"
+             + (f"; option `occlusion` (off by default: less accurate on the wall and pier) "
+                f"{100 * d['occlusion_acc_frac_0p2']:.1f} % / completeness {100 * d['occlusion_completeness_0p2']:.1f} %, "
+                f"{d['occlusion_ms_per_ping_in_view']:.1f} ms in view; best completeness at >= 90 % within 0.2 m "
+                f"{100 * (d['completeness_at_acc90'] or 0):.1f} % (occlusion {100 * (d['occlusion_completeness_at_acc90'] or 0):.1f} %)"
+                if "occlusion_acc_frac_0p2" in d else ""),
              f"the paper's highlight cloud {100 * d['highlight_acc_frac_0p2']:.1f} % (p90 {d['highlight_acc_p90_m']:.2f} m), "
              f"completeness {100 * d['highlight_completeness_0p2']:.1f} %, {d['highlight_ms_per_ping']:.1f} ms",
              f">= 90 %: {_met(ok[0])}; completeness >= 70 %: {_met(ok[1])}"
