@@ -204,10 +204,12 @@ class RawFuzzer(Node):
 
 class CrasherConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     after_s: float = 0.1
+    hang: bool = False          # instead of exiting, block the handler forever: a node that cannot stop when asked
 
 
 class Crasher(Node):
-    """Exits the process with code 3 ``after_s`` seconds after it starts: a restart storm under ``on-failure``."""
+    """Exits the process with code 3 ``after_s`` seconds after it starts (a restart storm under ``on-failure``),
+    or with ``hang`` blocks there forever."""
 
     Config = CrasherConfig
     timers = {"tick": 50.0}
@@ -217,23 +219,7 @@ class Crasher(Node):
 
     def on_tick(self, tick: Tick) -> None:
         if time.monotonic() - self.started >= self.config.after_s:
+            while self.config.hang:            # a stop request sets an event nobody looks at again
+                time.sleep(3600)
             os._exit(3)
 
-
-class HangConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    after_s: float = 0.1
-
-
-class Hang(Node):
-    """Blocks its handler forever ``after_s`` seconds after it starts: a node that cannot stop when asked."""
-
-    Config = HangConfig
-    timers = {"tick": 20.0}
-
-    def setup(self) -> None:
-        self.started = time.monotonic()
-
-    def on_tick(self, tick: Tick) -> None:
-        if time.monotonic() - self.started >= self.config.after_s:
-            while True:                        # a stop request sets an event nobody looks at again
-                time.sleep(3600)

@@ -97,7 +97,7 @@ def test_a_node_that_cannot_stop_is_killed_after_the_stop_timeout_with_its_stack
         name: hang
         nodes:
           - {id: counter, node: "nodes.std.demo:Counter", params: {rate_hz: 20}}
-          - {id: hang, node: "nodes.std.chaos:Hang", params: {after_s: 0.2}}
+          - {id: hang, node: "nodes.std.chaos:Crasher", params: {after_s: 0.2, hang: true}}
     """))
     env = {**runtime_env, "TETHER_STOP_TIMEOUT_S": "1", "TETHER_SPAWN": spawn}
     out = tether("launch", str(path), "--duration", "2", env=env, timeout=60)
