@@ -1,6 +1,6 @@
 """Figure-eight tracking with the REAL CAN loop: CiA 402 master -> python-can -> simulated drives.
 
-    python bench/ackermann_can.py [--quick] [--json]
+    python bench/ackermann_can.py [--quick] [--json] [--launched 3] [--busy 8]
 
 The controller (seed's final law, 50 Hz by default) computes per-axle commands; the
 CANopen master (drivers/canopen402.py) turns them into RPDO set-points (profile velocity
@@ -21,7 +21,10 @@ Knob swept: the master's set-point rate (50-200 Hz) and the control rate. One ru
 cyclic synchronous modes (steering CSP, wheels CSV, the master's step producing SYNC): there
 every drive quick-stops itself when SYNC is missing for 3 cycles (35 ms at 100 Hz), so a stall
 of this Python loop that long (seen here at 58-66 ms on a loaded machine) trips the run --
-what real drives would do too; the lockstep run has no such stalls. Reference, in
+what real drives would do too; the lockstep run has no such stalls. The launch file itself is
+also started in real time as a user starts it (``--launched`` runs each way, ``--busy`` CPU-bound
+processes beside it): as shipped, its CAN master and drives run SCHED_FIFO (``rt_priority``), and
+with those lines stripped, normal scheduling -- how often SYNC is lost either way. Reference, in
 the same run: launch/ackermann_can.yaml itself in lockstep (sim.lockstep: every node, the
 CANopen master and the drives on a synchronous bus in virtual time -- no scheduling noise),
 and the same controller on the pure model with no bus and with the bus modelled as a delay +
@@ -33,8 +36,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -179,6 +185,38 @@ def lockstep_run(*, duration_s: float, overrides: dict | None = None) -> dict:
                                     np.interp(st[keep, 0], ref[:, 0], ref[:, 2])]), "err": pos}
 
 
+RMS_LINE = re.compile(r"tracking over the whole run .*?position RMS ([0-9.]+) mm max ([0-9.]+) mm")
+
+
+def launched_run(*, rt: bool, busy: int, duration_s: float) -> dict:
+    """``tether launch launch/ackermann_can.yaml`` in real time, as a user starts it, with ``busy``
+    CPU-bound processes beside it (a loaded machine); ``rt`` False strips the file's ``rt_priority``
+    lines (normal scheduling for every node). Whole-run errors from the eval node's log line; a
+    quick stop (any drive's SYNC watchdog, or the master's) counts as tripped."""
+    with open(os.path.join(REPO, "launch", "ackermann_can.yaml")) as f:
+        text = f.read()
+    if not rt:
+        text = re.sub(r"(?m)^\s*rt_priority:.*\n", "", text)
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(busy)]
+    try:
+        with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as f:
+            f.write(text)
+        res = subprocess.run([sys.executable, "-m", "tether.cli", "launch", f.name, "--duration", f"{duration_s:g}",
+                              "--param", "eval.png=out/ackermann_can_launched.png"],
+                             cwd=REPO, capture_output=True, text=True, timeout=duration_s + 120)
+    finally:
+        os.unlink(f.name)
+        for h in hogs:
+            h.kill()
+            h.wait()
+    out = res.stdout + res.stderr
+    m = RMS_LINE.search(out)
+    tripped = "quick stop of all drives" in out or "EMCY 0x8700" in out
+    applied = out.count("running SCHED_FIFO at priority")
+    return {"rms_mm": float(m.group(1)) if m else float("nan"), "max_mm": float(m.group(2)) if m else float("nan"),
+            "tripped": tripped, "rt_applied": applied, "rc": res.returncode}
+
+
 def model_run(*, rate_hz: float, duration_s: float, bus: bool) -> dict:
     """The same controller on the pure model (no bus), or with the bus modelled as delays + lag."""
     lead = TAU_S + 0.005 if bus else 0.0
@@ -226,6 +264,9 @@ def main() -> None:
     ap.add_argument("--skip", type=float, default=3.0, help="start-up excluded from the *steady* RMS (s)")
     ap.add_argument("--ramp", type=float, default=4.0, help="trajectory ramp from rest (s), as in the launch file")
     ap.add_argument("--align", type=float, default=1.0, help="wheel alignment before the ramp (s), as in the launch")
+    ap.add_argument("--launched", type=int, default=3, help="real-time launches of the file per scheduling (0: none)")
+    ap.add_argument("--busy", type=int, default=4 * (os.cpu_count() or 2),
+                    help="CPU-bound processes running beside those launches (default: four per core)")
     args = ap.parse_args()
     say = (lambda *a, **k: None) if args.json else print
     duration = 14.0 if args.quick else 43.0          # 43 s = one full lap of the figure-eight after align + ramp
@@ -258,6 +299,22 @@ def main() -> None:
     for name, r in ref.items():
         say(f"{name + ' (50 Hz, starts at speed)':>44s} {r['rms_mm']:8.2f} {r['max_mm']:8.2f} {'':>8s} "
             f"{r['rms_deg']:9.3f}")
+    launched: dict[str, list[dict]] = {"normal": [], "rt_priority": []}
+    for k in range(args.launched):
+        for sched in launched:
+            r = launched_run(rt=sched == "rt_priority", busy=args.busy, duration_s=duration)
+            launched[sched].append(r)
+            print(f"launched {k + 1}/{args.launched} {sched}: {'TRIPPED' if r['tripped'] else 'ran'}, "
+                  f"{r['rms_mm']:.2f} mm RMS, SCHED_FIFO nodes {r['rt_applied']}", file=sys.stderr, flush=True)
+    launched_summary = {
+        sched: {"tripped": sum(r["tripped"] for r in rs), "runs": len(rs),
+                "rms_mm_median": statistics.median([r["rms_mm"] for r in rs]) if rs else None,
+                "rt_applied": max((r["rt_applied"] for r in rs), default=0)} for sched, rs in launched.items()}
+    for sched, s in launched_summary.items():
+        if s["runs"]:
+            say(f"{'launch file in real time, ' + sched:>44s} tripped {s['tripped']} of {s['runs']}, median "
+                f"{s['rms_mm_median']:.2f} mm RMS ({args.busy} CPU-bound processes beside it, "
+                f"{s['rt_applied']} nodes SCHED_FIFO)")
     head = runs[next(n for n in runs if "bus 100 Hz" in n and "ctrl 50" in n and "udp" in n and "CSP" not in n)]
     csp_rt = next((r for n, r in runs.items() if "CSP" in n), None)
     ratio = head["rms_mm_steady"] / max(ref["model, no bus"]["rms_mm"], 1e-9)
@@ -284,6 +341,9 @@ def main() -> None:
             "can_steady_vs_nobus_ratio": ratio, "can_tripped": head["tripped"],
             "fig8_rms_mm_can_csp_realtime": csp_rt["rms_mm"] if csp_rt else None,
             "can_csp_realtime_tripped": csp_rt["tripped"] if csp_rt else None,
+            "launched_realtime": launched_summary, "launched_busy_processes": args.busy,
+            "launched_realtime_is": "tether launch launch/ackermann_can.yaml in real time (CSP/CSV, SYNC 100 Hz) "
+                                    "with N CPU-bound processes beside it; normal = rt_priority lines stripped",
             "can_rear_reversed_s": head["rear_reversed_s"], "master_step_us": head["master_step_us"],
             "step_us": head["step_us"], "lockstep_wall_s": lock["wall_s"], "duration_s": duration,
             "by_setting": {n: {"rms_mm": r["rms_mm"], "max_mm": r["max_mm"]} for n, r in runs.items()},

@@ -178,5 +178,7 @@ def cmd_node(args: argparse.Namespace) -> int:
     if st.shm_placed or st.shm_fallbacks or st.shm_oversize or st.shm_stale:
         print(f"  shared memory: placed {st.shm_placed} (loaned, no copy: {st.shm_loaned})  fallbacks to frames "
               f"{st.shm_fallbacks} (pool busy) + {st.shm_oversize} (oversize)  stale tables {st.shm_stale}")
+    if st.rt_priority:
+        print(f"  scheduling: SCHED_FIFO priority {st.rt_priority}")
     return 0
 

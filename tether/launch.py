@@ -11,6 +11,7 @@
         params: {range_m: 20}
         restart: on-failure         # or never (default)
         machine: boat
+        rt_priority: 50             # optional: SCHED_FIFO for a cyclic node (see tether.runner)
       - id: imager
         node: nodes.sonar.polar_imager:PolarImager
         inputs: {ping: sonar/ping, tick: timer/hz/10}
@@ -47,9 +48,11 @@ ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 NODE_ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*(\.[A-Za-z][A-Za-z0-9_\-]*)*$")   # ns.ns.id
 TIMER_RE = re.compile(r"^timer/(hz|ms)/([0-9]*\.?[0-9]+)$")
 RESTART_POLICIES = ("never", "on-failure")
-NODE_KEYS = {"id", "node", "params", "inputs", "restart", "max_restarts", "machine", "env", "remap", "params_file"}
+NODE_KEYS = {"id", "node", "params", "inputs", "restart", "max_restarts", "machine", "env", "remap", "params_file",
+             "rt_priority"}
 ENV_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MAX_RESTARTS = 1000
+MAX_RT_PRIORITY = 98     # SCHED_FIFO 1..99; 99 is left to the kernel's own threads (watchdog, migration)
 
 
 @dataclass
@@ -64,6 +67,7 @@ class NodeEntry:
     max_restarts: int = 3
     machine: str = ""
     env: dict[str, str] = field(default_factory=dict)
+    rt_priority: int = 0          # SCHED_FIFO priority of the node's process (0: normal scheduling)
     cls: type[Node] | None = None
     ports: Ports | None = None
     renamed: dict[str, str] = field(default_factory=dict)    # output -> the name its remap gives it
@@ -306,13 +310,15 @@ def _node_entry(where: str, index: int, raw: Any, machines: dict[str, Machine],
     if restart not in RESTART_POLICIES:
         raise ConfigError(f"{_at(where, raw, 'restart')}: {what}restart {restart!r} must be one of {RESTART_POLICIES}")
     max_restarts = _int_in(where, raw, "max_restarts", 3, 0, MAX_RESTARTS, what)
+    rt_priority = _int_in(where, raw, "rt_priority", 0, 0, MAX_RT_PRIORITY, what)
     machine = raw.get("machine") or ""
     if not isinstance(machine, str) or (machine and machine not in machines):
         raise ConfigError(f"{_at(where, raw, 'machine')}: {what}machine {machine!r} is not declared under 'machines'")
     if machines and not machine:
         raise ConfigError(f"{_at(where, raw)}: {what}the file declares machines, so every node names its 'machine'")
     return NodeEntry(id=node_id, node=raw["node"], params=params, inputs=dict(inputs), restart=restart,
-                     max_restarts=max_restarts, machine=machine, env=_env(where, raw, what), cls=cls, ports=ports)
+                     max_restarts=max_restarts, machine=machine, env=_env(where, raw, what), rt_priority=rt_priority,
+                     cls=cls, ports=ports)
 
 
 def _env(where: str, raw: Any, what: str) -> dict[str, str]:
@@ -427,7 +433,7 @@ def plan(launch: LaunchFile, *, token: str, curve: dict[str, Any] | None = None,
         uses_tcp = n.id in tcp_ep or any(s.secure for s in inputs.values())
         specs[n.id] = RunSpec(graph=launch.name, node_id=n.id, node=n.node, params=n.params, binds=binds,
                               inputs=inputs, expect_subscribers=expect, curve=curve if uses_tcp else None,
-                              state_file=str(state_file(launch.name, n.id, token)))
+                              state_file=str(state_file(launch.name, n.id, token)), rt_priority=n.rt_priority)
     return specs
 
 

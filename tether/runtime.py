@@ -72,10 +72,13 @@ class RunSpec:
     parent_pid: int = 0       # the launcher: the node stops when it goes away (0: not watched)
     incarnation: int = 0          # how many times the launcher restarted this node before this run
     state_file: str = ""          # where the node keeps its seq numbers across restarts ("": nowhere)
+    rt_priority: int = 0          # SCHED_FIFO priority asked for the node's process (0: normal scheduling)
 
 
 class NodeRuntime(Context):
     """Runs one node on real sockets until stopped; :meth:`serve` returns the exit code."""
+
+    rt_priority = 0       # the SCHED_FIFO priority its process got (:func:`tether.runner.apply_rt_priority`)
 
     def __init__(self, spec: RunSpec, node_cls: type[Node], ctx: zmq.Context | None = None) -> None:
         self.spec = spec
@@ -554,7 +557,7 @@ class NodeRuntime(Context):
                          stats_errors=saturate(self._stats_errors),
                          published_bytes={k: saturate(v) for k, v in self._published_bytes.items()},
                          **{f"shm_{k}": saturate(v) for k, v in self.shm_counters().items()},
-                         stamp_ns=time.time_ns())
+                         rt_priority=self.rt_priority, stamp_ns=time.time_ns())
 
     def _publish_stats(self) -> None:
         """Publish :meth:`stats`; a failure here is counted and logged (rate-limited), never fatal."""

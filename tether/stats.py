@@ -50,3 +50,4 @@ class NodeStats(Message, tag="std.NodeStats"):
     shm_fallbacks: int = 0         # sent as ordinary frames: no slot came free in time (pool busy)
     shm_oversize: int = 0          # sent as ordinary frames: larger than half the pool
     shm_stale: int = 0             # slot tables received whose slot was reused before we could lease it
+    rt_priority: int = 0           # the SCHED_FIFO priority the node runs at (0: normal scheduling)
