@@ -42,6 +42,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     settle_pings: int = 20                   # an arc votes once this many later pings added their evidence
     occlusion: bool = False                  # arcs behind a front end skip what front surfaces shadow (carving.py)
     shadow_darks: bool = False               # a front surface's shadow is unknown, not empty (several passes)
+    gap_weight: float = 0.0                  # score lost per ping that had a voxel in its fan but no return there
     max_sigma_m: float = 0.3                 # publish points whose elevation 1-sigma is at most this
     body_frame: Literal["frd", "flu"] = "frd"
     publish_every: int = 10
@@ -56,8 +57,9 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
         if not (np.all(np.isfinite(self.bounds_m)) and np.all(hi > lo)):
             raise ValueError("bounds_m is (x0, y0, z0, x1, y1, z1) with x1 > x0, y1 > y0, z1 > z0")
         if not (self.voxel_m > 0 and 0 < self.spread_rad < math.pi and self.publish_every >= 1
-                and self.max_sigma_m > 0):
-            raise ValueError("need voxel_m > 0, 0 < spread_rad < pi, publish_every >= 1 and max_sigma_m > 0")
+                and self.max_sigma_m > 0 and self.gap_weight >= 0):
+            raise ValueError("need voxel_m > 0, 0 < spread_rad < pi, publish_every >= 1, max_sigma_m > 0 and "
+                             "gap_weight >= 0")
         if not (self.max_pose_gap_s > 0 and self.max_wait_s >= 0 and self.max_pending >= 1
                 and self.pose_buffer_s >= self.max_pose_gap_s and self.settle_pings >= 0):
             raise ValueError("need max_pose_gap_s > 0, max_wait_s >= 0, max_pending >= 1, "
@@ -75,7 +77,7 @@ class CarvedCloud(Node):
         cfg = self.config
         v = cfg.voxel_m
         params = CarvingParams(voxel_m=v, arc_step_m=v, returns=cfg.returns, settle_pings=cfg.settle_pings,
-                               occlusion=cfg.occlusion, shadow_darks=cfg.shadow_darks)
+                               occlusion=cfg.occlusion, shadow_darks=cfg.shadow_darks, gap_weight=cfg.gap_weight)
         self.grid = CarvingGrid((cfg.bounds_m[:3], cfg.bounds_m[3:]), params, seafloor_z_m=cfg.seafloor_z_m)
         self._poses = PoseBuffer(span_ns=int(cfg.pose_buffer_s * 1e9))
         self._pending: deque[tuple[int, SonarPing]] = deque()
