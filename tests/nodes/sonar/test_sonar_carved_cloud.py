@@ -81,3 +81,16 @@ def test_bad_pings_and_poses_are_counted_not_raised() -> None:
     assert h.node.pings == 2
     assert sum(h.node.dropped.values()) == 3, h.node.dropped
     assert any("bearing" in k for k in h.node.dropped) and any("pose" in k for k in h.node.dropped)
+
+
+def test_gap_weight_reaches_the_grid_and_a_negative_one_is_refused() -> None:
+    import msgspec
+    import pytest
+
+    from nodes.sonar.carved_cloud import Config
+
+    with Harness(CarvedCloud, params={**PARAMS, "gap_weight": 2.0}) as h:
+        pass
+    assert h.node.grid.params.gap_weight == 2.0
+    with pytest.raises((ValueError, msgspec.ValidationError), match="gap_weight"):
+        Config(gap_weight=-1.0)
