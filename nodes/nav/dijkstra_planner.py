@@ -28,6 +28,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     subgoal_m: float = _DEFAULT.subgoal_m
     waypoint_m: float = _DEFAULT.waypoint_m
     waypoint_min_m: float = _DEFAULT.waypoint_min_m
+    corner_people_only: bool = _DEFAULT.corner_people_only
     waypoint_timeout_s: float = _DEFAULT.waypoint_timeout_s
     stray_m: float = _DEFAULT.stray_m
     robot_radius_m: float = _DEFAULT.robot_radius_m
@@ -37,6 +38,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     crowd_margin_m: float = _DEFAULT.crowd_margin_m
     person_cost: float = _DEFAULT.person_cost
     commitment: float = _DEFAULT.commitment
+    replan_margin_m: float = _DEFAULT.replan_margin_m
     memory_s: float = _DEFAULT.memory_s
     predict_s: float = 2.0        # 0 = plan on the features alone (no flow input needed)
     fov_deg: float = _DEFAULT.fov_deg

@@ -1,6 +1,7 @@
-"""The local planner's waypoint lies no farther along its path than the path's first corner: steering
-straight at a point beyond the corner cuts through what the cost priced (hallway: a waypoint 2 m
-along a path that swerved around an oncoming walker lay on the walker)."""
+"""The local planner's waypoint lies no farther along its path than the path's first corner when the
+straight line past the corner would pass a person: steering at such a point cuts through what the cost
+priced (hallway: a waypoint 2 m along a path that swerved around an oncoming walker lay on the walker).
+A corner that only bends with the floor's cost leaves the waypoint its full distance."""
 from __future__ import annotations
 
 import numpy as np
@@ -32,9 +33,42 @@ def test_the_waypoint_does_not_cut_the_corner_around_a_person():
     assert len(d.path_xy) >= 3                                   # the path bends around the person
     corner = float(np.hypot(*d.path_xy[1]))
     assert corner < PlannerParams().waypoint_m                   # ... before the waypoint distance
-    assert _segment_distance(d.waypoint, d.path_xy[0], d.path_xy[1]) < 1e-9     # on the first leg
     # the robot steers straight at it: that line keeps its body (0.35 m) off the person (0.3 m)
     assert _segment_distance(person_xy, np.zeros(2), d.waypoint) > 0.65
+
+
+def test_the_waypoint_stays_on_the_first_leg_when_the_people_are_nearer():
+    x, y = FRAME.xy_of(np.argwhere(np.ones(FRAME.shape, bool))).T
+    x, y = x.reshape(FRAME.shape), y.reshape(FRAME.shape)
+    person_xy = np.array([1.5, 0.2])
+    person = np.hypot(x - person_xy[0], y - person_xy[1]) <= 0.3
+    other_xy = np.array([1.75, -0.35])                          # a second person just past the path's bend
+    crowd = person | (np.hypot(x - other_xy[0], y - other_xy[1]) <= 0.3)
+    d = _around_a_person(0.0, crowd, np.where(person, 60.0, 2.0))
+    assert len(d.path_xy) >= 3
+    corner = float(np.hypot(*d.path_xy[1]))
+    assert abs(_along(d.path_xy, d.waypoint) - corner) < 1e-6                       # at the corner
+
+
+def _along(path_xy: np.ndarray, point: np.ndarray) -> float:
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path_xy, axis=0).T))])
+    k = int(np.argmin([_segment_distance(point, a, b) for a, b in zip(path_xy[:-1], path_xy[1:])]))
+    return float(along[k] + np.hypot(*(point - path_xy[k])))
+
+
+def test_a_corner_around_dear_floor_without_people_keeps_the_full_waypoint_distance():
+    x, y = FRAME.xy_of(np.argwhere(np.ones(FRAME.shape, bool))).T
+    x, y = x.reshape(FRAME.shape), y.reshape(FRAME.shape)
+    dear = np.hypot(x - 1.5, y - 0.2) <= 0.3                    # dear floor, nobody on it
+    far = np.zeros(FRAME.shape, bool)
+    far[0, 0] = True                                             # a crowd cell in range, far from the path
+    d = _around_a_person(0.0, far, np.where(dear, 60.0, 2.0))
+    assert len(d.path_xy) >= 3 and np.hypot(*d.path_xy[1]) < PlannerParams().waypoint_m     # a corner first
+    assert abs(_along(d.path_xy, d.waypoint) - PlannerParams().waypoint_m) < 1e-6
+    planner = SocialPlanner(PlannerParams(memory_s=0.0, corner_people_only=False))         # every corner limits
+    planner.set_goal((10.0, 0.0))
+    d = planner.update((0.0, 0.0, 0.0), np.where(dear, 60.0, 2.0), FRAME, far, 0.0)
+    assert _segment_distance(d.waypoint, d.path_xy[0], d.path_xy[1]) < 1e-9
 
 
 def test_a_straight_path_keeps_the_full_waypoint_distance():
