@@ -59,6 +59,22 @@ def free_distance_m(points_xy: np.ndarray, v_mps: float, w_radps: float, *, radi
     return float(max(s[first] - step_m, 0.0)), float(now[conflict.any(axis=0)].min())
 
 
+def conflicting(points_xy: np.ndarray, v_mps: float, w_radps: float, *, radius_m: float, length_m: float = 2.5,
+                step_m: float = 0.05) -> np.ndarray:
+    """(N,) bool: the points that conflict somewhere along the (v, w) arc, as :func:`free_distance_m` counts them
+    (inside the disc there and nearer than now). Non-finite points never conflict."""
+    p = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    out = np.zeros(len(p), bool)
+    now = np.hypot(p[:, 0], p[:, 1])
+    idx = np.flatnonzero(np.isfinite(now) & (now <= length_m + radius_m))
+    if len(idx) == 0:
+        return out
+    path, _ = arc_samples(v_mps, w_radps, length_m, step_m)
+    d = np.hypot(path[:, None, 0] - p[None, idx, 0], path[:, None, 1] - p[None, idx, 1])
+    out[idx] = ((d < radius_m) & (d < now[None, idx] - 1e-9)).any(axis=0)
+    return out
+
+
 def braking_speed_mps(free_m: float, *, decel_mps2: float, latency_s: float) -> float:
     """Largest speed from which the robot still stops within ``free_m``: v * latency + v^2 / (2 a) = free."""
     if not free_m > 0:

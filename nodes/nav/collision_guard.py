@@ -40,7 +40,7 @@ import numpy as np
 from msgs.geometry import Odometry2D, Twist2D
 from msgs.nav import FlowPoints, PlanStatus
 from msgs.sensor import RgbdFrame
-from nodes.nav.clearance import braking_speed_mps, cleared_by_depth, free_distance_m, unseen_mask
+from nodes.nav.clearance import braking_speed_mps, cleared_by_depth, conflicting, free_distance_m, unseen_mask
 from nodes.nav.grid_frame import to_robot, to_world
 from nodes.nav.dwa_core import depth_to_robot, thin_points
 from nodes.nav.features import cell_velocity
@@ -83,6 +83,12 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     cell_m: float = 0.0               # > 0: each moves with the median velocity of its cell this size (0.25 m is
                                       # the planner's grid); 0: with its own flow vector
     v_max_mps: float = 1.0            # the robot's top speed (sets the extrapolation horizon)
+    hold_min_points: int = 3          # a stop for predicted points only holds release_s (as one for seen points does)
+                                      # when at least this many flow points are predicted onto the path; fewer (one
+                                      # wrong flow vector) stop the robot only while they are predicted. Such
+                                      # phantoms held it 0.5 s at a time (hallway: 1-3 ticks of a predicted obstacle,
+                                      # then 8 of 'waiting'); a walker's body moves many points, and its prediction
+                                      # may flicker at the path's edge, so it holds (0 = every stop holds)
     stride_px: int = 4
     z_min_m: float = 0.1
     z_max_m: float = 2.0
@@ -121,6 +127,7 @@ class CollisionGuard(Node):
         self._half_fov = np.pi / 2
         self._rgbd = False
         self._movers = np.zeros((0, 2))             # robot frame at _movers_ns, or world with odometry
+        self._movers_src = np.zeros(0, np.int64)    # which flow point each predicted place comes from
         self._movers_ns = 0
         self._movers_world = False
 
@@ -200,7 +207,7 @@ class CollisionGuard(Node):
         ok = (np.isfinite(pts).all(axis=1) & np.isfinite(vel).all(axis=1) & (pts[:, 2] >= c.z_min_m)
               & (pts[:, 2] <= c.z_max_m))
         if horizon <= 0 or not ok.any():
-            self._movers = np.zeros((0, 2))
+            self._movers, self._movers_src = np.zeros((0, 2)), np.zeros(0, np.int64)
             return
         # cell_m > 0: each point moves with the median velocity of its grid cell, as in the planner's
         # prediction (nodes.nav.social_planner.predict_conflicts): dense flow is wrong on a few percent
@@ -216,7 +223,10 @@ class CollisionGuard(Node):
         moving = np.hypot(v[:, 0], v[:, 1]) >= c.moving_mps
         taus = np.arange(0.1, horizon + 1e-9, 0.1)
         ahead = (xy[moving, None, :] + v[moving, None, :] * taus[None, :, None]).reshape(-1, 2)
-        ahead = thin_points(ahead[np.hypot(ahead[:, 0], ahead[:, 1]) <= c.check_m + 1.0], 0.05)
+        src = np.repeat(np.arange(int(moving.sum())), len(taus))
+        near = np.hypot(ahead[:, 0], ahead[:, 1]) <= c.check_m + 1.0
+        ahead, first = thin_points(ahead[near], 0.05, return_index=True)
+        self._movers_src = src[near][first]
         pose = self._pose_at(stamp_ns)
         self._movers_world = pose is not None
         self._movers = to_world(pose, ahead) if pose is not None else ahead
@@ -226,10 +236,19 @@ class CollisionGuard(Node):
         """Obstacle points (N, 2) in the robot frame now (seen, remembered and predicted), and the
         age (s) of the pose they were placed with."""
         points, age = self._seen_now()
-        if len(self._movers) and (self.now_ns() - self._movers_ns) * 1e-9 <= self.config.sensor_timeout_s:
-            movers = to_robot(self._poses[-1][1], self._movers) if self._movers_world and self._poses else self._movers
-            points = np.vstack([points, movers])
-        return points, age
+        return np.vstack([points, self._predicted_now()]), age
+
+    def _predicted_now(self) -> np.ndarray:
+        """The moving points' extrapolated places (N, 2), robot frame now; none when the flow is stale."""
+        if not len(self._movers) or (self.now_ns() - self._movers_ns) * 1e-9 > self.config.sensor_timeout_s:
+            return np.zeros((0, 2))
+        return to_robot(self._poses[-1][1], self._movers) if self._movers_world and self._poses else self._movers
+
+    def _predicted_sources(self, predicted: np.ndarray, v: float, w: float) -> int:
+        """How many flow points have a predicted place (``predicted``, as :meth:`_predicted_now`) on the (v, w) path."""
+        c = self.config
+        hit = conflicting(predicted, v, w, radius_m=c.robot_radius_m + c.margin_m, length_m=c.check_m)
+        return len(np.unique(self._movers_src[hit])) if len(self._movers_src) == len(hit) else int(hit.sum())
 
     def _seen_now(self) -> tuple[np.ndarray, float]:
         now = self.now_ns()
@@ -256,13 +275,19 @@ class CollisionGuard(Node):
         if v <= 0:
             return v, w, ""
         now = self.now_ns()
-        points, age_s = self.obstacles_now()
-        free, near = free_distance_m(points, v, w, radius_m=c.robot_radius_m + c.margin_m, length_m=c.check_m)
+        seen, age_s = self._seen_now()
+        predicted = self._predicted_now()
+        radius = c.robot_radius_m + c.margin_m
+        free, near = free_distance_m(seen, v, w, radius_m=radius, length_m=c.check_m)
+        free_p, near_p = free_distance_m(predicted, v, w, radius_m=radius, length_m=c.check_m)
+        free = min(free, free_p)
         turn = w if c.allow_turn_in_place else 0.0
-        if near < c.stop_distance_m:
+        if min(near, near_p) < c.stop_distance_m:
             self._obstacle_ns = now
-            self._hold_until_ns = now + int(c.release_s * 1e9)
-            return 0.0, turn, f"obstacle at {near:.2f} m on the path"
+            if near < c.stop_distance_m or self._predicted_sources(predicted, v, w) >= c.hold_min_points:
+                self._hold_until_ns = now + int(c.release_s * 1e9)
+                return 0.0, turn, f"obstacle at {min(near, near_p):.2f} m on the path"
+            return 0.0, turn, f"obstacle predicted at {near_p:.2f} m on the path"
         if self._hold_until_ns is not None and now < self._hold_until_ns:
             return 0.0, turn, "waiting for the path to stay clear"
         cap = braking_speed_mps(free, decel_mps2=c.decel_mps2, latency_s=c.latency_s + age_s)

@@ -155,3 +155,26 @@ def test_a_person_who_left_the_near_blind_zone_is_forgotten_once_the_floor_shows
             per_frame.append(cmds(out)[-1][0])
     assert per_frame[:3] == [0.0, 0.0, 0.0]                      # seen, then remembered while its column reads holes
     assert per_frame[-1] > 0.0                                   # gone once rays through the spot reach the floor
+
+
+def test_a_stop_for_one_wrong_vector_lasts_as_long_as_its_prediction_a_walker_or_a_seen_obstacle_holds():
+    """One wrong flow vector predicts a point onto the path for one frame: the robot stops on that frame and
+    goes on the next one that predicts nothing (hold_min_points 3). A walker's body (12 points) predicted
+    onto the path, or a seen obstacle, holds the stop release_s (hallway: 1-3 ticks of a phantom, then 8
+    of waiting; group, DWA: a walker's prediction flickering at the path's edge needs the hold)."""
+    clear = post(5.0)
+    straight = Twist2D(vx_mps=0.8)
+    rng = np.random.default_rng(1)
+    one = np.array([[0.9, -0.7, 1.0]], np.float32)
+    body = np.column_stack([rng.uniform(0.8, 1.0, 12), rng.uniform(-0.8, -0.6, 12), rng.uniform(0.8, 1.6, 12)])
+    for points, hold_min, expected in ((one, 3, 0.8), (one, 0, 0.0), (body.astype(np.float32), 3, 0.0)):
+        toward = FlowPoints(points_m=points, velocity_mps=np.tile(np.float32([0.0, 1.0, 0.0]), (len(points), 1)))
+        still = FlowPoints(points_m=points, velocity_mps=np.zeros((len(points), 3), np.float32))
+        with Harness(CollisionGuard, params={"stride_px": 2, "hold_min_points": hold_min}) as h:
+            first = cmds(h.feed([(0.0, "rgbd", clear), (0.0, "points", toward), (0.01, "cmd", straight)]))
+            assert first[-1][0] == 0.0                                  # the prediction stops it at once
+            later = cmds(h.feed([(0.07, "rgbd", clear), (0.07, "points", still), (0.08, "cmd", straight)]))
+        assert later[-1][0] == expected, (len(points), hold_min)
+    with Harness(CollisionGuard, params={"stride_px": 2}) as h:                 # a seen obstacle holds
+        h.feed([(0.0, "rgbd", frame(0.5)), (0.01, "cmd", straight)])
+        assert cmds(h.feed([(0.07, "rgbd", frame(3.0)), (0.08, "cmd", straight)]))[-1][0] == 0.0
