@@ -43,17 +43,12 @@ face -- and gaps take that back. Off by default: measured in ``bench/sonar_cloud
 tripod demo pass, the square pier, the two piles and the wall, but a surface that returns only now and then (a
 block's top face at grazing incidence) loses to ghosts a few late pings saw, and the block's accuracy falls.
 
-Returns are every beam's front end (``nodes.sonar.highlight.detect_front_ends``, in the region before
-the seafloor's near edge ``r_emin``, eq. 8) and, with ``returns="all"``, every bright range block
-behind it: brighter than ``return_level`` before ``r_emin``, than ``floor_level`` beyond it (a structure
-standing out of the seafloor's own echo; the flat floor's 10 cm blocks stay below 0.5 of full scale
-in the simulator). Beams without a front end carve up to ``r_emin`` (less a guard), or their whole
-range when no seafloor is given; nothing is carved beyond ``r_emin``. The ping is first averaged
-over range cells of at most 0.4 voxel (a fraction of the work; the front end still lands well inside
-a voxel). Frames: pings in the sonar FRD frame (x boresight, y starboard, z down), poses sonar ->
-world 4x4, grid and cloud in the world. Pure numpy/OpenCV; a dense grid over ``bounds`` (arc samples
-outside it are counted and ignored); carving projects only the *candidate* voxels (those ever hit)
-into each ping, so the work per ping follows the surface seen, not the volume of the fan.
+Returns and their arcs (``nodes.sonar.carving_arcs``) are every beam's front end and, with ``returns="all"``, the bright
+range blocks behind it; a beam is empty (carved) up to its front end, or the seafloor's near edge without one.
+Frames: pings in the sonar FRD frame (x boresight, y starboard, z down), poses sonar -> world 4x4, grid and
+cloud in the world. Pure numpy/OpenCV; a dense grid over ``bounds`` (arc samples outside it are counted and
+ignored); carving projects only the *candidate* voxels (those ever hit) into each ping, so the work per ping
+follows the surface seen, not the volume of the fan.
 """
 from __future__ import annotations
 
@@ -63,7 +58,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from nodes.sonar.highlight import detect_front_ends, effective_region
+from nodes.sonar.carving_arcs import RangeBlocks, extract_returns, sample_arcs
 
 _U16 = np.iinfo(np.uint16).max
 _DEAD = -4.0            # score below which a candidate is no longer carved
@@ -156,18 +151,6 @@ class _PingArcs:
     half: float = 0.0
 
 
-@dataclass(frozen=True)
-class _Blocks:
-    """One ping's range blocks (every other beam): ``bright`` (B, N/2), ``near`` (bright or next to a bright
-    one), block centres in rows, ``step`` rows per block, ``dr`` m per row."""
-
-    bright: np.ndarray
-    near: np.ndarray
-    centre: np.ndarray
-    step: int
-    dr: float
-
-
 class CarvingGrid:
     """Carving and arc voting over the world box ``bounds_m = ((x0, y0, z0), (x1, y1, z1))``.
 
@@ -188,7 +171,8 @@ class CarvingGrid:
         self.hits = np.zeros(n, np.uint16)
         self.misses = np.zeros(n, np.uint16)
         self.darks = np.zeros(n, np.uint16)
-        self.seen = np.zeros(n, np.uint16)              # pings with the voxel in the fan since it became a candidate
+        # pings with the voxel in the fan since it became a candidate (gap evidence only)
+        self.seen = np.zeros(n, np.uint16) if params.gap_weight > 0 else None
         self._lut_key: bytes | None = None
         self._lut: tuple = ()
         self._slot = np.full(n, -1, np.int32)           # voxel -> row of the candidate arrays
@@ -218,99 +202,19 @@ class CarvingGrid:
         spread_rad : vertical aperture s (rad).
         """
         p = self.params
-        pose, b, img = np.asarray(pose, float), np.asarray(bearings_rad, float), np.asarray(intensities)
-        if img.ndim != 2 or img.shape[1] != b.size or b.size < 2 or img.shape[0] < 3:
-            raise ValueError(f"need ranges x beams intensities with one bearing per beam, got {img.shape}, {b.size}")
-        if not (np.all(np.isfinite(b)) and np.all(np.diff(b) > 0)):
-            raise ValueError("bearings must be finite and ascending")
-        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-            raise ValueError("pose must be a finite 4x4 sonar -> world transform")
-        if not (range_resolution_m > 0 and 0 < spread_rad < np.pi):
-            raise ValueError(f"need range_resolution_m > 0 and 0 < spread < pi, got {range_resolution_m}, {spread_rad}")
-        rot, origin = pose[:3, :3], pose[:3, 3]
-        img, dr, f = self._coarse(img, range_resolution_m)
-        m_emin = self._seafloor_rows(b, img.shape[0], dr, rot, origin, spread_rad)
-        rows, _ = detect_front_ends(img, m_emin, sigma_px=p.sigma_px / f, threshold=p.threshold,
-                                    guard_px=None if p.guard_px is None else p.guard_px / f,
-                                    sigma_beam_px=p.sigma_beam_px)
-        detected = np.isfinite(rows)
-        guard = (2.0 * p.sigma_px / f + 2.0) if p.guard_px is None else p.guard_px / f
-        r_front = (rows + 0.5) * dr
-        free = np.where(detected, r_front, (m_emin - guard) * dr) - p.margin_m
-        blocks = self._blocks(img, m_emin - guard, dr)
-        carved = self._carve(rot, origin, b, free, 0.5 * spread_rad, blocks)
-        r_hit, b_hit = r_front[detected], b[detected]
-        if p.returns == "all":
-            more_r, more_b = self._bright(blocks, b, rows)
-            r_hit, b_hit = np.concatenate([r_hit, more_r]), np.concatenate([b_hit, more_b])
-        hit, outside = self._hit(rot, origin, r_hit, b_hit, 0.5 * spread_rad, int(detected.sum()))
+        ret = extract_returns(intensities, bearings_rad, range_resolution_m, pose, spread_rad, params=p,
+                              seafloor_z_m=self.seafloor_z_m)         # validates the ping
+        pose = np.asarray(pose, float)
+        rot, origin, half = pose[:3, :3], pose[:3, 3], 0.5 * spread_rad
+        carved = self._carve(rot, origin, np.asarray(bearings_rad, float), ret.free_m, half, ret.blocks)
+        hit, outside = self._hit(pose, ret.ranges_m, ret.bearings_rad, half, ret.n_front)
         self.pings += 1
         while len(self._pending) > p.settle_pings:
             self._vote(self._pending.popleft())
-        return PingUpdate(int(detected.sum()), int(r_hit.size), carved, hit, outside)
-
-    def _coarse(self, img: np.ndarray, dr: float) -> tuple[np.ndarray, float, int]:
-        """The ping averaged over ``f`` range cells, the coarsest that keeps cells <= 0.4 voxel (the front end is
-        still placed to a fraction of a voxel, at a fraction of the work); floats with NaN/inf made finite
-        (no data is dark)."""
-        if img.dtype.kind == "f":
-            img = np.nan_to_num(img.astype(np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-        f = int(max(1, min(np.floor(0.4 * self.params.voxel_m / dr), img.shape[0] // 3)))
-        if f == 1:
-            return img, dr, 1
-        m = img.shape[0] // f * f
-        if f == 2:                       # the usual case (2 cm cells, 10 cm voxels): one pass over strided rows
-            small = cv2.addWeighted(img[0:m:2], 0.5, img[1:m:2], 0.5, 0.0)
-        else:
-            small = img[:m].reshape(m // f, f, -1).mean(axis=1, dtype=np.float32)
-            small = np.rint(small).astype(img.dtype) if img.dtype.kind in "ui" else small
-        return small, dr * f, f
-
-    def _seafloor_rows(self, b: np.ndarray, m: int, dr: float, rot: np.ndarray, origin: np.ndarray,
-                       spread: float) -> np.ndarray:
-        """Fractional row of each beam's seafloor near edge (eq. 8-9); all rows without a seafloor."""
-        if self.seafloor_z_m is None:
-            return np.full(b.size, float(m))
-        altitude = float(origin[2] - self.seafloor_z_m)
-        if not altitude > 0:
-            raise ValueError(f"the sonar is not above the seafloor (altitude {altitude:.2f} m)")
-        down = rot.T @ np.array([0.0, 0.0, -1.0])
-        return effective_region(b, altitude, spread, tilt_rad=float(np.arcsin(np.clip(down[0], -1, 1))), n_ranges=m,
-                                range_resolution_m=dr, down_frd=down).m_emin
-
-    def _blocks(self, img: np.ndarray, limit_rows: np.ndarray, dr: float) -> _Blocks | None:
-        """Bright range blocks of every other beam: block mean above ``return_level`` before ``limit_rows``
-        (the seafloor's near edge), above ``floor_level`` beyond it (over the seafloor's echo)."""
-        p = self.params
-        step = max(1, int(round(p.return_step_m / dr)))
-        k = (img.shape[0] if p.floor_level < 1 else
-             int(min(img.shape[0], max(float(np.nanmax(limit_rows, initial=0.0)), 0.0)))) // step * step
-        if k < step:
-            return None
-        full = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else 1.0     # img is finite (_coarse)
-        # the mean over each block (its speckle averaged, as a blur would), every other beam: neighbours lie a
-        # few cm apart, well inside a voxel
-        cols = img[:k, ::2]
-        block = cols.reshape(k // step, step, cols.shape[1]).mean(axis=1, dtype=np.float32) * np.float32(1.0 / full)
-        centre = (np.arange(k // step) + 0.5) * step
-        level = np.where(centre[:, None] < limit_rows[::2][None, :], np.float32(p.return_level),
-                         np.float32(p.floor_level))
-        bright = block > level
-        # a voxel spans a few beams and range blocks: dark only where no neighbouring block is bright
-        near = cv2.dilate(bright.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        return _Blocks(bright, near, centre, step, dr)
-
-    def _bright(self, blocks: _Blocks | None, bearings: np.ndarray, front_rows: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-        """Ranges and bearings of the bright range blocks behind each front end."""
-        if blocks is None:
-            return np.zeros(0), np.zeros(0)
-        front = np.where(np.isfinite(front_rows), front_rows, np.inf)[::2]
-        blk, beam = np.nonzero(blocks.bright & (blocks.centre[:, None] > front[None, :] + blocks.step))
-        return blocks.centre[blk] * blocks.dr, bearings[::2][beam]
+        return PingUpdate(ret.n_front, int(ret.ranges_m.size), carved, hit, outside)
 
     def _carve(self, rot: np.ndarray, origin: np.ndarray, bearings: np.ndarray, free_m: np.ndarray,
-               half: float, blocks: _Blocks | None) -> int:
+               half: float, blocks: RangeBlocks | None) -> int:
         """Count a miss on the candidates inside the fan nearer than their beam's free range, and a dark on those
         behind their beam's front end (past ``margin_m``) in a range block with no bright return near it."""
         p = self.params
@@ -387,38 +291,23 @@ class CarvingGrid:
             score -= np.float32(p.gap_weight) * np.maximum(self.seen[voxels] - hits, np.float32(0.0))
         return score
 
-    def _hit(self, rot: np.ndarray, origin: np.ndarray, ranges: np.ndarray, bearings: np.ndarray,
-             half: float, n_front: int) -> tuple[int, int]:
+    def _hit(self, pose: np.ndarray, ranges: np.ndarray, bearings: np.ndarray, half: float,
+             n_front: int) -> tuple[int, int]:
         """A hit on every voxel each return's elevation arc passes through (once per ping per voxel); the first
         ``n_front`` returns are front ends."""
         if ranges.size == 0:
             return 0, 0
         p = self.params
-        per_arc = np.maximum(2, np.ceil(2 * half * ranges / p.arc_step_m).astype(np.int64) + 1)
-        arc = np.repeat(np.arange(ranges.size), per_arc)
-        start = np.cumsum(per_arc) - per_arc
-        phi = (-half + (np.arange(arc.size) - start[arc]) * (2 * half / (per_arc - 1))[arc]).astype(np.float32)
-        r = ranges.astype(np.float32)[arc]
-        along, across = r * np.cos(phi), r * np.sin(phi)       # along the beam's horizontal direction, along z
-        axes = rot.astype(np.float32)                          # columns: the sonar's x, y, z in the world
-        beam_dir = axes[:, :2] @ np.stack([np.cos(bearings), np.sin(bearings)]).astype(np.float32)   # (3, arcs)
-        rel = (origin - self.origin) * (1.0 / p.voxel_m)
-        flat = np.zeros(arc.size, np.int32)
-        ok = np.ones(arc.size, bool)
-        for axis, n in enumerate(self.shape):         # world = origin + along * beam_dir + across * z of the sonar
-            i = np.floor((along * beam_dir[axis][arc] + across * axes[axis, 2]) * np.float32(1.0 / p.voxel_m)
-                         + np.float32(rel[axis])).astype(np.int32)
-            ok &= (i >= 0) & (i < n)
-            flat = flat * np.int32(n) + i
-        flat = flat[ok].astype(np.int64)
-        arc = arc[ok].astype(np.int32)
+        s = sample_arcs(ranges, bearings, pose, half, grid_origin_m=self.origin, shape=self.shape, voxel_m=p.voxel_m,
+                        step_m=p.arc_step_m)
         if p.occlusion:
-            self._pending.append(_PingArcs(flat, arc, (phi * r)[ok], n_front, r[ok], bearings.astype(np.float32)[arc],
-                                           phi[ok], rot.astype(np.float32), origin.astype(np.float32), half))
+            self._pending.append(_PingArcs(s.voxel, s.arc, s.phi * s.range_m, n_front, s.range_m,
+                                           bearings.astype(np.float32)[s.arc], s.phi, pose[:3, :3].astype(np.float32),
+                                           pose[:3, 3].astype(np.float32), half))
         else:
-            self._pending.append(_PingArcs(flat, arc, (phi * r)[ok], n_front))
-        self.hits[flat] = np.minimum(self.hits[flat].astype(np.int32) + 1, _U16)   # buffered: once per voxel per ping
-        return self._slots_for(flat), int((~ok).sum())
+            self._pending.append(_PingArcs(s.voxel, s.arc, s.phi * s.range_m, n_front))
+        self.hits[s.voxel] = np.minimum(self.hits[s.voxel].astype(np.int32) + 1, _U16)   # buffered: once per ping
+        return self._slots_for(s.voxel), s.outside
 
     def _slots_for(self, voxels: np.ndarray) -> int:
         """Make candidates of the new ones among ``voxels`` (those hit for the first time); how many."""
