@@ -254,6 +254,8 @@ def main() -> None:
                   for k, v in d.items() if k not in ("highlight", "pings")]
         print(f"{name:>18}: " + "; ".join(cells))
     print(f"cloud picture: {demo['plot']}")
+    headline["load_average"] = round(os.getloadavg()[0], 2)     # the timings mean little on a loaded machine
+    headline["cpu_count"] = os.cpu_count()
     if args.json:                      # the table first, the JSON object last (bench/readme.py reads the last line)
         print(json.dumps(headline))
 
