@@ -39,6 +39,11 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
     end = len(ep.t) if ep.goal_t is None else int(np.searchsorted(ep.t, ep.goal_t)) + 1
     length = float(np.sum(np.hypot(*np.diff(ep.pose[:end, :2], axis=0).T)))
     closest = float(d[:end].min()) if np.isfinite(d[:end]).any() else None
+    stopped_at_closest = None
+    if closest is not None and len(ep.t) >= 2:
+        k = int(np.argmin(d[:end]))
+        speed = np.hypot(*np.gradient(ep.pose[:, :2], ep.t, axis=0).T)
+        stopped_at_closest = bool(speed[k] < STOPPED_MPS)
     return {"closest_m": None if closest is None else round(closest, 3),
             "avoidance_m": round(float(d[turning[0]]), 3) if len(turning) else None,
             "time_s": None if ep.goal_t is None else round(ep.goal_t, 2), "path_m": round(length, 2),
@@ -48,8 +53,12 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
             "success": bool(ep.goal_t is not None and ep.collisions == 0),
             **strict_contacts(ep),
             "guard_frac": round(ep.guard_ticks / ep.ticks, 4) if ep.ticks else None,
+            "stopped_at_closest": stopped_at_closest,
             "start_shift_s": round(ep.start_shift_s, 2)}
 
+
+#: the robot counts as stopped below this speed (m/s): a closest approach then is a person walking up to it
+STOPPED_MPS = 0.1
 
 #: bodies touch at this centre distance: 0.2 m personal radius each (issue 22, section 5)
 TOUCH_M = 0.4
