@@ -178,3 +178,17 @@ def test_a_stop_for_one_wrong_vector_lasts_as_long_as_its_prediction_a_walker_or
     with Harness(CollisionGuard, params={"stride_px": 2}) as h:                 # a seen obstacle holds
         h.feed([(0.0, "rgbd", frame(0.5)), (0.01, "cmd", straight)])
         assert cmds(h.feed([(0.07, "rgbd", frame(3.0)), (0.08, "cmd", straight)]))[-1][0] == 0.0
+
+
+def test_a_person_who_steps_up_into_the_near_blind_zone_stays_an_obstacle():
+    """Seen 0.5 m ahead of the camera, then nearer than it can measure: their pixels turn to holes while the
+    points last seen on them are still in view by geometry (0.5 m > min_range_m). Holes clear nothing: the
+    robot stays stopped (it drove into a walker who stepped up so, hallway t = 16.4 s)."""
+    straight = Twist2D(vx_mps=0.8)
+    per_frame = []
+    with Harness(CollisionGuard, params={"stride_px": 2, "release_s": 0.0}) as h:
+        for k, rgbd in enumerate([post(0.5, t=0.0), post(0.5, hole=True, t=0.1), post(0.5, hole=True, t=0.2)]):
+            t = 0.1 * k
+            out = h.feed([(t, "odom", odom_at(0.0, t)), (t, "rgbd", rgbd), (t + 0.01, "cmd", straight)])
+            per_frame.append(cmds(out)[-1][0])
+    assert per_frame == [0.0, 0.0, 0.0]
