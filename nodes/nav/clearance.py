@@ -121,6 +121,21 @@ def cleared_by_depth(points_xy: np.ndarray, depth_m: np.ndarray, fx: float, fy: 
                                     row_stride=row_stride)
         return out
     out = np.zeros(len(p), bool)
+    rays = _column_rays(p, depth, fx, fy, cx, cy, mount_xyz_m=mount_xyz_m, z_min_m=z_min_m, z_max_m=z_max_m,
+                        max_range_m=max_range_m, row_stride=row_stride)
+    if rays is None:
+        return out
+    idx, zc, d, relevant = rays
+    free = np.isfinite(d) & (d > zc[:, None] + margin_m)
+    out[idx] = relevant.any(axis=1) & (free | ~relevant).all(axis=1)
+    return out
+
+
+def _column_rays(p: np.ndarray, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, *,
+                 mount_xyz_m: tuple[float, float, float], z_min_m: float, z_max_m: float, max_range_m: float,
+                 row_stride: int):
+    """For robot-frame points (N, 2): the indices of those with rays, their optical depth, the depth the rays
+    of their image column read (n, R) and which of those rays pass over them at a relevant height (n, R)."""
     mx, my, mz = mount_xyz_m
     zc = p[:, 0] - mx                                  # optical depth of each point
     xc = -(p[:, 1] - my)
@@ -133,11 +148,28 @@ def cleared_by_depth(points_xy: np.ndarray, depth_m: np.ndarray, fx: float, fy: 
     down = (slope > 0) & (mz / np.maximum(slope, 1e-9) <= max_range_m)
     rows, slope = rows[down], slope[down]
     if not len(rows) or not ok.any():
-        return out
+        return None
     idx = np.flatnonzero(ok)
     height = mz - slope[None, :] * zc[idx, None]                       # (n, R) height of each ray over the point
     relevant = (height >= z_min_m) & (height <= min(z_max_m, mz))
-    d = depth[rows[None, :], u[idx, None]]
-    free = np.isfinite(d) & (d > zc[idx, None] + margin_m)
-    out[idx] = relevant.any(axis=1) & (free | ~relevant).all(axis=1)
+    return idx, zc[idx], depth[rows[None, :], u[idx, None]], relevant
+
+
+def measured_through(points_xy: np.ndarray, depth_m: np.ndarray, fx: float, fy: float, cx: float, cy: float, *,
+                     mount_xyz_m: tuple[float, float, float], z_min_m: float, z_max_m: float, max_range_m: float,
+                     row_stride: int = 4) -> np.ndarray:
+    """(N,) bool: robot-frame points (N, 2) whose image column has at least one valid depth among the rays that
+    pass over them at a height in [``z_min_m``, camera height] (what :func:`cleared_by_depth` looks at). False
+    where those rays all read holes: something nearer than the camera's minimum range may stand there."""
+    p = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    depth = np.asarray(depth_m, dtype=np.float64)
+    out = np.zeros(len(p), bool)
+    if len(p) == 0 or depth.ndim != 2 or not (fx > 0 and fy > 0):
+        return out
+    rays = _column_rays(p, depth, fx, fy, cx, cy, mount_xyz_m=mount_xyz_m, z_min_m=z_min_m, z_max_m=z_max_m,
+                        max_range_m=max_range_m, row_stride=row_stride)
+    if rays is None:
+        return out
+    idx, _, d, relevant = rays
+    out[idx] = (relevant & np.isfinite(d) & (d > 0)).any(axis=1)
     return out

@@ -40,7 +40,8 @@ import numpy as np
 from msgs.geometry import Odometry2D, Twist2D
 from msgs.nav import FlowPoints, PlanStatus
 from msgs.sensor import RgbdFrame
-from nodes.nav.clearance import braking_speed_mps, cleared_by_depth, conflicting, free_distance_m, unseen_mask
+from nodes.nav.clearance import (braking_speed_mps, cleared_by_depth, conflicting, free_distance_m, measured_through,
+                                 unseen_mask)
 from nodes.nav.grid_frame import to_robot, to_world
 from nodes.nav.dwa_core import depth_to_robot, thin_points
 from nodes.nav.features import cell_velocity
@@ -144,8 +145,8 @@ class CollisionGuard(Node):
         return pose if abs(stamp - stamp_ns) <= 0.2e9 else None
 
     def _sense(self, points_m: np.ndarray, blind: bool, stamp_ns: int, seen_free=None) -> list[tuple[str, object]]:
-        """Take a frame's points; ``seen_free`` (optional, robot-frame (N, 2) -> (N,) bool) tells which
-        remembered points the frame shows to be empty space."""
+        """Take a frame's points; ``seen_free`` (optional, two robot-frame (N, 2) -> (N,) bool functions) tells
+        which remembered points the frame shows to be empty space, and which it measured anything through."""
         c = self.config
         self._sensor_ns = self.now_ns()
         self.blind = blind
@@ -160,17 +161,19 @@ class CollisionGuard(Node):
                 rel = to_robot(pose, self._points)
                 keep = ((stamp_ns - self._points_t <= c.memory_s * 1e9)
                         & (np.hypot(rel[:, 0], rel[:, 1]) <= c.check_m + c.robot_radius_m + 1.0))
+                unseen = unseen_mask(rel, camera_x_m=c.camera_x_m, half_fov_rad=self._half_fov, min_range_m=c.min_range_m)
                 if seen_free is None:
-                    keep &= unseen_mask(rel, camera_x_m=c.camera_x_m, half_fov_rad=self._half_fov, min_range_m=c.min_range_m)
+                    keep &= unseen
                 elif keep.any():
-                    # a remembered point goes only when rays through it reach the floor or a wall beyond
-                    # it (a person who came within the camera's minimum range and walked on left a point
-                    # there: hallway stood 3 s at a time before an empty spot 0.55 m ahead). Being in the
-                    # view is not enough: a walker who stepped up to 0.65 m of the robot centre turned
-                    # their pixels into depth holes while the points last seen on them were still 0.45 m
-                    # from the camera, in view by geometry; dropped, the path looked clear, the guard
-                    # released and the robot drove into them (hallway, t = 16.4 s)
-                    keep[keep] = ~seen_free(rel[keep])
+                    # in view by geometry is not enough to forget a point: its rays must have measured
+                    # something. A walker who stepped up to 0.65 m of the robot centre turned their pixels
+                    # into depth holes while the points last seen on them were 0.45 m from the camera, in
+                    # view; dropped, the path looked clear, the guard released and the robot drove into
+                    # them (hallway, t = 16.4 s). And a point goes only when rays through it reach the
+                    # floor or a wall beyond it: a person who came within the camera's minimum range and
+                    # walked on left a point there (hallway stood 3 s at a time before an empty spot).
+                    keep &= unseen | ~seen_free[1](rel)
+                    keep[keep] = ~seen_free[0](rel[keep])
                 xy = np.vstack([xy, rel[keep]])
                 seen_t = np.concatenate([seen_t, self._points_t[keep]])
             xy, first = thin_points(xy, 0.05, return_index=True)
@@ -195,7 +198,11 @@ class CollisionGuard(Node):
         def seen_free(rel: np.ndarray) -> np.ndarray:
             return cleared_by_depth(rel, depth, i.fx_px, i.fy_px, i.cx_px, i.cy_px, mount_xyz_m=mount,
                                     z_min_m=c.z_min_m, z_max_m=c.z_max_m, max_range_m=c.depth_max_m)
-        return self._sense(pts, valid < c.min_valid_fraction, msg.stamp_ns, seen_free)
+
+        def measured(rel: np.ndarray) -> np.ndarray:
+            return measured_through(rel, depth, i.fx_px, i.fy_px, i.cx_px, i.cy_px, mount_xyz_m=mount,
+                                    z_min_m=c.z_min_m, z_max_m=c.z_max_m, max_range_m=c.depth_max_m)
+        return self._sense(pts, valid < c.min_valid_fraction, msg.stamp_ns, (seen_free, measured))
 
     def on_points(self, msg: FlowPoints) -> list[tuple[str, object]]:
         pts = np.asarray(msg.points_m, dtype=np.float64).reshape(-1, 3)
