@@ -461,14 +461,22 @@ def rl_env(d: dict) -> list[Row]:
 def rl_car(d: dict) -> list[Row]:
     cp, rb, mb = d["cartpole"], d["reach"]["baseline"], d["maze"]["baseline"]
     curve = d["reach"]["curve"]
+    seeds = d.get("reach_err_mm_by_seed") or {}
+    pooled = (f"over {len(seeds)} training seeds ({', '.join(f'{v:.2f}' for v in seeds.values())} mm each), "
+              if seeds else "")
+    cps = cp.get("by_seed") or []
+    cart = (f"CartPole-v1 after {cp['steps'] // 1000}k steps, {len(cps)} seeds: "
+            + ", ".join(f"{c['return_mean']:.0f}" for c in cps) if cps else
+            f"CartPole-v1 {cp['return_mean']:.0f} +- {cp['return_std']:.0f}")
     return [("`rl_car.py` PPO (JAX) over the bus, 100 held-out episodes",
              f"reach the point: {d['reach_err_mm_mean']:.2f} +- {d['reach_err_mm_std']:.2f} mm (median "
-             f"{d['reach_err_mm_median']:.2f}) at {d['reach_steps_picked'] / 1e6:.1f}M steps, picked on validation seeds "
+             f"{d['reach_err_mm_median']:.2f}) {pooled}seed {d.get('reach_median_seed', 0)} "
+             f"at {d['reach_steps_picked'] / 1e6:.1f}M steps, picked on validation seeds "
              f"({d['reach_err_mm_mean_end']:.2f} +- {d['reach_err_mm_std_end']:.2f} at {curve[-1]['steps'] / 1e6:.1f}M); "
              f"maze: exit in "
              f"{100 * d['maze_success_frac']:.0f} % (the paper's straight-line reward), "
              f"{100 * d['maze_success_frac_geodesic']:.0f} % with the corridor distance; "
-             f"{d['train_minutes']:.0f} training minutes in all; CartPole-v1 {cp['return_mean']:.0f} +- {cp['return_std']:.0f}",
+             f"{d['train_minutes']:.0f} training minutes in all; {cart}",
              f"paper 8.12 +- 1.23 mm; go-to-goal law {rb['mean_mm']:.2g} mm; wall follower {100 * mb['success']:.0f} % "
              f"({mb['steps_mean']:.0f} steps); CartPole published 500",
              f"< 8 mm: {_met(d['reach_err_mm_mean'] < 8)}; maze >= 90 %: {_met(d['maze_success_frac'] >= 0.9)}")]
