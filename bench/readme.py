@@ -542,6 +542,18 @@ def selfplay(d: dict) -> list[Row]:
 
 
 def captcha(d: dict) -> list[Row]:
+    seeds = d.get("by_seed") or {}
+    if len(seeds) > 1:              # runs of bench/captcha.py --seed K, merged: one seed says little here
+        col = lambda k: " / ".join(f"{s[k]:.3f}" for s in seeds.values())     # noqa: E731
+        return [(f"`captcha.py` 4-digit solver judged on {d['test_n']} held-out real captchas, training seeds "
+                 + " / ".join(seeds),
+                 f"trained on synthetic {col('acc_synthetic')}, on SimGAN-refined {col('acc_refined')} "
+                 f"(full-captcha accuracy); {d['train_minutes']:.1f} min training per seed",
+                 f"trained on the 600 real labelled captchas {col('acc_real')}",
+                 f"refined >= synthetic + {d['goal_gain_points']:.0f} points: "
+                 + (_met(True) if all(s["goal_met"] for s in seeds.values()) else
+                    f"{_met(False)}, met on {sum(bool(s['goal_met']) for s in seeds.values())} of {len(seeds)} seeds")
+                 + " (" + " / ".join(f"{s['gain_points']:+.1f}" for s in seeds.values()) + ")")]
     return [(f"`captcha.py` 4-digit solver judged on {d['test_n']} held-out real captchas",
              f"trained on synthetic {d['acc_synthetic']:.3f}, on SimGAN-refined {d['acc_refined']:.3f} "
              f"(full-captcha accuracy); {d['train_minutes']:.1f} min training ({d['cpu_minutes']:.1f} CPU min)",
