@@ -99,6 +99,7 @@ def social_nav(d: dict) -> list[Row]:
     sc = d["scenarios"]
     n = len(sc)
     closer = [k for k in sc if d["goals"][k]["closest_ge_dwa"]]
+    walk_in = d.get("closest_ge_dwa_or_walk_in_count")   # the rule: a walker into the stopped robot is not counted
     timely = [k for k in sc if d["goals"][k]["time_within_15pct"]]
     ratio = {k: sc[k]["irl"]["time_s"] / sc[k]["human"]["time_s"] for k in sc
              if sc[k]["irl"]["time_s"] is not None and sc[k]["human"]["time_s"]}
@@ -108,20 +109,35 @@ def social_nav(d: dict) -> list[Row]:
              f"on {', '.join(d['weights_from'])} (none of them evaluated)",
              f"IRL planner: robot-caused contacts {d['robot_contacts']} (strict, at touching distance: "
              f"{d['robot_contacts_strict']}; any contact while moving {d['contacts_strict_moving']}); closest >= DWA's on "
-             f"{len(closer)} of {n}" + (f" (not {', '.join(k for k in sc if k not in closer)})" if len(closer) < n else "")
+             f"{len(closer)} of {n}" + (f" (not {', '.join(k for k in sc if k not in closer)}"
+                                         + (f"; {walk_in} of {n} leaving out a walker into the stopped robot"
+                                            if walk_in is not None else "") + ")" if len(closer) < n else "")
              + f", median {d['closest_median_m']:.2f} m; on time (<= 1.15x the human) {len(timely)} of {n}"
              + (f" (late: {late})" if late else "") + f"; the guard brakes in {100 * d['guard_frac']:.0f} % of ticks at "
              f"worst (median {100 * d['guard_frac_median']:.0f} %)",
              f"DWA, predicting people too: robot contacts {dwa['robot_contacts']} (strict {dwa['robot_contacts_strict']}), "
              f"median closest {dwa['closest_median_m']:.2f} m, on time {dwa['time_ok_count']} of {n}, guard "
              f"{100 * dwa['guard_frac']:.0f} %",
-             f"0 contacts: {_met(d['robot_contacts'] == 0 and d['robot_contacts_strict'] == 0)}; closest >= DWA on all: "
-             f"{_met(len(closer) == n)}; on time >= 5 of 6: {_met(len(timely) >= n - 1)}; guard < 5 %: "
+             f"0 contacts: {_met(d['robot_contacts'] == 0 and d['robot_contacts_strict'] == 0)}; closest >= DWA on all"
+             + (" but walk-ins" if walk_in is not None else "")
+             + f": {_met((walk_in if walk_in is not None else len(closer)) == n)}; on time >= 5 of 6: {_met(len(timely) >= n - 1)}; guard < 5 %: "
              f"{_met(d['guard_frac'] < 0.05)}")]
     spread = d.get("start_spread")
     if isinstance(spread, dict) and "closest_ge_dwa" in spread:
-        rows.append((f"`social_nav.py` every scenario from {spread.get('starts', '?')} start times",
-                     f"closest >= DWA's in {spread['closest_ge_dwa']}", "DWA", "—"))
+        irl, dw = spread.get("irl") or {}, spread.get("dwa") or {}
+        guard = spread.get("guard_frac_median") or {}
+        worst = max(guard, key=guard.get) if guard else None
+        rows.append((f"`social_nav.py` every scenario from {spread.get('starts', '?')} start times "
+                     f"{spread.get('step_s', 0.4):g} s apart",
+                     f"IRL: robot contacts at touching distance {irl.get('robot_contacts_strict', '?')} "
+                     f"(0.65 m: {irl.get('collisions_robot', '?')}); closest >= DWA's in {spread['closest_ge_dwa']} episodes "
+                     f"({spread.get('closest_ge_dwa_or_walk_in', '?')} leaving out walk-ins), median "
+                     f"{spread['closest_median_m']['irl']:.2f} m; on time by median {spread['time_ok_count']} of {n} "
+                     f"({spread.get('time_ok_episodes', '?')} episodes); guard median share at worst "
+                     + (f"{100 * guard[worst]:.0f} % ({worst})" if worst else "?"),
+                     f"DWA: robot contacts at touching distance {dw.get('robot_contacts_strict', '?')} "
+                     f"(0.65 m: {dw.get('collisions_robot', '?')}), median closest {spread['closest_median_m']['dwa']:.2f} m",
+                     "—"))
     return rows
 
 
