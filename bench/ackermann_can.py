@@ -21,7 +21,8 @@ Knob swept: the master's set-point rate (50-200 Hz) and the control rate. One ru
 cyclic synchronous modes (steering CSP, wheels CSV, the master's step producing SYNC): there
 every drive quick-stops itself when SYNC is missing for 3 cycles (35 ms at 100 Hz), so a stall
 of this Python loop that long (seen here at 58-66 ms on a loaded machine) trips the run --
-what real drives would do too; the lockstep run has no such stalls. The launch file itself is
+what real drives would do too; the lockstep run has no such stalls. These in-process runs take
+SCHED_FIFO (``--rt-priority``, 50 as the launch file's CAN master; 0 for normal scheduling). The launch file itself is
 also started in real time as a user starts it (``--launched`` runs each way, ``--busy`` CPU-bound
 processes beside it): as shipped, its CAN master and drives run SCHED_FIFO (``rt_priority``), and
 with those lines stripped, normal scheduling -- how often SYNC is lost either way. Reference, in
@@ -73,6 +74,25 @@ def start_reference(ramp_s: float, align_s: float):
         r = traj(t - align_s)
         return RefPoint(tuple(r.p[0]), tuple(r.dp[0]), tuple(r.ddp[0]))
     return at
+
+
+def realtime(priority: int):
+    """SCHED_FIFO for this process's real-time loop (and the bus threads it starts) while inside, as
+    ``rt_priority`` gives a launched node; normal scheduling again after (the lockstep and model runs
+    are CPU-bound: they must not hold a core at real-time priority)."""
+    import contextlib
+
+    from tether.runner import apply_rt_priority
+
+    @contextlib.contextmanager
+    def scope():
+        got = apply_rt_priority(priority, "bench") if priority > 0 else 0
+        try:
+            yield got
+        finally:
+            if got:
+                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return scope()
 
 
 def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: str, skip_s: float,
@@ -264,6 +284,9 @@ def main() -> None:
     ap.add_argument("--skip", type=float, default=3.0, help="start-up excluded from the *steady* RMS (s)")
     ap.add_argument("--ramp", type=float, default=4.0, help="trajectory ramp from rest (s), as in the launch file")
     ap.add_argument("--align", type=float, default=1.0, help="wheel alignment before the ramp (s), as in the launch")
+    ap.add_argument("--rt-priority", type=int, default=50,
+                    help="SCHED_FIFO priority of the in-process real-time runs, as the launch file gives its CAN "
+                         "master (0: normal scheduling; needs CAP_SYS_NICE, else said and ignored)")
     ap.add_argument("--launched", type=int, default=3, help="real-time launches of the file per scheduling (0: none)")
     ap.add_argument("--busy", type=int, default=4 * (os.cpu_count() or 2),
                     help="CPU-bound processes running beside those launches (default: four per core)")
@@ -282,8 +305,10 @@ def main() -> None:
     runs: dict[str, dict] = {}
     for interface, rate, master_hz, *csp in settings:
         name = f"CAN {interface} ctrl {rate:.0f} Hz, bus {master_hz:.0f} Hz" + (" CSP/CSV+SYNC" if csp else "")
-        r = can_run(rate_hz=rate, master_hz=master_hz, duration_s=duration, interface=interface, skip_s=args.skip,
-                    ramp_s=args.ramp, align_s=args.align, cyclic=bool(csp))
+        with realtime(args.rt_priority) as rt_got:
+            r = can_run(rate_hz=rate, master_hz=master_hz, duration_s=duration, interface=interface, skip_s=args.skip,
+                        ramp_s=args.ramp, align_s=args.align, cyclic=bool(csp))
+        r["rt_priority"] = rt_got
         runs[name] = r
         say(f"{name:>44s} {r['rms_mm']:8.2f} {r['max_mm']:8.2f} {r['rms_mm_steady']:8.2f} {r['rms_deg']:9.3f} "
             f"{r['step_us']:8.0f} {r['master_step_us']:9.0f} {r['tx_frames_per_s']:8.0f} {r['tick_late_ms_p95']:7.2f}ms"
@@ -341,6 +366,7 @@ def main() -> None:
             "can_steady_vs_nobus_ratio": ratio, "can_tripped": head["tripped"],
             "fig8_rms_mm_can_csp_realtime": csp_rt["rms_mm"] if csp_rt else None,
             "can_csp_realtime_tripped": csp_rt["tripped"] if csp_rt else None,
+            "inprocess_rt_priority": max(r.get("rt_priority", 0) for r in runs.values()),
             "launched_realtime": launched_summary, "launched_busy_processes": args.busy,
             "launched_realtime_is": "tether launch launch/ackermann_can.yaml in real time (CSP/CSV, SYNC 100 Hz) "
                                     "with N CPU-bound processes beside it; normal = rt_priority lines stripped",
