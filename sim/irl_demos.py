@@ -30,7 +30,8 @@ from nodes.nav.irl import Demo, cell_costs
 from nodes.nav.demos import CAMERA_FX_PX, PLANNER_PARAMS, DemoSet, FeaturePipeline, demos_from_poses
 from nodes.nav.irl_learn import ORACLE_WEIGHTS, add_learning_arguments, learn_main
 from nodes.nav.irl_learn import collect_demos as collect_logs
-from nodes.nav.social_planner import PlannerParams, SocialPlanner, predict_conflicts
+from nodes.nav.plan_geometry import predict_conflicts
+from nodes.nav.social_planner import PlannerParams, SocialPlanner
 from sim.crowd import CrowdWorld
 from sim.crowd_render import CameraModel
 from sim.pedestrian_data import ROW_PERIOD_S, Tracks, load_tracks

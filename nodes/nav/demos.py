@@ -19,7 +19,7 @@ import numpy as np
 from nodes.nav.dijkstra import line_cells
 from nodes.nav.grid_frame import GridFrame, to_robot
 from nodes.nav.irl import Demo
-from nodes.nav.social_planner import on_rim
+from nodes.nav.plan_geometry import on_rim
 
 
 #: the robot's RGB-D camera in the simulator: 640x480 at 130 degrees horizontal field of view.

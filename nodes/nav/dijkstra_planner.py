@@ -15,7 +15,8 @@ from msgs.geometry import Odometry2D, Path2D, Twist2D
 from msgs.nav import CostGrid, FeatureGrid, FlowPoints, Goal2D, PlanStatus
 from msgs.sensor import Grid
 from nodes.nav.grid_frame import GridFrame
-from nodes.nav.social_planner import PlannerParams, SocialPlanner, predict_conflicts
+from nodes.nav.plan_geometry import predict_conflicts
+from nodes.nav.social_planner import PlannerParams, SocialPlanner
 from tether import Node
 
 

@@ -10,7 +10,8 @@ path point within reach) and extracts the next waypoint ``waypoint_m`` along tha
 Outside the safe zone it keeps its waypoint, except on re-plan events: the waypoint's cell
 turned high-density (a pedestrian stepped onto it), the waypoint fell behind the robot,
 or it has been held longer than ``waypoint_timeout_s``. Layer 3, the collision guard, is a
-separate node (:mod:`nodes.nav.collision_guard`). The node is :mod:`nodes.nav.dijkstra_planner`.
+separate node (:mod:`nodes.nav.collision_guard`). The node is :mod:`nodes.nav.dijkstra_planner`;
+the stateless geometry and cost helpers are :mod:`nodes.nav.plan_geometry`.
 """
 from __future__ import annotations
 
@@ -18,11 +19,11 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import grey_dilation
 
-from nodes.nav.dijkstra import GridGraph, backtrack, cost_from, line_cells, path_cost, smooth_path
-from nodes.nav.features import cell_velocity
+from nodes.nav.dijkstra import GridGraph, backtrack, cost_from, smooth_path
 from nodes.nav.grid_frame import GridFrame, densify, extract_waypoint, inflate, plan_on_map, steer, to_robot, to_world
+from nodes.nav.plan_geometry import (footprint_cost, on_rim, passes_people, person_floor_cost, polyline_cost,
+                                     remaining_m, rest_of_path, unseen_by_camera, waypoint_reach)
 
 
 @dataclass(frozen=True)
@@ -134,11 +135,11 @@ class SocialPlanner:
                high_density: np.ndarray, t_s: float, predicted: np.ndarray | None = None) -> Decision:
         """Algorithm 2 on one cost grid (robot frame, ``frame``) with its high-density mask.
 
-        ``predicted`` (optional, rows x cols bool, see :func:`predict_conflicts`) marks cells a
-        moving person is expected to reach when the robot would: they count as high density.
-        Cells with people (high density or predicted) cost at least ``person_cost`` times the
-        median cell (:meth:`_person_cost`). Cells on static obstacles of the map never count as
-        crowd (walls are dense too).
+        ``predicted`` (optional, rows x cols bool, see :func:`nodes.nav.plan_geometry.predict_conflicts`)
+        marks cells a moving person is expected to reach when the robot would: they count as high
+        density. Cells with people (high density or predicted) cost at least ``person_cost`` times the
+        median cell (:func:`nodes.nav.plan_geometry.person_floor_cost`). Cells on static obstacles of
+        the map never count as crowd (walls are dense too).
         """
         if self.goal is None:
             return Decision("idle", reason="no goal yet")
@@ -154,7 +155,7 @@ class SocialPlanner:
         cost, high_density = self._remember(pose, cost, frame, high_density & ~static, t_s)
         if predicted is not None and predicted.shape == cost.shape and predicted.any():
             high_density = high_density | (predicted & ~static)
-        cost = self._person_cost(cost, high_density)
+        cost = person_floor_cost(cost, high_density, self.p.person_cost)
         event = self._replan_event(pose, frame, high_density, t_s)
         if not event:
             return Decision(self.mode, "", self.waypoint)
@@ -172,45 +173,16 @@ class SocialPlanner:
         self._path = decision.path_xy if decision.mode == "local" else None
         return decision
 
-    def _person_cost(self, cost: np.ndarray, people: np.ndarray) -> np.ndarray:
-        """Cells with people cost at least ``person_cost`` x the median cell.
-
-        The learnt weights price a crowded cell only a little above a free one (see
-        nodes/nav/weights/default.json: density_high ~0.2 against a step cost ~2): the path then
-        grazes people, which a replayed or inattentive walker turns into contact. The paper's
-        Algorithm 2 treats a high-density cell as an obstacle for its decision; this makes the
-        local plan treat it as (nearly) one too, while still finite, so a plan exists in a crowd.
-        """
-        if self.p.person_cost <= 0 or not people.any():
-            return cost
-        finite = np.isfinite(cost)
-        floor = self.p.person_cost * float(np.median(cost[finite])) if finite.any() else 0.0
-        return np.where(people & finite, np.maximum(cost, floor), cost)
-
     def _path_blocked(self, pose: tuple[float, float, float], frame: GridFrame, people: np.ndarray) -> bool:
         """Does the local path being followed now pass within the robot's footprint of a person?"""
         if self._path is None or len(self._path) < 2:
             return False
-        return self._near_people(pose, frame, people, self._path, ahead_only=True)
+        return passes_people(pose, frame, people, self._path, self._clear_m, ahead_only=True)
 
-    def _near_people(self, pose: tuple[float, float, float], frame: GridFrame, people: np.ndarray, polyline: np.ndarray,
-                     *, ahead_only: bool = False) -> bool:
-        """Does a polyline (world, (n, 2)) pass within the robot's radius plus half the crowd margin of a
-        people cell? ``ahead_only``: only its part ahead of the robot counts."""
-        if len(polyline) < 2 or not people.any():
-            return False
-        seg = np.diff(polyline, axis=0)
-        n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / (0.5 * frame.resolution_m)).astype(int), 1)
-        pts = np.vstack([a + np.outer(np.arange(k + 1) / k, b - a) for a, b, k in zip(polyline[:-1], polyline[1:], n)])
-        rel = to_robot(pose, pts)
-        if ahead_only:
-            rel = rel[rel[:, 0] > 0]                        # what is still ahead
-        cells = frame.cell_of(rel)
-        cells = cells[frame.inside(cells)]
-        if not len(cells):
-            return False
-        near = inflate(people, (self.p.robot_radius_m + 0.5 * self.p.crowd_margin_m) / frame.resolution_m)
-        return bool(near[cells[:, 0], cells[:, 1]].any())
+    @property
+    def _clear_m(self) -> float:
+        """How near a path may pass a people cell: the robot's radius plus half the crowd margin."""
+        return self.p.robot_radius_m + 0.5 * self.p.crowd_margin_m
 
     def _remember(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame, high: np.ndarray,
                   t_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -228,9 +200,8 @@ class SocialPlanner:
             return cost, high
         rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
         rel = frame.xy_of(np.stack([rr.ravel(), cc.ravel()], axis=1))
-        bearing = np.arctan2(rel[:, 1], rel[:, 0] - self.p.camera_x_m)
-        unseen = ((np.abs(bearing) > np.radians(self.p.fov_deg) / 2)
-                  | (np.hypot(rel[:, 0] - self.p.camera_x_m, rel[:, 1]) < self.p.min_range_m))
+        unseen = unseen_by_camera(rel, camera_x_m=self.p.camera_x_m, fov_deg=self.p.fov_deg,
+                                  min_range_m=self.p.min_range_m)
         world = to_world(pose, rel[unseen])
         fused_cost, fused_high = cost.reshape(-1).copy(), high.reshape(-1).copy()
         for _, m_pose, m_cost, m_frame, m_high in self._memory:
@@ -334,9 +305,10 @@ class SocialPlanner:
         sub = cells[np.flatnonzero(ok)[k]]
         corners = smooth_path(cost, backtrack(pred, tuple(sub)))
         path_xy = to_world(pose, np.vstack([np.zeros((1, 2)), frame.xy_of(corners[1:])]))
-        return Decision("local", event, extract_waypoint(path_xy, self._waypoint_reach(path_xy, pose, frame, people)),
-                        path_xy,
-                        score=plan_score)
+        reach = waypoint_reach(path_xy, self.p.waypoint_m, waypoint_min_m=self.p.waypoint_min_m, pose=pose,
+                               frame=frame, people=people if self.p.corner_people_only else None,
+                               clear_m=self._clear_m)
+        return Decision("local", event, extract_waypoint(path_xy, reach), path_xy, score=plan_score)
 
     def _planning_cost(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame) -> np.ndarray:
         """The grid the local plan searches: the robot's footprint cost, static obstacles impassable."""
@@ -362,67 +334,22 @@ class SocialPlanner:
         """
         if self.p.replan_margin_m < 0 or self._path is None or self.waypoint is None or self._subgoal is None:
             return True
-        ahead = self._path[1:]
-        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(self._path, axis=0).T))])[1:]
-        rest = np.vstack([self.waypoint[None], ahead[along > self._along(self._path, self.waypoint) + 1e-6]])
+        rest = rest_of_path(self._path, self.waypoint)
         cells = frame.cell_of(np.vstack([np.zeros((1, 2)), to_robot(pose, rest)]))
         if not frame.inside(cells).all():
             return True
         grid = self._planning_cost(pose, cost, frame)
         start = frame.clamp(frame.cell_of(np.zeros(2)))[0]
         cells[0] = start
-        old = sum(path_cost(grid, line_cells(tuple(a), tuple(b))) for a, b in zip(cells[:-1], cells[1:]))
+        old = polyline_cost(grid, cells)
         typical = float(np.median(grid[np.isfinite(grid)]))
         old += typical * float(self._remaining_m(pose, self._path[-1:])[0]) / frame.resolution_m
         return bool(not np.isfinite(old) or new.score < old - typical * self.p.replan_margin_m / frame.resolution_m)
 
-    @staticmethod
-    def _along(path_xy: np.ndarray, xy: np.ndarray) -> float:
-        """Arc length (m) along a polyline (n, 2) of its point nearest ``xy``."""
-        seg = np.diff(path_xy, axis=0)
-        s = np.concatenate([[0.0], np.cumsum(np.hypot(*seg.T))])
-        best, best_d = 0.0, np.inf
-        for k, (a, d) in enumerate(zip(path_xy[:-1], seg)):
-            u = float(np.clip(np.dot(xy - a, d) / max(np.dot(d, d), 1e-12), 0.0, 1.0))
-            dd = float(np.hypot(*(a + u * d - xy)))
-            if dd < best_d:
-                best, best_d = s[k] + u * float(np.hypot(*d)), dd
-        return best
-
-    def _waypoint_reach(self, path_xy: np.ndarray, pose: tuple[float, float, float] | None = None,
-                        frame: GridFrame | None = None, people: np.ndarray | None = None) -> float:
-        """How far along the local path (m) the waypoint lies: ``waypoint_m``, but not past the path's
-        first corner when the straight line to the farther point would pass a person. The path is
-        string-pulled (:func:`smooth_path`), so its first corner is the farthest point the robot can drive
-        straight at over cells no dearer than the path's own; steering at a point beyond it cuts the
-        corner through what the cost priced. hallway (t = 3.7 s): the waypoint 2 m along a path that
-        swerved around an oncoming walker lay on the walker, the robot turned toward them and the guard
-        stopped it 1.3 s. Where the corner only bends with the floor's cost (a goal band, a wall's
-        distance) and no one stands near the short cut, the waypoint keeps its full distance: a corner
-        0.5 m ahead turned every waypoint into a sharp turn (toward 12.2 s against 11.0 s with the full one).
-        Without ``people`` (or ``frame``), or with ``corner_people_only`` off, every corner limits it."""
-        if len(path_xy) < 3:
-            return self.p.waypoint_m
-        corner = float(np.hypot(*(path_xy[1] - path_xy[0])))
-        limited = min(self.p.waypoint_m, max(corner, self.p.waypoint_min_m))
-        if (limited >= self.p.waypoint_m or not self.p.corner_people_only or people is None or frame is None
-                or pose is None):
-            return limited
-        for reach in np.arange(self.p.waypoint_m, limited, -0.5 * frame.resolution_m):
-            if not self._near_people(pose, frame, people, np.stack([path_xy[0], extract_waypoint(path_xy, reach)])):
-                return float(reach)
-        return limited
-
     def _remaining_m(self, pose: tuple[float, float, float], xy: np.ndarray) -> np.ndarray:
         """Distance (m) from world points (n, 2) to the global goal along the global path (ahead of the robot)."""
         assert self.global_path is not None
-        gp = self.global_path
-        i0 = int(np.argmin(np.hypot(*(gp - pose[:2]).T)))
-        ahead = gp[i0:]
-        seg = np.hypot(*np.diff(ahead, axis=0).T)
-        to_end = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
-        d = np.hypot(xy[:, None, 0] - ahead[None, :, 0], xy[:, None, 1] - ahead[None, :, 1])
-        return (d + to_end[None, :]).min(axis=1)
+        return remaining_m(self.global_path, pose[:2], xy)
 
     # -- command ----------------------------------------------------------------------------------
     def command(self, pose: tuple[float, float, float]) -> tuple[float, float]:
@@ -444,64 +371,3 @@ class SocialPlanner:
         # to stop inside it (0.15 m short) cost ~0.1 s at 0.8 m/s^2 for nothing
         return steer(pose, target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps,
                      stop_at_m=0.0 if final else None)
-
-
-def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: GridFrame, *, robot_speed_mps: float,
-                      horizon_s: float = 2.0, step_s: float = 0.25, slack_m: float = 0.5,
-                      moving_mps: float = 0.3, min_points: int = 5) -> np.ndarray:
-    """Cells (rows, cols) bool where a moving point will be when the robot could be there too.
-
-    Points (robot frame, N x 3 positions and velocities) move with the median velocity of the
-    grid cell they stand in (:func:`nodes.nav.features.cell_velocity`); each point of a cell of at
-    least ``min_points`` points moving faster than ``moving_mps`` is
-    extrapolated at constant velocity for ``horizon_s``; the cell it reaches
-    at time tau is marked when the robot, driving at ``robot_speed_mps``, would also be about
-    that far away then (within ``slack_m``). The Figure 3 direction features look one or two
-    cells ahead (0.25-0.5 m, half a second of walking); a person crossing the robot's path
-    must be avoided where they will be in one or two seconds, not where they are. The per-cell
-    median matters: flow is wrong on a few percent of a person's pixels when they are near the
-    image edge during a turn, and those vectors alone once predicted a wall of cells ahead of a
-    walker who was passing behind the robot (``group``, t = 4.3 s).
-    """
-    p = np.asarray(points_m, float).reshape(-1, 3)[:, :2]
-    v = np.asarray(velocity_mps, float).reshape(-1, 3)[:, :2]
-    ok = np.isfinite(p).all(axis=1) & np.isfinite(v).all(axis=1)
-    mask = np.zeros(frame.shape, bool)
-    if not ok.any() or horizon_s <= 0:
-        return mask
-    corner = (frame.origin_x_m - 0.5 * frame.resolution_m, frame.origin_y_m - 0.5 * frame.resolution_m)
-    p = p[ok]
-    cell_v, n, of_point = cell_velocity(p, v[ok], frame.resolution_m, corner)
-    v = cell_v[of_point]                             # each point moves with its cell's median velocity
-    keep = (n[of_point] >= min_points) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
-    p, v = p[keep], v[keep]
-    if len(p) == 0:
-        return mask
-    for tau in np.arange(step_s, horizon_s + 1e-9, step_s):
-        cells = frame.cell_of(p + v * tau)
-        inside = frame.inside(cells)
-        cells = cells[inside]
-        reach = np.hypot(*frame.xy_of(cells).T)
-        hit = np.abs(reach - robot_speed_mps * tau) <= slack_m
-        mask[cells[hit, 0], cells[hit, 1]] = True
-    return mask
-
-
-def on_rim(r_m: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
-    """Cells (by their distance ``r_m`` from the robot) on the local plan's rim: the band two cells
-    deep inside ``radius_m``, where a local plan ends (and a learning demo leaves the grid)."""
-    return (r_m <= radius_m) & (r_m > radius_m - 2.0 * resolution_m)
-
-
-def footprint_cost(cost: np.ndarray, radius_cells: float) -> np.ndarray:
-    """Cost of placing the robot's disc (``radius_cells``) centred on each cell: the dearest cell under it.
-
-    The cost grid is per cell of the floor; the robot covers several cells, so the planner
-    searches over its centre with each cell's cost raised to the maximum under the disc
-    (a configuration-space costmap, as obstacle inflation does for occupancy).
-    """
-    r = int(np.ceil(radius_cells))
-    if r <= 0:
-        return cost
-    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-    return grey_dilation(cost, footprint=np.hypot(yy, xx) <= radius_cells + 1e-9, mode="nearest")

@@ -7,7 +7,7 @@ import pytest
 
 from nodes.nav.features import GridSpec, cell_motion, conflict_cells
 from nodes.nav.grid_frame import GridFrame
-from nodes.nav.social_planner import predict_conflicts
+from nodes.nav.plan_geometry import predict_conflicts
 
 
 def _walker_passing_behind(seed: int, n: int = 400, wrong_frac: float = 0.1) -> tuple[np.ndarray, np.ndarray]:

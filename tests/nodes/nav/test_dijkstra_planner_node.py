@@ -118,7 +118,7 @@ def test_pedestrian_leaving_the_field_of_view_is_remembered():
 
 
 def test_crossing_pedestrian_is_predicted_where_the_robot_would_meet_it():
-    from nodes.nav.social_planner import predict_conflicts
+    from nodes.nav.plan_geometry import predict_conflicts
     frame = GridFrame((ROWS, COLS), RES, ORIGIN_X, ORIGIN_Y)
     pts = np.array([[3.0, -2.0, 1.0]] * 20)              # 3 m ahead, 2 m to the right, walking left at 1 m/s
     vel = np.array([[0.0, 1.0, 0.0]] * 20)
@@ -132,7 +132,7 @@ def test_crossing_pedestrian_is_predicted_where_the_robot_would_meet_it():
 
 
 def test_footprint_dilation_spreads_the_dearest_cost_over_the_robot_disc():
-    from nodes.nav.social_planner import footprint_cost
+    from nodes.nav.plan_geometry import footprint_cost
     cost = np.full((9, 9), 2.0)
     cost[4, 4] = 10.0
     out = footprint_cost(cost, 2.0)

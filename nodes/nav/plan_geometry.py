@@ -1,0 +1,188 @@
+"""Stateless helpers of the social planner (:mod:`nodes.nav.social_planner`): arrays in, arrays out.
+
+Path geometry (arc length, distance left to the goal, the local waypoint's corner rule, does a
+path pass people), the costs the local plan searches (robot footprint, people floor), the
+camera's blind cells, the local plan's rim and predicted crossings. Poses are (x_m, y_m, yaw_rad)
+in the world; grids are robot-frame :class:`~nodes.nav.grid_frame.GridFrame` cells (rows = y).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import grey_dilation
+
+from nodes.nav.dijkstra import line_cells, path_cost
+from nodes.nav.features import cell_velocity
+from nodes.nav.grid_frame import GridFrame, extract_waypoint, inflate, to_robot
+
+
+def person_floor_cost(cost: np.ndarray, people: np.ndarray, person_cost: float) -> np.ndarray:
+    """Cells with people (rows x cols bool) cost at least ``person_cost`` x the median finite cell.
+
+    The learnt weights price a crowded cell only a little above a free one (see
+    nodes/nav/weights/default.json: density_high ~0.2 against a step cost ~2): the path then
+    grazes people, which a replayed or inattentive walker turns into contact. The paper's
+    Algorithm 2 treats a high-density cell as an obstacle for its decision; this makes the
+    local plan treat it as (nearly) one too, while still finite, so a plan exists in a crowd.
+    ``person_cost`` <= 0 leaves the cost as it is.
+    """
+    if person_cost <= 0 or not people.any():
+        return cost
+    finite = np.isfinite(cost)
+    floor = person_cost * float(np.median(cost[finite])) if finite.any() else 0.0
+    return np.where(people & finite, np.maximum(cost, floor), cost)
+
+
+def passes_people(pose: tuple[float, float, float], frame: GridFrame, people: np.ndarray, polyline: np.ndarray,
+                  clear_m: float, *, ahead_only: bool = False) -> bool:
+    """Does a polyline (world, (n, 2)) pass within ``clear_m`` of a people cell (``people``, rows x cols
+    bool on ``frame``, robot at ``pose``)? Sampled every half cell. ``ahead_only``: only its part ahead of
+    the robot counts."""
+    if len(polyline) < 2 or not people.any():
+        return False
+    seg = np.diff(polyline, axis=0)
+    n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / (0.5 * frame.resolution_m)).astype(int), 1)
+    pts = np.vstack([a + np.outer(np.arange(k + 1) / k, b - a) for a, b, k in zip(polyline[:-1], polyline[1:], n)])
+    rel = to_robot(pose, pts)
+    if ahead_only:
+        rel = rel[rel[:, 0] > 0]                        # what is still ahead
+    cells = frame.cell_of(rel)
+    cells = cells[frame.inside(cells)]
+    if not len(cells):
+        return False
+    near = inflate(people, clear_m / frame.resolution_m)
+    return bool(near[cells[:, 0], cells[:, 1]].any())
+
+
+def along_m(path_xy: np.ndarray, xy: np.ndarray) -> float:
+    """Arc length (m) along a polyline (n, 2) of its point nearest ``xy``."""
+    seg = np.diff(path_xy, axis=0)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*seg.T))])
+    best, best_d = 0.0, np.inf
+    for k, (a, d) in enumerate(zip(path_xy[:-1], seg)):
+        u = float(np.clip(np.dot(xy - a, d) / max(np.dot(d, d), 1e-12), 0.0, 1.0))
+        dd = float(np.hypot(*(a + u * d - xy)))
+        if dd < best_d:
+            best, best_d = s[k] + u * float(np.hypot(*d)), dd
+    return best
+
+
+def rest_of_path(path_xy: np.ndarray, waypoint: np.ndarray) -> np.ndarray:
+    """The part of a polyline (n, 2) still to drive from its point ``waypoint`` on: the waypoint, then the
+    vertices beyond it."""
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path_xy, axis=0).T))])[1:]
+    return np.vstack([waypoint[None], path_xy[1:][along > along_m(path_xy, waypoint) + 1e-6]])
+
+
+def polyline_cost(grid: np.ndarray, cells: np.ndarray) -> float:
+    """Cost on ``grid`` of the straight cell lines joining ``cells`` (n, 2) in turn (inf through a wall)."""
+    return sum(path_cost(grid, line_cells(tuple(a), tuple(b))) for a, b in zip(cells[:-1], cells[1:]))
+
+
+def remaining_m(global_path: np.ndarray, robot_xy: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Distance (m) from world points (n, 2) to the end of ``global_path`` (m, 2) along it, counting only
+    the part ahead of its point nearest ``robot_xy``."""
+    gp = global_path
+    i0 = int(np.argmin(np.hypot(*(gp - robot_xy).T)))
+    ahead = gp[i0:]
+    seg = np.hypot(*np.diff(ahead, axis=0).T)
+    to_end = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+    d = np.hypot(xy[:, None, 0] - ahead[None, :, 0], xy[:, None, 1] - ahead[None, :, 1])
+    return (d + to_end[None, :]).min(axis=1)
+
+
+def waypoint_reach(path_xy: np.ndarray, waypoint_m: float, *, waypoint_min_m: float = 0.0,
+                   pose: tuple[float, float, float] | None = None, frame: GridFrame | None = None,
+                   people: np.ndarray | None = None, clear_m: float = 0.0) -> float:
+    """How far along the local path (world, (n, 2)) the waypoint lies (m): ``waypoint_m``, but not past
+    the path's first corner when the straight line to the farther point would pass a person.
+
+    The path is string-pulled (:func:`nodes.nav.dijkstra.smooth_path`), so its first corner is the
+    farthest point the robot can drive straight at over cells no dearer than the path's own; steering
+    at a point beyond it cuts the corner through what the cost priced. hallway (t = 3.7 s): the
+    waypoint 2 m along a path that swerved around an oncoming walker lay on the walker, the robot
+    turned toward them and the guard stopped it 1.3 s. Where the corner only bends with the floor's
+    cost (a goal band, a wall's distance) and no one stands near the short cut (within ``clear_m`` of
+    a ``people`` cell), the waypoint keeps its full distance: a corner 0.5 m ahead turned every
+    waypoint into a sharp turn (toward 12.2 s against 11.0 s with the full one). A corner nearer than
+    ``waypoint_min_m`` does not limit it. Without ``people`` (or ``frame``, ``pose``) every corner
+    limits it.
+    """
+    if len(path_xy) < 3:
+        return waypoint_m
+    corner = float(np.hypot(*(path_xy[1] - path_xy[0])))
+    limited = min(waypoint_m, max(corner, waypoint_min_m))
+    if limited >= waypoint_m or people is None or frame is None or pose is None:
+        return limited
+    for reach in np.arange(waypoint_m, limited, -0.5 * frame.resolution_m):
+        if not passes_people(pose, frame, people, np.stack([path_xy[0], extract_waypoint(path_xy, reach)]), clear_m):
+            return float(reach)
+    return limited
+
+
+def unseen_by_camera(rel_xy: np.ndarray, *, camera_x_m: float, fov_deg: float, min_range_m: float) -> np.ndarray:
+    """Robot-frame points (n, 2) the camera (``camera_x_m`` ahead of the robot centre, facing +x) cannot
+    see: outside its horizontal field of view, or nearer than it measures. Returns (n,) bool."""
+    bearing = np.arctan2(rel_xy[:, 1], rel_xy[:, 0] - camera_x_m)
+    return ((np.abs(bearing) > np.radians(fov_deg) / 2)
+            | (np.hypot(rel_xy[:, 0] - camera_x_m, rel_xy[:, 1]) < min_range_m))
+
+
+def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: GridFrame, *, robot_speed_mps: float,
+                      horizon_s: float = 2.0, step_s: float = 0.25, slack_m: float = 0.5,
+                      moving_mps: float = 0.3, min_points: int = 5) -> np.ndarray:
+    """Cells (rows, cols) bool where a moving point will be when the robot could be there too.
+
+    Points (robot frame, N x 3 positions and velocities) move with the median velocity of the
+    grid cell they stand in (:func:`nodes.nav.features.cell_velocity`); each point of a cell of at
+    least ``min_points`` points moving faster than ``moving_mps`` is
+    extrapolated at constant velocity for ``horizon_s``; the cell it reaches
+    at time tau is marked when the robot, driving at ``robot_speed_mps``, would also be about
+    that far away then (within ``slack_m``). The Figure 3 direction features look one or two
+    cells ahead (0.25-0.5 m, half a second of walking); a person crossing the robot's path
+    must be avoided where they will be in one or two seconds, not where they are. The per-cell
+    median matters: flow is wrong on a few percent of a person's pixels when they are near the
+    image edge during a turn, and those vectors alone once predicted a wall of cells ahead of a
+    walker who was passing behind the robot (``group``, t = 4.3 s).
+    """
+    p = np.asarray(points_m, float).reshape(-1, 3)[:, :2]
+    v = np.asarray(velocity_mps, float).reshape(-1, 3)[:, :2]
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(v).all(axis=1)
+    mask = np.zeros(frame.shape, bool)
+    if not ok.any() or horizon_s <= 0:
+        return mask
+    corner = (frame.origin_x_m - 0.5 * frame.resolution_m, frame.origin_y_m - 0.5 * frame.resolution_m)
+    p = p[ok]
+    cell_v, n, of_point = cell_velocity(p, v[ok], frame.resolution_m, corner)
+    v = cell_v[of_point]                             # each point moves with its cell's median velocity
+    keep = (n[of_point] >= min_points) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
+    p, v = p[keep], v[keep]
+    if len(p) == 0:
+        return mask
+    for tau in np.arange(step_s, horizon_s + 1e-9, step_s):
+        cells = frame.cell_of(p + v * tau)
+        inside = frame.inside(cells)
+        cells = cells[inside]
+        reach = np.hypot(*frame.xy_of(cells).T)
+        hit = np.abs(reach - robot_speed_mps * tau) <= slack_m
+        mask[cells[hit, 0], cells[hit, 1]] = True
+    return mask
+
+
+def on_rim(r_m: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
+    """Cells (by their distance ``r_m`` from the robot) on the local plan's rim: the band two cells
+    deep inside ``radius_m``, where a local plan ends (and a learning demo leaves the grid)."""
+    return (r_m <= radius_m) & (r_m > radius_m - 2.0 * resolution_m)
+
+
+def footprint_cost(cost: np.ndarray, radius_cells: float) -> np.ndarray:
+    """Cost of placing the robot's disc (``radius_cells``) centred on each cell: the dearest cell under it.
+
+    The cost grid is per cell of the floor; the robot covers several cells, so the planner
+    searches over its centre with each cell's cost raised to the maximum under the disc
+    (a configuration-space costmap, as obstacle inflation does for occupancy).
+    """
+    r = int(np.ceil(radius_cells))
+    if r <= 0:
+        return cost
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return grey_dilation(cost, footprint=np.hypot(yy, xx) <= radius_cells + 1e-9, mode="nearest")
