@@ -222,7 +222,7 @@ class CollisionGuard(Node):
             self._movers, self._movers_src = np.zeros((0, 2)), np.zeros(0, np.int64)
             return
         # cell_m > 0: each point moves with the median velocity of its grid cell, as in the planner's
-        # prediction (nodes.nav.social_planner.predict_conflicts): dense flow is wrong on a few percent
+        # prediction (nodes.nav.plan_geometry.predict_conflicts): dense flow is wrong on a few percent
         # of a person's pixels, and one such vector extrapolated alone put an obstacle on the robot's
         # path where nobody was going (hallway, t = 10.3 s: a point 0.3 m ahead from a walker passing
         # 0.9 m to the side). Off by default (cell_m 0): it also weakened the guard for DWA, which drives nearer people
