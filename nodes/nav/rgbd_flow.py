@@ -29,6 +29,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     max_height_m: float = 2.2
     max_speed_mps: float = 3.0        # faster points are flow outliers
     max_vertical_mps: float = 0.5     # ... and so are points rising or falling faster (people walk on the floor)
+    fb_max_px: float = 1.0            # forward and backward flow must agree this well (px; 0 = off, half the flow time)
+    hole_edges: bool = True           # pixels next to depth holes (sky, out of range) count as depth edges
     border_px: int = 16               # points this near the image edge (either frame) are dropped: cut flow patches
     max_gap_s: float = 0.5            # frames further apart than this restart the flow
     max_extrapolate_s: float = 0.2    # odometry may lag a frame by this much (extrapolated with its twist)
@@ -51,7 +53,8 @@ class RgbdFlow(Node):
                                    min_depth_m=cfg.min_depth_m, max_depth_m=cfg.max_depth_m, edge_rel=cfg.edge_rel,
                                    max_speed_mps=cfg.max_speed_mps, max_vertical_mps=cfg.max_vertical_mps,
                                    border_px=cfg.border_px, min_height_m=cfg.min_height_m,
-                                   max_height_m=cfg.max_height_m, max_gap_s=cfg.max_gap_s)
+                                   max_height_m=cfg.max_height_m, max_gap_s=cfg.max_gap_s,
+                                   fb_max_px=cfg.fb_max_px, hole_edges=cfg.hole_edges)
         self._odom: deque[tuple[int, float, float, float, float, float]] = deque(maxlen=400)
         self._prev_stamp: int | None = None
         self._warned_no_odom = False

@@ -226,3 +226,42 @@ def test_points_rising_or_falling_fast_are_flow_outliers():
     sf = scene_flow(flow, d0, d1, motion, DT, INTR, MOUNT, max_vertical_mps=0.5)
     assert np.abs(sf.velocity_mps[:, 2]).max() <= 0.5
     assert len(sf.points_m) == len(loose.points_m) - band.sum()
+
+
+def test_borders_with_depth_holes_are_edges_but_sensor_dropouts_are_not():
+    depth = np.zeros((50, 50), np.float32)          # no return (sky, beyond range) ...
+    depth[10:40, 10:30] = 2.0                       # ... around a person-sized object
+    depth[25, 20] = 0.0                             # one dropout pixel inside it
+    ok = depth_usable(depth, min_m=0.4, max_m=8.0, edge_rel=0.1, edge_px=2)
+    inner = ok[12:38, 12:28].copy()
+    assert not inner[13, 8]                         # the dropout itself has no depth ...
+    inner[13, 8] = True
+    assert inner.all()                              # ... but its neighbours and the rest of the interior are fine
+    assert not ok[10:12].any() and not ok[:, 28:30].any()    # its border against the holes
+    old = depth_usable(depth, min_m=0.4, max_m=8.0, edge_rel=0.1, edge_px=2, hole_edges=False)
+    assert old[10, 10:30].all()                     # the range test alone cannot see that border
+
+
+def test_forward_backward_check_drops_matches_the_two_flows_disagree_on():
+    d0, d1, motion, prior = _static_pair()
+    back = DenseFlow(prior, 1.0, d1.shape)
+    # the forward flow: minus the backward one, sampled where each current pixel lands
+    h, w = d1.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    fwd_field = np.zeros_like(prior)
+    fwd_field[..., 0], fwd_field[..., 1] = -prior[..., 0], -prior[..., 1]
+    fwd_field = cv2.remap(fwd_field, u - prior[..., 0], v - prior[..., 1], cv2.INTER_LINEAR)   # approx. inverse
+    fwd = DenseFlow(fwd_field, 1.0, d1.shape)
+    clean = scene_flow(back, d0, d1, motion, DT, INTR, MOUNT)
+    agreed = scene_flow(back, d0, d1, motion, DT, INTR, MOUNT, flow_fwd=fwd, fb_max_px=1.0)
+    assert len(agreed.points_m) > 0.9 * len(clean.points_m)
+    wrong = prior.copy()
+    wrong[100:140, 100:200, 0] += 4.0                # a wrong backward match the forward flow does not share
+    bad = DenseFlow(wrong, 1.0, d1.shape)
+    loose = scene_flow(bad, d0, d1, motion, DT, INTR, MOUNT)
+    band = (loose.pixels[:, 1] >= 100) & (loose.pixels[:, 1] < 140) & (loose.pixels[:, 0] >= 100) & (loose.pixels[:, 0] < 200)
+    assert np.linalg.norm(loose.velocity_mps[band], axis=1).min() > 0.3
+    sf = scene_flow(bad, d0, d1, motion, DT, INTR, MOUNT, flow_fwd=fwd, fb_max_px=1.0)
+    kept = (sf.pixels[:, 1] >= 100) & (sf.pixels[:, 1] < 140) & (sf.pixels[:, 0] >= 100) & (sf.pixels[:, 0] < 200)
+    assert not kept.any()
+    assert np.percentile(np.linalg.norm(sf.velocity_mps, axis=1), 99) < 0.1
