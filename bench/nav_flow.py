@@ -9,6 +9,15 @@
     turning), per method: a point's truth is its pedestrian's velocity (points within the
     body radius) or zero; medians on pedestrian points and on static points.
 (c) Perception rate at 640x480: render + flow + features per frame (the default node setup).
+(d) Moving points during fast turns (issue 18: phantom predicted obstacles), the node's settings
+    before (no forward-backward check, holes not depth edges) and now, on the same frames: the
+    robot weaves (yaw rate 1.2 cos(2 pi t / 1.6 s) rad/s at 0.5 m/s) through a static room, the
+    hallway and students003 (needs ../shared/data). Within the guard's reach (3.5 m), a point is
+    "moving" at >= 0.3 m/s (the guard's moving_mps); precision = moving points on a walker that
+    walks (>= 0.3 m/s) with a velocity within 0.5 m/s of its; wrong = the other moving points, per
+    frame (phantom max: the fastest moving point not on a walker); walker recall = walkers
+    (0.8-3.5 m, inside the view) with >= 3 moving points (the guard's hold_min_points); velocity
+    error (m/s, median and p95) on walker points.
 
     python bench/nav_flow.py [--quick] [--json]
 """
@@ -29,6 +38,7 @@ sys.path.insert(0, str(REPO))
 
 from nodes.nav.features import GridSpec, extract_features, goal_in_robot_frame  # noqa: E402
 from nodes.nav.flow import FlowTracker, Intrinsics, Mount, OpticalFlow, to_gray  # noqa: E402
+from nodes.nav.rgbd_flow import Config as FlowConfig  # noqa: E402
 from sim.crowd import CrowdWorld  # noqa: E402
 
 DT = 1 / 15
@@ -143,6 +153,91 @@ def true_velocity(points: np.ndarray, pose, peds) -> tuple[np.ndarray, np.ndarra
     return truth, on_ped
 
 
+ROOM = {"name": "room", "walls": [{"points": [[-6, -6], [6, -6], [6, 6], [-6, 6], [-6, -6]], "height_m": 2.5}],
+        "robot": {"x_m": -2.0, "y_m": 0.5, "yaw_rad": 0.3},
+        "obstacles": [{"cylinder": {"x_m": 1.0, "y_m": 0.6, "radius_m": 0.3}, "height_m": 2.0},
+                      {"box": {"x_m": 0.0, "y_m": -1.5, "length_m": 1.0, "width_m": 1.0}, "height_m": 1.2},
+                      {"cylinder": {"x_m": -2.0, "y_m": 2.2, "radius_m": 0.25}, "height_m": 1.8},
+                      {"box": {"x_m": -3.5, "y_m": -0.5, "length_m": 0.6, "width_m": 0.6}, "height_m": 1.0}]}
+REACH_M, MOVING_MPS, HOLD_POINTS = 3.5, 0.3, 3     # the collision guard's check_m + 1, moving_mps, hold_min_points
+RIGHT_MPS = 0.5                                      # a moving point on a walker is right when this near its velocity
+FLOW_SETTINGS = {"before": {"fb_max_px": 0.0, "hole_edges": False}, "now": {}}
+
+
+def weave_frames(scene, frames: int, camera) -> list:
+    """(t, rgb, depth, pose, pedestrians) of a robot weaving at 0.5 m/s, yaw rate 1.2 cos(2 pi t / 1.6 s)."""
+    world = CrowdWorld(scene, camera=camera)
+    out = []
+    for k in range(frames + 1):
+        world.step(0.5, 1.2 * np.cos(2 * np.pi * k * DT / 1.6), DT)
+        rgb, depth = world.render()
+        out.append((world.t_s, rgb, depth, world.pose, world.pedestrians()))
+    return out
+
+
+def moving_points(recs, camera) -> dict[str, dict[str, float]]:
+    """Per flow setting: moving-point precision, phantoms per frame, walker recall, walker velocity errors."""
+    intr = Intrinsics(camera.fx_px, camera.fy_px, camera.cx_px, camera.cy_px)
+    cfg = FlowConfig()
+    half_fov = np.arctan2(camera.cx_px, camera.fx_px) - np.radians(5)
+    out = {}
+    for name, over in FLOW_SETTINGS.items():
+        knobs = {"fb_max_px": cfg.fb_max_px, "hole_edges": cfg.hole_edges, **over}
+        tracker = FlowTracker(Mount(camera.x_m, camera.y_m, camera.z_m), preset=cfg.method, border_px=cfg.border_px,
+                              max_vertical_mps=cfg.max_vertical_mps, max_speed_mps=cfg.max_speed_mps, **knobs)
+        n_frames, n_moving, n_true, n_points, walkers, found, errs, worst = 0, 0, 0, 0, 0, 0, [], 0.0
+        for t, rgb, depth, pose, peds in recs:
+            sf = tracker.update(t, rgb, depth, intr, pose)
+            if sf is None:
+                continue
+            n_frames += 1
+            truth, on_ped = true_velocity(sf.points_m, pose, peds)
+            speed = np.hypot(sf.velocity_mps[:, 0], sf.velocity_mps[:, 1])
+            near = np.hypot(sf.points_m[:, 0], sf.points_m[:, 1]) <= REACH_M
+            walking = on_ped & (np.hypot(truth[:, 0], truth[:, 1]) >= MOVING_MPS)
+            moving = near & (speed >= MOVING_MPS)
+            n_points += int(near.sum())
+            n_moving += int(moving.sum())
+            err = np.linalg.norm(sf.velocity_mps[:, :2] - truth, axis=1)
+            n_true += int((moving & walking & (err < RIGHT_MPS)).sum())
+            worst = max(worst, float(speed[moving & ~walking].max(initial=0.0)))
+            errs.append(err[walking & near])
+            c, s = np.cos(pose[2]), np.sin(pose[2])
+            for k in range(len(peds.ids)):
+                rel = np.array([[c, s], [-s, c]]) @ (peds.xy_m[k] - np.asarray(pose[:2]))
+                rng = float(np.hypot(*rel))
+                if (np.hypot(*peds.vel_mps[k]) < MOVING_MPS or not 0.8 <= rng <= REACH_M
+                        or abs(np.arctan2(rel[1], rel[0] - camera.x_m)) > half_fov):
+                    continue
+                walkers += 1
+                mine = np.linalg.norm(sf.points_m[:, :2] - rel, axis=1) < peds.radius_m[k] + 0.05
+                found += int((mine & moving).sum() >= HOLD_POINTS)
+        e = np.concatenate(errs) if errs else np.zeros(0)
+        out[name] = {"frames": n_frames, "points_per_frame": round(n_points / max(n_frames, 1), 1),
+                     "precision": round(n_true / n_moving, 4) if n_moving else None,
+                     "wrong_per_frame": round((n_moving - n_true) / max(n_frames, 1), 2),
+                     "phantom_max_mps": round(worst, 2),
+                     "walker_recall": round(found / walkers, 4) if walkers else None, "walkers": walkers,
+                     "walker_vel_err_mps": round(float(np.median(e)), 3) if len(e) else None,
+                     "walker_vel_err_p95_mps": round(float(np.percentile(e, 95)), 3) if len(e) else None}
+    return out
+
+
+def turn_scenes(frames: int) -> dict[str, dict[str, dict[str, float]]]:
+    from sim.irl_demos import sim_camera
+    cam = sim_camera()
+    scenes = {"static room": ROOM, "hallway": "hallway"}
+    if (REPO.parent / "shared" / "data" / "pedestrians").is_dir():
+        scenes["students003"] = "students003"
+    else:
+        print("students003 skipped: ../shared/data/pedestrians is absent", file=sys.stderr)
+    out = {}
+    for name, scene in scenes.items():
+        print(f"(d) fast turns: {name} ...", file=sys.stderr, flush=True)
+        out[name] = moving_points(weave_frames(scene, frames, cam), cam)
+    return out
+
+
 def perception_rate(frames: int, preset: str = "dis_fast", scale: float = 1.0) -> dict[str, float]:
     """Median ms per stage of render -> flow (FlowTracker, what RgbdFlow runs) -> features on a hallway drive."""
     world = CrowdWorld("hallway")
@@ -214,6 +309,7 @@ def main() -> None:
     ref = None if args.quick else tvl1_reference(pairs)
     vel = velocity_errors(methods, frames=4 if args.quick else 12)
     stages = perception_rate(frames=15 if args.quick else 60)
+    turns = turn_scenes(frames=24 if args.quick else 90)
     plot(table, ref, stages, REPO / "out" / "nav_flow.png")
     hz = 1e3 / stages["total"]
     if args.json:
@@ -224,6 +320,7 @@ def main() -> None:
                           "perception_hz": round(hz, 2),
                           "perception_hz_cpu": round(1e3 / stages["total_cpu"], 2),
                           "perception_ms": {k: round(v, 2) for k, v in stages.items()},
+                          "fast_turn_moving_points": turns,
                           "load_average": round(os.getloadavg()[0], 2)}))
         return
     fb = table.get("farneback@1")
@@ -237,6 +334,20 @@ def main() -> None:
     print(f"perception at 640x480 (render + dis_fast flow + features): {hz:.1f} Hz wall clock "
           f"({1e3 / stages['total_cpu']:.1f} Hz by CPU time); median ms "
           + ", ".join(f"{k} {v:.1f}" for k, v in stages.items()))
+    print(f"\nfast turns (moving >= {MOVING_MPS} m/s within {REACH_M} m; flow settings before: no forward-backward "
+          "check, holes not edges)")
+    print(f"{'scene':12s} {'flow':7s} {'pts/frame':>9s} {'precision':>9s} {'wrong/frame':>11s} {'phantom max':>11s} "
+          f"{'walker recall':>13s} "
+          f"{'walker vel err med/p95 (m/s)':>29s}")
+    for scene, rows in turns.items():
+        for name, r in rows.items():
+            rec = f"{r['walker_recall']:.3f} of {r['walkers']}" if r["walker_recall"] is not None else "-"
+            prec = f"{r['precision']:.3f}" if r["precision"] is not None and r["walkers"] else "-"
+            err = (f"{r['walker_vel_err_mps']:.3f} / {r['walker_vel_err_p95_mps']:.3f}"
+                   if r["walker_vel_err_mps"] is not None else "-")
+            print(f"{scene:12s} {name:7s} {r['points_per_frame']:9.0f} {prec:>9s} {r['wrong_per_frame']:11.2f} "
+                  f"{r['phantom_max_mps']:11.2f} "
+                  f"{rec:>13s} {err:>29s}")
     if os.getloadavg()[0] > os.cpu_count():
         print(f"note: load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores while measuring; "
               "times are inflated, compare ratios")
