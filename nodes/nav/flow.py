@@ -10,7 +10,10 @@ the current frame maps to ``p + flow(p)`` in the previous frame; both ends are l
 3D with their own depth image, put in the robot frame of their own time, and the current
 point is moved into the previous robot frame with the robot's motion between the frames
 (from odometry). What is left of the displacement is the point's own motion, so a static
-world gives zero velocity whatever the robot does (turning on the spot included).
+world gives zero velocity whatever the robot does (turning on the spot included). Where the
+flow itself is wrong, the point is dropped rather than reported moving: next to depth edges and
+depth holes, where the flow computed back and the flow computed forward disagree, near the image
+edge, and when implausibly fast (see :func:`scene_flow`).
 """
 from __future__ import annotations
 
