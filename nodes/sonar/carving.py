@@ -191,16 +191,8 @@ class CarvingGrid:
     # -- one ping -------------------------------------------------------------------------
     def integrate(self, intensities: np.ndarray, bearings_rad: np.ndarray, range_resolution_m: float,
                   pose: np.ndarray, spread_rad: float) -> PingUpdate:
-        """Carve, hit and let the settled arcs vote, with one ping taken at ``pose``.
-
-        Parameters
-        ----------
-        intensities : (M, N) array, ranges x beams (row i at (i + 0.5) * range_resolution_m).
-        bearings_rad : (N,) ascending bearings (rad), positive to starboard.
-        range_resolution_m : float, > 0.
-        pose : (4, 4) sonar FRD -> world.
-        spread_rad : vertical aperture s (rad).
-        """
+        """Carve, hit and let the settled arcs vote, with one ping taken at ``pose`` (the ping's
+        arguments as :func:`nodes.sonar.carving_arcs.extract_returns` takes them)."""
         p = self.params
         ret = extract_returns(intensities, bearings_rad, range_resolution_m, pose, spread_rad, params=p,
                               seafloor_z_m=self.seafloor_z_m)         # validates the ping
