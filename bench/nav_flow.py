@@ -9,8 +9,9 @@
     turning), per method: a point's truth is its pedestrian's velocity (points within the
     body radius) or zero; medians on pedestrian points and on static points.
 (c) Perception rate at 640x480: render + flow + features per frame (the default node setup).
-(d) Moving points during fast turns (issue 18: phantom predicted obstacles), the node's settings
-    before (no forward-backward check, holes not depth edges) and now, on the same frames: the
+(d) Moving points during fast turns (issue 18: phantom predicted obstacles), the node's default
+    settings ("before": no forward-backward check, holes not depth edges) and with both options on
+    ("now": fb_max_px 1, hole_edges; off by default, see nodes/nav/rgbd_flow.py), on the same frames: the
     robot weaves (yaw rate 1.2 cos(2 pi t / 1.6 s) rad/s at 0.5 m/s) through a static room, the
     hallway and students003 (needs ../shared/data). Within the guard's reach (3.5 m), a point is
     "moving" at >= 0.3 m/s (the guard's moving_mps); precision = moving points on a walker that
@@ -161,7 +162,7 @@ ROOM = {"name": "room", "walls": [{"points": [[-6, -6], [6, -6], [6, 6], [-6, 6]
                       {"box": {"x_m": -3.5, "y_m": -0.5, "length_m": 0.6, "width_m": 0.6}, "height_m": 1.0}]}
 REACH_M, MOVING_MPS, HOLD_POINTS = 3.5, 0.3, 3     # the collision guard's check_m + 1, moving_mps, hold_min_points
 RIGHT_MPS = 0.5                                      # a moving point on a walker is right when this near its velocity
-FLOW_SETTINGS = {"before": {"fb_max_px": 0.0, "hole_edges": False}, "now": {}}
+FLOW_SETTINGS = {"before": {"fb_max_px": 0.0, "hole_edges": False}, "now": {"fb_max_px": 1.0, "hole_edges": True}}
 
 
 def weave_frames(scene, frames: int, camera) -> list:

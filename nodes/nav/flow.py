@@ -200,7 +200,7 @@ def ego_flow_prior(depth: np.ndarray, motion: tuple[float, float, float], intr: 
 
 
 def depth_usable(depth: np.ndarray, *, min_m: float, max_m: float, edge_rel: float, edge_px: int = 2,
-                 hole_edges: bool = True) -> np.ndarray:
+                 hole_edges: bool = False) -> np.ndarray:
     """Pixels (H, W) bool with a finite depth in ``[min_m, max_m]`` away from depth discontinuities.
 
     A pixel is at a discontinuity when the depth range in its (2 edge_px + 1)^2 window
@@ -272,7 +272,7 @@ def scene_flow(flow_back: DenseFlow, depth_prev: np.ndarray, depth_cur: np.ndarr
                motion: tuple[float, float, float], dt_s: float, intr: Intrinsics, mount: Mount = Mount(), *,
                stride_px: int = 4, min_depth_m: float = 0.4, max_depth_m: float = 8.0, edge_rel: float = 0.1,
                max_speed_mps: float = 3.0, max_vertical_mps: float = np.inf, border_px: int = 0,
-               flow_fwd: DenseFlow | None = None, fb_max_px: float = 1.0, hole_edges: bool = True,
+               flow_fwd: DenseFlow | None = None, fb_max_px: float = 1.0, hole_edges: bool = False,
                usable_prev: np.ndarray | None = None, usable_cur: np.ndarray | None = None) -> SceneFlow:
     """3D points of the current frame and their own velocities.
 
@@ -368,7 +368,7 @@ class FlowTracker:
                  ego_prior: bool = True, stride_px: int = 4, min_depth_m: float = 0.4, max_depth_m: float = 8.0,
                  edge_rel: float = 0.1, max_speed_mps: float = 3.0, max_vertical_mps: float = np.inf,
                  border_px: int = 0, min_height_m: float = 0.15, max_height_m: float = 2.2,
-                 max_gap_s: float = 0.5, fb_max_px: float = 1.0, hole_edges: bool = True) -> None:
+                 max_gap_s: float = 0.5, fb_max_px: float = 0.0, hole_edges: bool = False) -> None:
         if stride_px < 1 or not 0 <= min_depth_m < max_depth_m or max_gap_s <= 0 or not fb_max_px >= 0:
             raise ValueError("need stride_px >= 1, 0 <= min_depth_m < max_depth_m, max_gap_s > 0 and fb_max_px >= 0")
         self.mount, self.estimator, self.ego_prior = mount, OpticalFlow(preset, scale), ego_prior

@@ -29,8 +29,11 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     max_height_m: float = 2.2
     max_speed_mps: float = 3.0        # faster points are flow outliers
     max_vertical_mps: float = 0.5     # ... and so are points rising or falling faster (people walk on the floor)
-    fb_max_px: float = 1.0            # forward and backward flow must agree this well (px; 0 = off, half the flow time)
-    hole_edges: bool = True           # pixels next to depth holes (sky, out of range) count as depth edges
+    # Both off by default: they remove the phantom motion of fast turns (bench/nav_flow.py (d)), but in
+    # the closed loop (bench/social_nav.py, start 0) the robot then drove nearer people: students003
+    # closest 0.91 -> 0.34 m (a contact), group 1.27 -> 0.81 m and 11.1 -> 14.9 s, 0.11 m from start +0.4 s.
+    fb_max_px: float = 0.0            # forward and backward flow must agree this well (px; 0 = off, half the flow time)
+    hole_edges: bool = False          # pixels next to depth holes (sky, out of range) count as depth edges
     border_px: int = 16               # points this near the image edge (either frame) are dropped: cut flow patches
     max_gap_s: float = 0.5            # frames further apart than this restart the flow
     max_extrapolate_s: float = 0.2    # odometry may lag a frame by this much (extrapolated with its twist)

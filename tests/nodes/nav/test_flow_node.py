@@ -123,13 +123,13 @@ def test_a_fast_turn_in_a_static_room_predicts_no_moving_obstacles(monkeypatch):
     # >= 0.3 m/s onto the robot's stop zone - DIS errors of several px where the turn's flow is
     # largest - and the collision guard stopped for them
     _wide(monkeypatch)
-    with Harness(RgbdFlow, params={"border_px": 8}) as h:
+    with Harness(RgbdFlow, params={"border_px": 8, "fb_max_px": 1.0, "hole_edges": True}) as h:
         h.feed(recorded((0.8, -1.2), n=12, scene=CLUTTER, warmup_s=1.5))
     flows = h.of("flow")
     assert len(flows) == 11 and min(len(f.points_m) for f in flows) > 300
     near = [_predicted_near(f) for f in flows]
     assert sum(near) <= 25 and max(near) <= 6, near
-    with Harness(RgbdFlow, params={"border_px": 8, "fb_max_px": 0.0}) as h:      # the check off: what it removes
+    with Harness(RgbdFlow, params={"border_px": 8, "fb_max_px": 0.0, "hole_edges": True}) as h:      # the check off: what it removes
         h.feed(recorded((0.8, -1.2), n=12, scene=CLUTTER, warmup_s=1.5))
     assert sum(_predicted_near(f) for f in h.of("flow")) > 100
 
@@ -143,7 +143,7 @@ def test_a_walker_crossing_during_a_fast_turn_is_still_seen_moving(monkeypatch):
     events = recorded((0.0, 1.0), n=6, scene=scene)
     for _ in range(5):                          # to the last frame's time
         world.step(0.0, 1.0, 1 / 15)
-    with Harness(RgbdFlow, params={"border_px": 8}) as h:
+    with Harness(RgbdFlow, params={"border_px": 8, "fb_max_px": 1.0, "hole_edges": True}) as h:
         h.feed(events)
     f = h.of("flow")[-1]
     x, y, yaw = world.pose

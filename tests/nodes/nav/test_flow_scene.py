@@ -232,7 +232,7 @@ def test_borders_with_depth_holes_are_edges_but_sensor_dropouts_are_not():
     depth = np.zeros((50, 50), np.float32)          # no return (sky, beyond range) ...
     depth[10:40, 10:30] = 2.0                       # ... around a person-sized object
     depth[25, 20] = 0.0                             # one dropout pixel inside it
-    ok = depth_usable(depth, min_m=0.4, max_m=8.0, edge_rel=0.1, edge_px=2)
+    ok = depth_usable(depth, min_m=0.4, max_m=8.0, edge_rel=0.1, edge_px=2, hole_edges=True)
     inner = ok[12:38, 12:28].copy()
     assert not inner[13, 8]                         # the dropout itself has no depth ...
     inner[13, 8] = True
