@@ -11,9 +11,9 @@ the current frame maps to ``p + flow(p)`` in the previous frame; both ends are l
 point is moved into the previous robot frame with the robot's motion between the frames
 (from odometry). What is left of the displacement is the point's own motion, so a static
 world gives zero velocity whatever the robot does (turning on the spot included). Where the
-flow itself is wrong, the point is dropped rather than reported moving: next to depth edges and
-depth holes, where the flow computed back and the flow computed forward disagree, near the image
-edge, and when implausibly fast (see :func:`scene_flow`).
+flow itself is wrong, the point is dropped rather than reported moving: next to depth edges, near
+the image edge, when implausibly fast, and optionally next to depth holes and where the flow
+computed back and the flow computed forward disagree (see :func:`scene_flow`).
 """
 from __future__ import annotations
 
@@ -84,11 +84,7 @@ class DenseFlow:
         """Flow (N, 2) in full-resolution pixels at full-resolution pixel coordinates ``u``, ``v`` (N,)."""
         if self.scale == 1.0:
             return self.field[np.asarray(v, int), np.asarray(u, int)]
-        h, w = self.field.shape[:2]
-        x = np.clip((np.asarray(u) + 0.5) * self.scale - 0.5, 0, w - 1).astype(np.float32)
-        y = np.clip((np.asarray(v) + 0.5) * self.scale - 0.5, 0, h - 1).astype(np.float32)
-        f = cv2.remap(self.field, x.reshape(1, -1), y.reshape(1, -1), cv2.INTER_LINEAR)[0]
-        return f / self.scale
+        return self.sample(u, v)
 
     def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Flow (N, 2) in full-resolution pixels, bilinear at sub-pixel full-resolution coordinates (clamped to the image)."""
