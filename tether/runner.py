@@ -114,9 +114,8 @@ def apply_rt_priority(priority: int, node_id: str = "") -> int:
 def run_spec(spec: RunSpec, *, install_signals: bool = True) -> int:
     """Run one node until SIGINT/SIGTERM; return its exit code."""
     node_cls = load_node_class(spec.node)
-    rt_priority = apply_rt_priority(spec.rt_priority, spec.node_id)    # before any thread starts
+    apply_rt_priority(spec.rt_priority, spec.node_id)    # before any thread starts: they inherit it
     runtime = NodeRuntime(spec, node_cls)
-    runtime.rt_priority = rt_priority
     if install_signals:
         def on_signal(signum: int, frame: Any) -> None:
             runtime.stop()

@@ -75,10 +75,15 @@ class RunSpec:
     rt_priority: int = 0          # SCHED_FIFO priority asked for the node's process (0: normal scheduling)
 
 
+def _fifo_priority() -> int:
+    """The SCHED_FIFO priority this thread runs at (0: another policy, or no POSIX scheduling here)."""
+    if not hasattr(os, "sched_getscheduler"):
+        return 0
+    return os.sched_getparam(0).sched_priority if os.sched_getscheduler(0) == os.SCHED_FIFO else 0
+
+
 class NodeRuntime(Context):
     """Runs one node on real sockets until stopped; :meth:`serve` returns the exit code."""
-
-    rt_priority = 0       # the SCHED_FIFO priority its process got (:func:`tether.runner.apply_rt_priority`)
 
     def __init__(self, spec: RunSpec, node_cls: type[Node], ctx: zmq.Context | None = None) -> None:
         self.spec = spec
@@ -557,7 +562,7 @@ class NodeRuntime(Context):
                          stats_errors=saturate(self._stats_errors),
                          published_bytes={k: saturate(v) for k, v in self._published_bytes.items()},
                          **{f"shm_{k}": saturate(v) for k, v in self.shm_counters().items()},
-                         rt_priority=self.rt_priority, stamp_ns=time.time_ns())
+                         rt_priority=_fifo_priority(), stamp_ns=time.time_ns())
 
     def _publish_stats(self) -> None:
         """Publish :meth:`stats`; a failure here is counted and logged (rate-limited), never fatal."""

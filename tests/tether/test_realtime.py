@@ -21,11 +21,12 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="n
 _PROBE = """
 import os, threading
 from tether.runner import apply_rt_priority
+from tether.runtime import _fifo_priority
 got = apply_rt_priority({priority}, "probe")
 seen = []
 t = threading.Thread(target=lambda: seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)))
 t.start(); t.join()
-print(got, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority, *seen[0])
+print(got, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority, *seen[0], _fifo_priority())
 """
 
 
@@ -39,7 +40,8 @@ def test_the_process_and_the_threads_it_starts_run_fifo_or_it_says_why_not() -> 
     res = subprocess.run([sys.executable, "-c", _PROBE.format(priority=7)], capture_output=True, text=True,
                          cwd=REPO, timeout=60)
     assert res.returncode == 0, res.stderr
-    got, policy, prio, thread_policy, thread_prio = map(int, res.stdout.split())
+    got, policy, prio, thread_policy, thread_prio, in_stats = map(int, res.stdout.split())
+    assert in_stats == got                                  # what NodeStats.rt_priority reports
     if _may_use_fifo():
         assert (got, policy, prio) == (7, os.SCHED_FIFO, 7)
         assert (thread_policy, thread_prio) == (os.SCHED_FIFO, 7)    # ZeroMQ's threads start after: they inherit
@@ -52,7 +54,7 @@ def test_no_priority_leaves_scheduling_alone() -> None:
     res = subprocess.run([sys.executable, "-c", _PROBE.format(priority=0)], capture_output=True, text=True,
                          cwd=REPO, timeout=60)
     assert res.returncode == 0, res.stderr
-    assert list(map(int, res.stdout.split())) == [0, os.SCHED_OTHER, 0, os.SCHED_OTHER, 0]
+    assert list(map(int, res.stdout.split())) == [0, os.SCHED_OTHER, 0, os.SCHED_OTHER, 0, 0]
     assert res.stderr == ""
 
 
