@@ -164,9 +164,10 @@ class SocialPlanner:
             return Decision("global", event, self.carrot(pose), self.global_path)
         t0 = time.perf_counter()
         subgoal = self._subgoal
-        decision = self._local(pose, cost, frame, event, high_density)
+        grid = self._planning_cost(pose, cost, frame)
+        decision = self._local(pose, grid, frame, event, high_density)
         decision.plan_ms = (time.perf_counter() - t0) * 1e3
-        if event == "path_blocked" and decision.mode == "local" and not self._worth_switching(pose, cost, frame, decision):
+        if event == "path_blocked" and decision.mode == "local" and not self._worth_switching(pose, grid, frame, decision):
             self._subgoal = subgoal
             return Decision(self.mode, "", self.waypoint, plan_ms=decision.plan_ms, reason="path kept")
         self.mode, self.waypoint, self.waypoint_t_s = decision.mode, decision.waypoint, t_s
@@ -262,7 +263,8 @@ class SocialPlanner:
 
     def _local(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame, event: str,
                people: np.ndarray | None = None) -> Decision:
-        """Dijkstra from the robot over the local cost grid to a sub-goal; the sub-goal is the cell at the
+        """Dijkstra from the robot over the local planning grid (``cost``, from :meth:`_planning_cost`) to a
+        sub-goal; the sub-goal is the cell at the
         edge of the local action radius (``subgoal_m``; or the goal itself when nearer) that minimises
         cost-so-far + (typical cell cost) x (remaining global-path length).
 
@@ -271,7 +273,6 @@ class SocialPlanner:
         beside the person, on the side that is cheaper overall.
         """
         assert self.global_path is not None and self.goal is not None
-        cost = self._planning_cost(pose, cost, frame)
         start = tuple(frame.clamp(frame.cell_of(np.zeros(2)))[0])
         dist, pred = cost_from(cost, start, graph=self._graph(cost.shape))
         rr, cc = np.mgrid[:frame.shape[0], :frame.shape[1]]
@@ -318,10 +319,10 @@ class SocialPlanner:
         # and held the robot in the middle lane, head-on with the oncoming walkers
         return np.where(self._static_mask(pose, frame), np.inf, cost)
 
-    def _worth_switching(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame,
+    def _worth_switching(self, pose: tuple[float, float, float], grid: np.ndarray, frame: GridFrame,
                          new: Decision) -> bool:
         """Is the fresh plan ``new`` cheaper than what is left of the path being followed, priced on the
-        same grid, by more than walking ``replan_margin_m`` of typical floor costs?
+        same planning grid (``grid``), by more than walking ``replan_margin_m`` of typical floor costs?
 
         The path-blocked test flags a path that passes people (high density or predicted); with the
         learnt cost alone (``person_cost`` 0) the fresh plan may pass the same people because the cost
@@ -338,7 +339,6 @@ class SocialPlanner:
         cells = frame.cell_of(np.vstack([np.zeros((1, 2)), to_robot(pose, rest)]))
         if not frame.inside(cells).all():
             return True
-        grid = self._planning_cost(pose, cost, frame)
         start = frame.clamp(frame.cell_of(np.zeros(2)))[0]
         cells[0] = start
         old = polyline_cost(grid, cells)
