@@ -38,6 +38,7 @@ reference at speed). Errors are against the analytic trajectory at the control t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -46,6 +47,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from typing import Iterator
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
@@ -60,6 +62,7 @@ from nodes.control.kinematics import Wheels  # noqa: E402
 from nodes.control.trajectory import make_trajectory  # noqa: E402
 from sim.cia402_drive import SimDrive, SimDriveBank  # noqa: E402
 from sim.vehicle4ws import VehicleParams, Vehicle4WSModel, simulate_tracking  # noqa: E402
+from tether.runner import apply_rt_priority  # noqa: E402
 
 TAU_S = 0.02           # simulated drives' first-order motor lag
 PHYSICS_HZ = 500.0
@@ -79,23 +82,17 @@ def start_reference(ramp_s: float, align_s: float):
     return at
 
 
-def realtime(priority: int):
+@contextlib.contextmanager
+def realtime(priority: int) -> Iterator[int]:
     """SCHED_FIFO for this process's real-time loop (and the bus threads it starts) while inside, as
     ``rt_priority`` gives a launched node; normal scheduling again after (the lockstep and model runs
-    are CPU-bound: they must not hold a core at real-time priority)."""
-    import contextlib
-
-    from tether.runner import apply_rt_priority
-
-    @contextlib.contextmanager
-    def scope():
-        got = apply_rt_priority(priority, "bench") if priority > 0 else 0
-        try:
-            yield got
-        finally:
-            if got:
-                os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    return scope()
+    are CPU-bound: they must not hold a core at real-time priority). Yields the priority it got."""
+    got = apply_rt_priority(priority, "bench")
+    try:
+        yield got
+    finally:
+        if got:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
 def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: str, skip_s: float,
