@@ -94,8 +94,35 @@ class ForkedNode:
         self.send_signal(signal.SIGKILL)
 
 
+def _drop_inherited_fds(keep: int) -> None:
+    """Point every descriptor above stderr that the launcher had open, except ``keep``, at /dev/null.
+
+    ``subprocess`` closes them; a fork keeps them: the read ends of earlier siblings' and the
+    recorder's pipes, the launcher's files. A sibling holding a node's pipe open turns a dead
+    launcher's broken pipe (an error the node sees) into a full one (a write that blocks). They
+    are replaced rather than closed because launcher objects in this memory still own those
+    numbers: closing one later (a collected file object) must not close a socket of the node's
+    that reused the number.
+    """
+    null = os.open(os.devnull, os.O_RDWR)
+    try:
+        fds = [int(name) for name in os.listdir("/proc/self/fd")]
+    except OSError:                                # not Linux: every number up to the limit
+        fds = list(range(3, min(os.sysconf("SC_OPEN_MAX"), 4096)))
+    for fd in fds:
+        if fd <= 2 or fd in (keep, null):
+            continue
+        try:
+            os.fstat(fd)                           # open? (the listing's own descriptor is gone by now)
+        except OSError:
+            continue
+        os.dup2(null, fd, inheritable=False)
+    os.close(null)
+
+
 def _run_child(spec: RunSpec, env: dict[str, str], out_fd: int, mask: set) -> int:
     """In the forked child: become a node process like ``python -m tether.runner`` would be."""
+    _drop_inherited_fds(keep=out_fd)
     os.setsid()                                    # Ctrl-C in the terminal reaches the launcher only
     for sig in STOP_SIGNALS:
         signal.signal(sig, signal.SIG_DFL)         # a stop before the node's own handlers: just exit

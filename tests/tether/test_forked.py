@@ -108,3 +108,28 @@ def test_a_node_that_cannot_stop_is_killed_after_the_stop_timeout_with_its_stack
     assert any("in on_tick" in line for line in stacks), out.stdout[-2000:]   # faulthandler's dump, on SIGUSR1
     bad = tether("launch", str(path), "--duration", "1", env={**env, "TETHER_STOP_TIMEOUT_S": "soon"})
     assert bad.returncode == 2 and "TETHER_STOP_TIMEOUT_S='soon'" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_forked_node_holds_none_of_its_launchers_descriptors(runtime_env: dict) -> None:
+    """A node's launcher has the read ends of its siblings' and the recorder's pipes, and files,
+    open; a forked node gets /dev/null in their place, as ``subprocess`` closes them (before, every
+    later sibling held an earlier one's pipe open, so a node whose launcher died could still block
+    on a full pipe instead of seeing it broken)."""
+    out = _fork_script("""
+        sibling_read, sibling_write = os.pipe()           # a sibling's pipe, as the launcher holds it
+        log = open(os.path.join(os.environ["TETHER_RUNTIME_DIR"] + "-file"), "w")
+        mine = [os.readlink(f"/proc/self/fd/{fd}") for fd in (sibling_read, sibling_write, log.fileno())]
+        proc = forked.ForkedNode(crasher(after_s=60.0), dict(os.environ))
+        time.sleep(1.0)
+        theirs = []
+        for entry in os.listdir(f"/proc/{proc.pid}/fd"):
+            try:
+                theirs.append(os.readlink(f"/proc/{proc.pid}/fd/{entry}"))
+            except OSError:
+                pass
+        own_pipe = os.readlink(f"/proc/self/fd/{proc.stdout.fileno()}")
+        signal_node(proc.pid, signal.SIGTERM)
+        proc.wait(30)
+        print(sum(t in mine for t in theirs), own_pipe in theirs, len(theirs) > 3)
+    """, runtime_env)
+    assert out.stdout.split() == ["0", "True", "True"], out.stdout

@@ -54,6 +54,20 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+def _where(pid: int) -> str:
+    """What a process is and where each of its threads waits (for a failure message)."""
+    proc = Path(f"/proc/{pid}")
+    try:
+        lines = [f"pid {pid}: {(proc / 'cmdline').read_bytes().replace(bytes(1), b' ').decode(errors='replace')}",
+                 f"  stat {(proc / 'stat').read_text().strip()[:120]}"]
+        for task in sorted((proc / "task").iterdir()):
+            lines.append(f"  thread {(task / 'comm').read_text().strip()}: wchan {(task / 'wchan').read_text()}, "
+                         f"syscall {(task / 'syscall').read_text().strip()[:60]}")
+    except OSError as exc:
+        lines = [f"pid {pid}: {exc}"]
+    return "\n".join(lines)
+
+
 def _two_machines(tmp_path: Path) -> Path:
     return two_machines(tmp_path, "sec", """
         - {id: sink, node: "nodes.std.chaos:QuietSink", inputs: {value: scale/value}, machine: shore}
@@ -102,7 +116,11 @@ def test_children_stop_when_the_launcher_is_killed_and_stale_sockets_are_swept(t
     assert len(children) >= 4                                          # three nodes and the recorder
     launcher.send_signal(signal.SIGKILL)
     launcher.wait(10)
-    _wait(lambda: not any(_alive(pid) for pid in children), 30.0, "children outlived their launcher")   # loaded CI: 15 s was marginal
+    deadline = time.monotonic() + 30.0                                 # loaded CI: 15 s was marginal
+    while any(_alive(pid) for pid in children) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    survivors = [pid for pid in children if _alive(pid)]
+    assert not survivors, "children outlived their launcher:\n" + "\n".join(_where(pid) for pid in survivors)
     sockets = Path(runtime_env["TETHER_RUNTIME_DIR"]) / "s"
     # A stale socket, as a node killed with SIGKILL leaves it: the next launcher sweeps it.
     stale = sockets / "counter.dead.x"
