@@ -11,10 +11,6 @@ from nodes.sonar.evaluation import cloud_metrics
 from sim.fls import PingSettings, load_scene, render_ping, sample_structures
 from tether.testing import Harness
 
-BLOCK = {"name": "block", "seafloor": {"type": "plane", "z_m": -6.0},
-         "structures": [{"type": "box", "center_m": [0.5, 4.0, -4.75], "size_m": [2.0, 2.0, 2.5]}],
-         "sonar": {"tilt_deg": 15}, "platform": {"start_m": [0.0, -8.0], "end_m": [0.0, 1.0], "depth_m": 1.0,
-                                                 "speed_mps": 1.5}}
 PARAMS = {"bounds_m": [-8, -8, -6.5, 8, 10, 0], "seafloor_z_m": -6.0, "publish_every": 5, "settle_pings": 10}
 
 
@@ -36,7 +32,7 @@ def _events(scene, times):
 
 
 def test_cloud_lands_on_the_block_with_its_sigma() -> None:
-    scene = load_scene(BLOCK)
+    scene = load_scene("block")
     with Harness(CarvedCloud, params=PARAMS) as h:
         h.feed(_events(scene, np.arange(0.02, 6.0, 0.15)))
     clouds = h.of("points")
@@ -69,7 +65,7 @@ def test_a_point_cloud_logged_before_sigma_m_still_decodes() -> None:
 
 
 def test_bad_pings_and_poses_are_counted_not_raised() -> None:
-    scene = load_scene(BLOCK)
+    scene = load_scene("block")
     events = _events(scene, [0.02, 0.17])
     bad_pose = Pose3D(x_m=float("nan"), stamp_ns=int(0.3e9))
     bad_ping = SonarPing(stamp_ns=int(0.12e9), intensities=np.zeros((50, 8), np.uint8),

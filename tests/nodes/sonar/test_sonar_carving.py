@@ -95,19 +95,13 @@ def test_flat_seafloor_gives_no_point_in_the_water(occlusion: bool) -> None:
     assert len(grid.cloud(flush=True, max_sigma_m=np.inf).points_m) == 0
 
 
-BLOCK = {"name": "block", "seafloor": {"type": "plane", "z_m": -6.0},
-         "structures": [{"type": "box", "center_m": [0.5, 4.0, -4.75], "size_m": [2.0, 2.0, 2.5]}],
-         "sonar": {"tilt_deg": 15}, "platform": {"start_m": [0.0, -8.0], "end_m": [0.0, 1.0], "depth_m": 1.0,
-                                                 "speed_mps": 1.5}}
-
-
 @pytest.fixture(scope="module")
 def block_pass() -> CarvingGrid:
-    return _run(load_scene(BLOCK), np.arange(0.0, 6.0, 0.15))     # south to north, never past it: one side only
+    return _run(load_scene("block"), np.arange(0.0, 6.0, 0.15))     # south to north, never past it: one side only
 
 
 def test_a_short_stretch_says_its_elevations_are_less_certain(block_pass: CarvingGrid) -> None:
-    short = _run(load_scene(BLOCK), np.arange(4.0, 4.6, 0.15))     # 0.9 m of track: arcs barely cross
+    short = _run(load_scene("block"), np.arange(4.0, 4.6, 0.15))     # 0.9 m of track: arcs barely cross
     s_short = short.cloud(flush=True, max_sigma_m=np.inf).sigma_m
     s_long = block_pass.cloud(flush=True, max_sigma_m=np.inf).sigma_m
     assert len(s_short) and len(s_long)
@@ -118,7 +112,7 @@ def test_a_short_stretch_says_its_elevations_are_less_certain(block_pass: Carvin
 
 
 def test_a_block_seen_from_one_side_lands_on_its_faces(block_pass: CarvingGrid) -> None:
-    scene, grid = load_scene(BLOCK), block_pass
+    scene, grid = load_scene("block"), block_pass
     surface, _ = sample_structures(scene, 0.03)
     cloud = grid.cloud(flush=True, max_sigma_m=0.25)
     m = cloud_metrics(cloud.points_m, surface)
@@ -128,7 +122,7 @@ def test_a_block_seen_from_one_side_lands_on_its_faces(block_pass: CarvingGrid) 
 
 
 def test_a_single_pass_says_how_little_it_resolves_and_a_revisit_narrows_it(block_pass: CarvingGrid) -> None:
-    scene = load_scene(BLOCK)
+    scene = load_scene("block")
     surface, _ = sample_structures(scene, 0.03)
     one = block_pass.cloud(flush=True, max_sigma_m=np.inf)         # one straight pass at one depth, no revisit
     error = surface_distances(one.points_m, surface)
