@@ -373,9 +373,21 @@ def ackermann(d: dict) -> list[Row]:
 
 def ackermann_can(d: dict) -> list[Row]:
     return [("`ackermann_can.py` over CAN, whole run from rest",
-             f"{d['fig8_rms_mm_can']:.2f} mm RMS, max {d['fig8_max_mm_can']:.2f} mm (udp_multicast, real time)",
+             f"{d['fig8_rms_mm_can']:.2f} mm RMS, max {d['fig8_max_mm_can']:.2f} mm (udp_multicast, real time)"
+             + _inprocess_csp(d),
              f"no-bus model {d['fig8_rms_mm_model_nobus']:.3f} mm; launch file in lockstep "
              f"{d['fig8_rms_mm_can_lockstep']:.2f} mm", f"<= 1 cm: {_met(d['fig8_rms_mm_can'] <= 10)}")] + _launched(d)
+
+
+def _inprocess_csp(d: dict) -> str:
+    """The CSP/CSV+SYNC run with master, drives and controller in the bench's one process."""
+    if d.get("fig8_rms_mm_can_csp_realtime") is None:
+        return ""
+    prio = f" at SCHED_FIFO {d['inprocess_rt_priority']}" if d.get("inprocess_rt_priority") else ""
+    if d.get("can_csp_realtime_tripped"):
+        return (f"; CSP/CSV+SYNC with master and drives in one process{prio}: SYNC lost (a stall of over 35 ms), "
+                f"quick stop")
+    return f"; CSP/CSV+SYNC with master and drives in one process{prio}: {d['fig8_rms_mm_can_csp_realtime']:.2f} mm RMS"
 
 
 def _launched(d: dict) -> list[Row]:
