@@ -25,7 +25,10 @@ the right points alone of each variant's voting at any sigma (the most any filte
 the carving evidence leaves (``carving_bound``: points some view pins to 0.2 m; points some view's
 unrefuted arc keeps on the structure).
 
-Beside the default carving, the same pass with gaps (``CarvingParams.gap_weight``: a ping that had a voxel in
+Beside the default carving, the same pass with the evidence filter (``CarvingParams.keep="evidence"``: a classifier
+over each voted voxel's carving evidence keeps it at any sigma, ``nodes.sonar.carving_filter``; trained by
+``bench/sonar_carving_filter.py`` on other passes over these scenes and the tripod, never on the demo pass; its knob
+is the probability threshold), with gaps (``CarvingParams.gap_weight``: a ping that had a voxel in
 its fan but no return arc through it counts against it) and with occlusion (``CarvingParams.occlusion``: arcs behind
 their beam's front end do not vote for what front surfaces shadow). Each method is also summed up by
 its completeness at >= 90 % of points within 0.2 m (the best over the sigma sweep: the trade, not one
@@ -56,6 +59,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from nodes.sonar.carving import CarvingGrid, CarvingParams  # noqa: E402
+from nodes.sonar.carving_filter import load_model  # noqa: E402
 from nodes.sonar.evaluation import cloud_metrics, save_cloud_png, surface_distances, visible_surface  # noqa: E402
 from nodes.sonar.highlight import down_from_tilt, edge_rays, extract_line_scan  # noqa: E402
 
@@ -161,7 +165,9 @@ def main() -> None:
     # there and back: the demo pass, then the return leg from the north over the same 30 m
     two_pass = None if args.quick else check_scene("tripod", np.r_[np.arange(0.0, 20.0, 0.1), np.arange(40.0, 60.0, 0.1)],
                                                     VARIANTS)
-    demo_rows = {k: [r for r in demo["rows"] if r["returns"] == k] for k in ("all", "occlusion", "gaps", "occlusion + gaps")}
+    demo_rows = {k: [r for r in demo["rows"] if r["returns"] == k] for k in ("all", "occlusion", "gaps", "occlusion + gaps",
+                                                                             "evidence")}
+    ev = next(r for r in demo["rows"] if r["returns"] == "evidence" and r["min_surface_p"] == EVIDENCE_P)
     gaps = next(r for r in demo["rows"] if r["max_sigma_m"] == DEFAULT_SIGMA and r["returns"] == "gaps")
     occ_gaps = next(r for r in demo["rows"] if r["max_sigma_m"] == DEFAULT_SIGMA and r["returns"] == "occlusion + gaps")
     headline = dict(acc_frac_0p2=carved["acc_frac_0p2"], acc_p90_m=carved["acc_p90_m"],
@@ -189,12 +195,21 @@ def main() -> None:
                     occlusion_gaps_acc_frac_0p2=occ_gaps["acc_frac_0p2"],
                     occlusion_gaps_completeness_0p2=occ_gaps["completeness_0p2"],
                     occlusion_gaps_completeness_at_acc90=completeness_at(demo_rows["occlusion + gaps"]),
+                    evidence_acc_frac_0p2=ev["acc_frac_0p2"], evidence_acc_p90_m=ev["acc_p90_m"],
+                    evidence_completeness_0p2=ev["completeness_0p2"], evidence_points=ev["points"],
+                    evidence_ms_per_ping=demo["ms_evidence"], evidence_ms_per_ping_in_view=demo["ms_evidence_in_view"],
+                    evidence_threshold_p=EVIDENCE_P, evidence_trained_on=load_model()["trained_on"],
+                    evidence_completeness_at_acc90_chosen_on_demo=completeness_at(demo_rows["evidence"]),
+                    evidence_plot=demo["plot_evidence"],
                     completeness_oracle_filter=demo["oracle"], pinned_0p2_frac=demo["bound"]["pinned_0p2_frac"],
                     along_surface_frac=demo["bound"]["along_surface_frac"],
                     bound_samples=demo["bound"]["bound_samples"],
                     other_scenes=scenes, two_pass_tripod=two_pass,
                     params_chosen_on="tripod demo pass (all carving parameters, gap_weight too); pier4, piles2, wall, "
-                                     "the one-sided block and the tripod there-and-back run chose nothing",
+                                     "the one-sided block and the tripod there-and-back run chose nothing -- except the "
+                                     "evidence filter, trained on passes over all of them but the demo pass "
+                                     "(bench/sonar_carving_filter.py): for it, those scenes are training data and the "
+                                     "demo pass is held out",
                     goals=dict(acc_frac_0p2=0.9, completeness_0p2=0.7, ms_per_ping=5.0), goal_ms_per_ping=5.0,
                     height_rmse_m=head["rmse"], detection_rate=head["rate"], height_ms_per_ping=head["ms"],
                     height_rmse_m_paper_model=paper["rmse"], speckle=1.0, sigma_px=1.5, beams=N_BEAMS,
@@ -210,8 +225,9 @@ def main() -> None:
           f"points to the structure, completeness = seen surface within 0.2 m of a point")
     print(f"{'method':>28} {'points':>7} {'median cm':>9} {'p90 cm':>7} {'<=0.1 m %':>9} {'<=0.2 m %':>9} "
           f"{'complete %':>10}")
-    for label, r in [("highlight (paper)", hl)] + [(f"carved {r['label']} s<={r['max_sigma_m']:g}", r)
-                                                    for r in demo["rows"]]:
+    for label, r in [("highlight (paper)", hl)] + [(f"carved {r['label']} " + (
+            f"p>={r['min_surface_p']:g}" if r["min_surface_p"] is not None else f"s<={r['max_sigma_m']:g}"), r)
+            for r in demo["rows"]]:
         print(f"{label:>28} {r['points']:7d} {100 * r['acc_median_m']:9.1f} {100 * r['acc_p90_m']:7.1f} "
               f"{100 * r['acc_frac_0p1']:9.1f} {100 * r['acc_frac_0p2']:9.1f} {100 * r['completeness_0p2']:10.1f}")
     print(f"ms per ping (median): highlight {demo['ms_highlight']:.2f}, carving {demo['ms_carving']:.2f} (front ends "
@@ -237,6 +253,11 @@ def main() -> None:
           f"in view)")
     print(f"gaps (gap_weight {GAPS['gap_weight']:g}) at sigma <= {DEFAULT_SIGMA} m: {100 * headline['gaps_acc_frac_0p2']:.1f} % "
           f"within 0.2 m, completeness {100 * headline['gaps_completeness_0p2']:.1f} %")
+    print(f"evidence filter (keep='evidence', p >= {EVIDENCE_P:g}, trained on {', '.join(load_model()['trained_on'])}; "
+          f"the demo pass held out): {100 * ev['acc_frac_0p2']:.1f} % within 0.2 m, completeness "
+          f"{100 * ev['completeness_0p2']:.1f} %, {demo['ms_evidence']:.2f} ms per ping ({demo['ms_evidence_in_view']:.2f} "
+          f"in view); best over its threshold sweep, chosen on the demo: "
+          f"{100 * headline['evidence_completeness_at_acc90_chosen_on_demo']:.1f} % at >= 90 %")
     print("why not 70 % from one straight pass: the most any filter of the voting could keep (its points within 0.2 m, "
           "any sigma): " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in demo["oracle"].items()))
     b = demo["bound"]
@@ -271,8 +292,20 @@ OTHER_SCENES = {"pier4": np.arange(0.0, 20.0, 0.1), "piles2": np.arange(0.0, 20.
 GAPS = dict(gap_weight=2.0)
 VARIANTS = {"default": {}, "occlusion": dict(occlusion=True), "gaps": GAPS, "occlusion + gaps": dict(occlusion=True, **GAPS),
             "shadow darks": dict(shadow_darks=True), "occlusion + shadow darks": dict(occlusion=True, shadow_darks=True)}
-CHECK_VARIANTS = ("default", "occlusion", "gaps", "occlusion + gaps")
+VARIANTS["evidence"] = dict(keep="evidence")
+CHECK_VARIANTS = ("default", "occlusion", "gaps", "occlusion + gaps", "evidence")
 SIGMAS = (0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, float("inf"))
+# the evidence filter (keep="evidence") keeps any sigma; its knob is the probability threshold, its model's own
+# (chosen by bench/sonar_carving_filter.py on its training passes, none of them the demo pass) the headline
+EVIDENCE_P = load_model()["threshold_p"]
+SURFACE_PS = tuple(sorted({0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, EVIDENCE_P}))
+
+
+def sweep_of(variant: str) -> list[tuple[float, float | None]]:
+    """(max_sigma_m, min_surface_p) of a variant's accuracy knob sweep: sigma, or the evidence filter's threshold."""
+    if variant == "evidence":
+        return [(float("inf"), p) for p in SURFACE_PS]
+    return [(s, None) for s in SIGMAS]
 
 
 def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> dict:
@@ -298,7 +331,7 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
     # one loop over the pings, the methods timed back to back on each: both see the same machine load
     grids = {returns: CarvingGrid(BOUNDS, CarvingParams(returns=returns), seafloor_z_m=floor)
              for returns in ("all", "front")}
-    for key in ("occlusion", "gaps", "occlusion + gaps"):
+    for key in ("occlusion", "gaps", "occlusion + gaps", "evidence"):
         grids[key] = CarvingGrid(BOUNDS, CarvingParams(**VARIANTS[key]), seafloor_z_m=floor)
     hl_pts, ms = [], {"highlight": [], **{key: [] for key in grids}}
     for k, (pose, img, bearings, dr, spread) in enumerate(pings):
@@ -314,19 +347,22 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
             t0 = time.perf_counter()
             grid.integrate(img, bearings, dr, pose, spread)
             if (k + 1) % 10 == 0:                     # the node publishes every 10th ping: that cost counts too
-                grid.cloud(max_sigma_m=DEFAULT_SIGMA)
+                grid.cloud(max_sigma_m=np.inf if returns == "evidence" else DEFAULT_SIGMA)
             ms[returns].append((time.perf_counter() - t0) * 1e3)
     highlight = cloud_metrics(np.concatenate(hl_pts), surface, visible)
     rows, best = [], None
     for returns, grid in grids.items():
         print(f"  carving ({returns} returns): {np.median(ms[returns]):.1f} ms per ping, {grid.candidates} candidate "
               f"voxels", file=sys.stderr)
-        for sigma in SIGMAS:
-            c = grid.cloud(flush=True, max_sigma_m=sigma)
-            rows.append(dict(returns=returns, max_sigma_m=sigma, **cloud_metrics(c.points_m, surface, visible)))
+        for sigma, p_min in sweep_of(returns):
+            c = grid.cloud(flush=True, max_sigma_m=sigma, min_surface_p=p_min)
+            rows.append(dict(returns=returns, max_sigma_m=sigma, min_surface_p=p_min,
+                             **cloud_metrics(c.points_m, surface, visible)))
             rows[-1]["label"] = f"all, {returns}" if returns not in ("all", "front") else returns
             if returns == "all" and sigma == DEFAULT_SIGMA:
                 best = c
+            if returns == "evidence" and p_min == EVIDENCE_P:
+                evidence = c
     ms_carving = float(np.median(ms["all"]))
     oracle = {}                 # the most any filter of a variant's voting could keep: its right points (any sigma)
     for returns in ("all", "gaps", "occlusion + gaps"):
@@ -335,6 +371,7 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
         oracle[returns] = cloud_metrics(right, surface, visible)["completeness_0p2"]
     ms_occlusion_in_view = float(np.median(np.asarray(ms["occlusion"])[np.asarray(in_view)]))
     ms_gaps_in_view = float(np.median(np.asarray(ms["gaps"])[np.asarray(in_view)]))
+    ms_evidence_in_view = float(np.median(np.asarray(ms["evidence"])[np.asarray(in_view)]))
     ratio = float(np.median(np.asarray(ms["all"]) / np.maximum(ms["highlight"], 1e-6)))
     view = np.asarray(in_view)
     diagnosis = where_completeness_goes(grids["all"], best, rows, surface, visible, hits, [p[0] for p in pings],
@@ -343,12 +380,18 @@ def demo_pass(out_dir: Path, seconds: float = 20.0, rate_hz: float = 10.0) -> di
     save_cloud_png(plot, np.concatenate(hl_pts), model, title="demo pass: highlight cloud (paper) and carved cloud, "
                    "true poses", carved=best.points_m, carved_sigma=best.sigma_m,
                    carved_label=f"carved cloud (sigma <= {DEFAULT_SIGMA} m)")
+    plot_evidence = out_dir / "sonar_cloud_demo_evidence.png"
+    save_cloud_png(plot_evidence, np.concatenate(hl_pts), model, title="demo pass: highlight cloud (paper) and carved "
+                   "cloud kept by the evidence filter (keep='evidence'), true poses", carved=evidence.points_m,
+                   carved_sigma=evidence.sigma_m, carved_label=f"carved, evidence filter (p >= {EVIDENCE_P:g}, any sigma)")
     return dict(rows=rows, highlight=highlight, ms_highlight=float(np.median(ms["highlight"])), ms_carving=ms_carving,
                 ms_ratio=ratio, ms_front=float(np.median(ms["front"])), pings=len(pings), plot=str(plot),
                 pings_in_view=int(view.sum()), ms_carving_in_view=float(np.median(np.asarray(ms["all"])[view])),
                 ms_highlight_in_view=float(np.median(np.asarray(ms["highlight"])[view])),
                 ms_occlusion=float(np.median(ms["occlusion"])), ms_occlusion_in_view=ms_occlusion_in_view,
-                ms_gaps=float(np.median(ms["gaps"])), ms_gaps_in_view=ms_gaps_in_view, oracle=oracle, **diagnosis)
+                ms_gaps=float(np.median(ms["gaps"])), ms_gaps_in_view=ms_gaps_in_view, oracle=oracle,
+                ms_evidence=float(np.median(ms["evidence"])), ms_evidence_in_view=ms_evidence_in_view,
+                plot_evidence=str(plot_evidence), **diagnosis)
 
 
 def at90(v: dict) -> str:
@@ -392,10 +435,11 @@ def check_scene(name: str, times: np.ndarray, variants: dict[str, dict]) -> dict
     visible = visible_surface(model, np.concatenate(hits), 0.1)
     out = {"pings": len(times), "highlight": cloud_metrics(np.concatenate(hl_pts), surface, visible)}
     for key, grid in grids.items():
-        sweep = [dict(max_sigma_m=s, **cloud_metrics(grid.cloud(flush=True, max_sigma_m=s).points_m, surface, visible))
-                 for s in SIGMAS]
-        out[key] = dict(next(r for r in sweep if r["max_sigma_m"] == DEFAULT_SIGMA),
-                        completeness_at_acc90=completeness_at(sweep))
+        sweep = [dict(max_sigma_m=s, min_surface_p=p, **cloud_metrics(
+            grid.cloud(flush=True, max_sigma_m=s, min_surface_p=p).points_m, surface, visible)) for s, p in sweep_of(key)]
+        head = (lambda r: r["min_surface_p"] == EVIDENCE_P) if key == "evidence" else \
+            (lambda r: r["max_sigma_m"] == DEFAULT_SIGMA)
+        out[key] = dict(next(r for r in sweep if head(r)), completeness_at_acc90=completeness_at(sweep))
     return out
 
 

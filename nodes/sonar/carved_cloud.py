@@ -4,7 +4,9 @@ Beside the highlight cloud (the paper's lower-edge elevation, seed 01): the same
 each return's elevation is chosen where the arcs of many poses cross and no ping saw free water
 (:mod:`nodes.sonar.carving`). Output ``points`` (world frame): the voxels voted for whose elevation
 1-sigma is at most ``max_sigma_m``, that sigma in ``sigma_m`` (metres, along the elevation arc) and the
-number of arcs that chose each point in ``intensity``. Published every ``publish_every`` pings.
+number of arcs that chose each point in ``intensity``. Published every ``publish_every`` pings. With
+``keep="evidence"`` the points are those the carving evidence filter (:mod:`nodes.sonar.carving_filter`) finds
+likely on a surface, at any sigma: a point the views did not pin keeps its large sigma.
 
 Poses as in ``highlight_cloud``: each ping is placed with the pose at its own stamp, interpolated
 between the two poses around it (:class:`nodes.sonar.pose_buffer.PoseBuffer`); a ping newer than the
@@ -43,7 +45,9 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     occlusion: bool = False                  # arcs behind a front end skip what front surfaces shadow (carving.py)
     shadow_darks: bool = False               # a front surface's shadow is unknown, not empty (several passes)
     gap_weight: float = 0.0                  # score lost per ping that had a voxel in its fan but no return there
-    max_sigma_m: float = 0.3                 # publish points whose elevation 1-sigma is at most this
+    max_sigma_m: float = 0.3                 # publish points whose elevation 1-sigma is at most this ("sigma")
+    keep: Literal["sigma", "evidence"] = "sigma"   # "evidence": the carving evidence filter decides, any sigma
+    min_surface_p: float | None = None       # "evidence": its probability threshold (None: the model's own)
     body_frame: Literal["frd", "flu"] = "frd"
     publish_every: int = 10
     max_pose_gap_s: float = 0.5
@@ -57,9 +61,10 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
         if not (np.all(np.isfinite(self.bounds_m)) and np.all(hi > lo)):
             raise ValueError("bounds_m is (x0, y0, z0, x1, y1, z1) with x1 > x0, y1 > y0, z1 > z0")
         if not (self.voxel_m > 0 and 0 < self.spread_rad < math.pi and self.publish_every >= 1
-                and self.max_sigma_m > 0 and self.gap_weight >= 0):
-            raise ValueError("need voxel_m > 0, 0 < spread_rad < pi, publish_every >= 1, max_sigma_m > 0 and "
-                             "gap_weight >= 0")
+                and self.max_sigma_m > 0 and self.gap_weight >= 0
+                and (self.min_surface_p is None or 0 <= self.min_surface_p <= 1)):
+            raise ValueError("need voxel_m > 0, 0 < spread_rad < pi, publish_every >= 1, max_sigma_m > 0, "
+                             "gap_weight >= 0 and min_surface_p in [0, 1] or null")
         if not (self.max_pose_gap_s > 0 and self.max_wait_s >= 0 and self.max_pending >= 1
                 and self.pose_buffer_s >= self.max_pose_gap_s and self.settle_pings >= 0):
             raise ValueError("need max_pose_gap_s > 0, max_wait_s >= 0, max_pending >= 1, "
@@ -77,7 +82,8 @@ class CarvedCloud(Node):
         cfg = self.config
         v = cfg.voxel_m
         params = CarvingParams(voxel_m=v, arc_step_m=v, returns=cfg.returns, settle_pings=cfg.settle_pings,
-                               occlusion=cfg.occlusion, shadow_darks=cfg.shadow_darks, gap_weight=cfg.gap_weight)
+                               occlusion=cfg.occlusion, shadow_darks=cfg.shadow_darks, gap_weight=cfg.gap_weight,
+                               keep=cfg.keep, min_surface_p=cfg.min_surface_p)
         self.grid = CarvingGrid((cfg.bounds_m[:3], cfg.bounds_m[3:]), params, seafloor_z_m=cfg.seafloor_z_m)
         self._poses = PoseBuffer(span_ns=int(cfg.pose_buffer_s * 1e9))
         self._pending: deque[tuple[int, SonarPing]] = deque()
@@ -148,8 +154,9 @@ class CarvedCloud(Node):
         return [("points", self.cloud(ping.stamp_ns))]
 
     def cloud(self, stamp_ns: int = 0, *, flush: bool = False) -> PointCloud:
-        """The voxels voted for with elevation sigma <= ``max_sigma_m``: that sigma (m), and the votes."""
-        c = self.grid.cloud(flush=flush, max_sigma_m=self.config.max_sigma_m)
+        """The voxels voted for with elevation sigma <= ``max_sigma_m`` (or those the evidence filter keeps, at
+        any sigma): that sigma (m), and the votes."""
+        c = self.grid.cloud(flush=flush, max_sigma_m=self._max_sigma())
         return PointCloud(stamp_ns=stamp_ns, frame_id=self.config.world_frame, points_m=c.points_m.astype(np.float32),
                           intensity=c.votes.astype(np.float32), sigma_m=c.sigma_m.astype(np.float32))
 
@@ -157,8 +164,11 @@ class CarvedCloud(Node):
         ms = np.asarray(self._work_ms) if self._work_ms else np.zeros(1)
         self.log.info("carved cloud: %d pings, %d candidate voxels, %d cloud points, arc samples outside the grid %d, "
                       "work per ping median %.1f ms (p90 %.1f), dropped %s", self.pings, self.grid.candidates,
-                      len(self.grid.cloud(max_sigma_m=self.config.max_sigma_m).points_m), self.outside,
+                      len(self.grid.cloud(max_sigma_m=self._max_sigma()).points_m), self.outside,
                       float(np.median(ms)), float(np.percentile(ms, 90)), self.dropped or "none")
+
+    def _max_sigma(self) -> float:
+        return self.config.max_sigma_m if self.config.keep == "sigma" else math.inf
 
     def _drop(self, reason: str, *, expected: bool = False) -> None:
         key = reason.split(": ", 1)[-1] if reason.startswith("ping ") else reason

@@ -1,0 +1,81 @@
+"""Carving's evidence filter: which voted voxels lie on a structure, judged from all their carving evidence at once.
+
+The default cloud (``nodes.sonar.carving``) keeps a voxel its arcs pinned (elevation 1-sigma <= ``max_sigma_m``)
+and that later views did not empty. On one straight pass most of the surface is never pinned (a ghost elsewhere on
+each arc matches it in every view), so that rule keeps about half of what the sonar saw. Every voted voxel also
+carries evidence no single rule weighs well together: pings that hit it, carved it (misses), saw it dark behind a
+front end (darks), had it in the fan with no return there (gaps), arcs (and front-end arcs) that chose it, the
+spread of their choices (sigma), its height above the seafloor, the share of its hits left after the misses and
+darks (support) and how many voted voxels touch it (a surface is continuous; a ghost of one voxel often is not).
+
+:func:`surface_probability` scores those features with a small ensemble of depth-3 regression trees (gradient
+boosting, trained with scikit-learn on simulated passes with ground truth by ``bench/sonar_carving_filter.py``;
+stored as plain JSON in ``carving_filter.json``, evaluated here with numpy). A point kept by it says how it was
+kept: its ``sigma_m`` stays the spread of its own arcs' choices (what the views pinned), and its probability is
+reported beside it -- a point the views did not pin keeps a large sigma.
+"""
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+MODEL_PATH = Path(__file__).with_name("carving_filter.json")
+FEATURES = ("hits", "misses", "darks", "gaps", "gap_frac", "votes", "front_votes", "sigma_m", "height_m", "support",
+            "votes_per_hit", "neighbours", "seen")
+_LOG = frozenset({"hits", "misses", "darks", "gaps", "votes", "front_votes", "neighbours", "seen"})   # log1p counts
+
+
+def feature_matrix(evidence: dict[str, np.ndarray]) -> np.ndarray:
+    """(K, len(FEATURES)) float64 from ``evidence`` (one (K,) array per name of :data:`FEATURES`); counts as
+    log1p."""
+    missing = [k for k in FEATURES if k not in evidence]
+    if missing:
+        raise ValueError(f"evidence lacks {missing}: give one (K,) array per name of FEATURES")
+    cols = [np.asarray(evidence[k], np.float64) for k in FEATURES]
+    return np.stack([np.log1p(np.maximum(c, 0.0)) if k in _LOG else c for k, c in zip(FEATURES, cols)], axis=1)
+
+
+@lru_cache(maxsize=4)
+def load_model(path: str | Path = MODEL_PATH) -> dict:
+    """The tree ensemble: ``baseline``, ``threshold_p`` (the probability it was chosen to keep) and ``trees``, each
+    ``feature``, ``threshold``, ``left``, ``right``, ``value`` arrays (a leaf has ``left == -1``)."""
+    data = json.loads(Path(path).read_text())
+    if tuple(data.get("features", ())) != FEATURES:
+        raise ValueError(f"{path}: trained on features {data.get('features')}, this code computes {FEATURES}")
+    trees = [{k: np.asarray(t[k], np.float64 if k in ("threshold", "value") else np.int64) for k in
+              ("feature", "threshold", "left", "right", "value")} for t in data["trees"]]
+    return dict(baseline=float(data["baseline"]), threshold_p=float(data["threshold_p"]), trees=trees,
+                trained_on=data.get("trained_on", []), depth=int(data.get("max_depth", 3)))
+
+
+def surface_probability(x: np.ndarray, model: dict | None = None) -> np.ndarray:
+    """Probability (K,) that each row of ``x`` (:func:`feature_matrix`) is within 0.2 m of a structure's surface."""
+    model = model or load_model()
+    raw = np.full(len(x), model["baseline"])
+    rows = np.arange(len(x))
+    for tree in model["trees"]:
+        node = np.zeros(len(x), np.int64)
+        for _ in range(model["depth"] + 1):           # a node goes left when its feature <= its threshold
+            inner = tree["left"][node] >= 0
+            go_left = x[rows, np.maximum(tree["feature"][node], 0)] <= tree["threshold"][node]
+            node = np.where(inner, np.where(go_left, tree["left"][node], tree["right"][node]), node)
+        raw += tree["value"][node]
+    return 1.0 / (1.0 + np.exp(-raw))
+
+
+def export_model(classifier, path: str | Path, *, threshold_p: float, trained_on: list[str], max_depth: int) -> None:
+    """Write a fitted ``sklearn.ensemble.HistGradientBoostingClassifier`` (binary, numeric features, no missing
+    values) as the JSON :func:`load_model` reads."""
+    trees = []
+    for (predictor,) in classifier._predictors:
+        n = predictor.nodes
+        leaf = n["is_leaf"].astype(bool)
+        trees.append(dict(feature=n["feature_idx"].astype(int).tolist(), threshold=n["num_threshold"].tolist(),
+                          left=np.where(leaf, -1, n["left"].astype(np.int64)).tolist(),
+                          right=np.where(leaf, -1, n["right"].astype(np.int64)).tolist(), value=n["value"].tolist()))
+    baseline = float(np.ravel(classifier._baseline_prediction)[0])
+    Path(path).write_text(json.dumps(dict(features=list(FEATURES), baseline=baseline, threshold_p=threshold_p,
+                                          max_depth=max_depth, trained_on=trained_on, trees=trees)))
