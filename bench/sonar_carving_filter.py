@@ -1,9 +1,10 @@
 """Train and check carving's evidence filter (nodes.sonar.carving_filter) on simulated passes with ground truth.
 
 Training passes (10 pings/s, 512 beams, 20 m, true poses, as bench/sonar_cloud.py): the tripod at another noise
-seed and half a ping later than the demo, the tripod's return leg from the north, the square pier and the two
-piles (the 20 s of bench/sonar_cloud.py and the 20 s after them, past the structure), the wall, the one-sided block
-(6 s) and a second, yawed box (13 s). The demo pass itself (tripod, seed 0, ``make demo``) is never
+seed and half a ping later than the demo, its return leg from the north, and three other tracks over it (moved east
+or west, deeper); the square pier and the two piles (the 20 s of bench/sonar_cloud.py, the 20 s after them, past
+the structure, and one moved track each), the single pile, the wall, the one-sided block (6 s) and a second, yawed
+box (13 s). The demo pass itself (tripod, seed 0, ``make demo``) is never
 trained on: it is the held-out check. Each voted voxel off the seafloor is labelled by its distance to the
 structure's surface (<= 0.2 m: on it); the classifier is scikit-learn's HistGradientBoostingClassifier (depth 3,
 60 trees), each pass weighted alike. The threshold kept is the lowest probability at which every training pass
@@ -39,7 +40,24 @@ BOX2 = {"name": "box2", "seafloor": {"type": "plane", "z_m": -6.0},
         "structures": [{"type": "box", "center_m": [-2.0, 6.0, -5.0], "size_m": [3.0, 1.2, 2.0], "yaw_deg": 30}],
         "sonar": {"tilt_deg": 15}, "platform": {"start_m": [0.0, -8.0], "end_m": [0.0, 12.0], "depth_m": 1.0,
                                                 "speed_mps": 1.5}}
+
+
+def moved_track(name: str, x_m: float, depth_m: float) -> dict:
+    """Scene ``name`` with its straight northward track moved to ``x_m`` east at ``depth_m``."""
+    from tether.yamlsafe import load_yaml_file
+
+    scene = dict(load_yaml_file(ROOT / "sim" / "scenes" / f"fls_{name}.yaml"))
+    scene["platform"] = dict(scene["platform"], start_m=[x_m, -30.0], end_m=[x_m, 30.0], depth_m=depth_m)
+    return scene
+
+
 TRAIN = {"tripod_seed1": ("tripod", 0.05, 20.0, 1), "tripod_back": ("tripod", 40.0, 60.0, 0),
+         "tripod_west": (moved_track("tripod", -1.5, 1.0), 0.0, 20.0, 4),
+         "tripod_deep": (moved_track("tripod", 1.0, 2.0), 0.0, 20.0, 5),
+         "tripod_east": (moved_track("tripod", 3.0, 1.5), 0.0, 20.0, 6),
+         "pier4_west": (moved_track("pier4", -1.0, 1.0), 0.0, 20.0, 7),
+         "piles2_deep": (moved_track("piles2", 1.0, 2.0), 0.0, 20.0, 8),
+         "cylinder": ("cylinder", 0.0, 20.0, 9),
          "pier4": ("pier4", 0.0, 20.0, 0), "pier4_north": ("pier4", 20.0, 40.0, 2),
          "piles2": ("piles2", 0.0, 20.0, 0), "piles2_north": ("piles2", 20.0, 40.0, 2),
          "wall": ("wall", 0.0, 20.0, 0), "block": ("block", 0.0, 6.0, 0), "box2": (BOX2, 0.0, 13.0, 3)}

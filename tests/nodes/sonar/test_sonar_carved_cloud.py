@@ -47,6 +47,21 @@ def test_cloud_lands_on_the_block_with_its_sigma() -> None:
     assert len(sigma) == len(pts) == len(final.intensity) and np.all(np.asarray(final.intensity) >= 2)   # votes
 
 
+
+def test_with_the_evidence_filter_the_node_publishes_unpinned_points_with_their_large_sigma() -> None:
+    scene = load_scene("block")
+    params = dict(PARAMS, keep="evidence")
+    with Harness(CarvedCloud, params=params) as h:
+        h.feed(_events(scene, np.arange(0.02, 6.0, 0.15)))
+    final = h.node.cloud(flush=True)
+    pts, sigma = np.asarray(final.points_m, float), np.asarray(final.sigma_m)
+    surface, _ = sample_structures(scene, 0.03)
+    assert cloud_metrics(pts, surface)["acc_frac_0p2"] >= 0.85
+    assert np.any(sigma > 0.3) and np.all(np.isfinite(sigma))      # kept at any sigma, and says so
+    with Harness(CarvedCloud, params=PARAMS) as default:
+        default.feed(_events(scene, np.arange(0.02, 6.0, 0.15)))
+    assert len(pts) > len(default.node.cloud(flush=True).points_m)
+
 def test_a_point_cloud_logged_before_sigma_m_still_decodes() -> None:
     import msgpack
 
