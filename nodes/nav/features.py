@@ -221,11 +221,48 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
             q = pm + vm * tau
             hit = np.abs(np.hypot(q[:, 0], q[:, 1]) - robot_speed_mps * tau) <= slack_m
             pairs.append((im[hit], *_cell_rc(grid, q[hit])))
-    i, r, c = (np.concatenate(a) for a in zip(*pairs))
-    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
-    flat = np.unique(i[inside] * (rows * cols) + r[inside] * cols + c[inside]) % (rows * cols)   # a point once per cell
-    counts = np.bincount(flat, minlength=rows * cols).reshape(rows, cols)
-    return counts >= max(min_points, 1)
+    return _enough_points(pairs, grid, min_points)
+
+
+def arrival_cells(paths_m: np.ndarray, taus_s: np.ndarray, grid: GridSpec = GridSpec(), *,
+                  robot_speed_mps: float = 1.0, slack_m: float = 0.5, moving_mps: float = 0.25,
+                  min_points: float = 2.0) -> np.ndarray:
+    """(rows, cols) bool: :func:`conflict_cells` from where each point really goes, not from a constant velocity.
+
+    ``paths_m`` (N, T, 2) holds each point's place at the times ``taus_s`` (T,) s after now, the
+    first of them 0 (robot frame of now; NaN where it is not known, e.g. a walker who left the data). It is the
+    same question (is a cell occupied when a robot driving straight out at ``robot_speed_mps``
+    could be there, within ``slack_m``), the same still-point rule (a point whose mean speed over
+    the horizon is below ``moving_mps`` blocks the cell it stands in now) and the same count
+    (``min_points`` points per cell); only the motion differs. Learning (``sim.irl_demos``
+    ``track_demos(hindsight=True)``) asks it of recorded walkers' real futures, a perfect prediction;
+    the running robot asks :func:`conflict_cells`, its constant-velocity prediction.
+    """
+    q = np.asarray(paths_m, dtype=np.float64)
+    taus = np.asarray(taus_s, dtype=np.float64).reshape(-1)
+    rows, cols = grid.shape
+    if q.ndim != 3 or q.shape[2] != 2 or q.shape[1] != len(taus):
+        raise ValueError(f"paths_m must be (N, T, 2) with T = len(taus_s) = {len(taus)}, got {q.shape}")
+    if len(taus) and taus[0] != 0:
+        raise ValueError(f"taus_s must start at 0 (paths_m[:, 0] is where the points are now), got {taus[0]}")
+    if not len(q) or not len(taus):
+        return np.zeros((rows, cols), bool)
+    now = q[:, 0]
+    known = np.isfinite(q).all(axis=2)
+    span = np.where(known.any(axis=1), taus[np.argmax(known * taus, axis=1)] - taus[0], 0.0)
+    last = q[np.arange(len(q)), np.argmax(known * taus, axis=1)]
+    speed = np.where(span > 0, np.hypot(*(last - now).T) / np.maximum(span, 1e-9), 0.0)
+    still = np.isfinite(now).all(axis=1) & (speed < moving_mps)
+    index = np.arange(len(q))
+    pairs = [(index[still], *_cell_rc(grid, now[still]))]
+    for k, tau in enumerate(taus):
+        if tau <= 0:
+            continue
+        ok = ~still & known[:, k]
+        hit = ok.copy()
+        hit[ok] = np.abs(np.hypot(q[ok, k, 0], q[ok, k, 1]) - robot_speed_mps * tau) <= slack_m
+        pairs.append((index[hit], *_cell_rc(grid, q[hit, k])))
+    return _enough_points(pairs, grid, min_points)
 
 
 def cell_motion(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
@@ -279,6 +316,18 @@ def _cell_medians(p: np.ndarray, v: np.ndarray, cell_m: float, corner_xy_m: tupl
         s = col[np.argsort(key + (col - lo) / span)]   # by cell, then by value (the fraction never crosses a cell)
         out.append(0.5 * (s[mid_lo] + s[mid_hi]))
     return out, n, of_point
+
+
+def _enough_points(pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], grid: GridSpec,
+                   min_points: float) -> np.ndarray:
+    """(rows, cols) bool: cells reached by at least ``min_points`` distinct points; ``pairs`` are
+    (point index, row, col) arrays, a point counted once per cell however often it reaches it."""
+    rows, cols = grid.shape
+    i, r, c = (np.concatenate(a) for a in zip(*pairs))
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+    flat = np.unique(i[inside] * (rows * cols) + r[inside] * cols + c[inside]) % (rows * cols)
+    counts = np.bincount(flat, minlength=rows * cols).reshape(rows, cols)
+    return counts >= max(min_points, 1)
 
 
 def _cell_rc(grid: GridSpec, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
