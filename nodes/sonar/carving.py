@@ -201,6 +201,9 @@ class CarvingGrid:
         self._alive_centre = np.zeros((0, 3), np.float32)
         self._n_alive = 0
         self._pending: deque[_PingArcs] = deque()      # arcs still settling, oldest first
+        # the evidence filter's model, read (and checked) once here rather than at the first cloud
+        self._model = carving_filter.load_model() if params.keep == "evidence" else None
+        self._mark: np.ndarray | None = None
         self.pings = 0
 
     # -- one ping -------------------------------------------------------------------------
@@ -450,7 +453,7 @@ class CarvingGrid:
             rows, pts = rows[above], pts[above]
         surface_p = None
         if p.keep == "evidence":
-            model = carving_filter.load_model()
+            model = self._model
             surface_p = carving_filter.surface_probability(carving_filter.feature_matrix(self.evidence(rows)), model)
             threshold = next(t for t in (min_surface_p, p.min_surface_p, model["threshold_p"]) if t is not None)
             keep = surface_p >= threshold
@@ -475,11 +478,27 @@ class CarvingGrid:
         """Candidate rows (of :meth:`candidate_points`, :meth:`evidence`) with >= ``min_votes`` votes."""
         return np.flatnonzero(self._votes[:self._count] >= min_votes)
 
+    def _neighbours(self, voxels: np.ndarray) -> np.ndarray:
+        """How many of ``voxels`` lie in each one's 3 x 3 x 3 block (itself included), float64."""
+        if self._mark is None:
+            self._mark = np.zeros(int(np.prod(self.shape)), bool)      # scratch, left all False after each use
+        self._mark[voxels] = True
+        ijk = np.unravel_index(voxels, self.shape)
+        _, ny, nz = self.shape
+        count = np.zeros(voxels.size, np.int32)
+        for di, dj, dk in np.ndindex(3, 3, 3):
+            inside = np.ones(voxels.size, bool)
+            for idx, d, n in zip(ijk, (di, dj, dk), self.shape):
+                if d != 1:                                 # an offset of -1 or +1 along this axis: stay in the grid
+                    inside &= (idx >= 1) if d == 0 else (idx < n - 1)
+            offset = (di - 1) * ny * nz + (dj - 1) * nz + (dk - 1)
+            count[inside] += self._mark[voxels[inside] + offset]
+        self._mark[voxels] = False
+        return count.astype(np.float64)
+
     def evidence(self, rows: np.ndarray) -> dict[str, np.ndarray]:
         """The carving evidence of candidates ``rows`` (voted for at least once), one (K,) array per name of
         :data:`nodes.sonar.carving_filter.FEATURES`; gaps need ``seen`` (counted with ``keep="evidence"``)."""
-        from scipy.spatial import cKDTree
-
         p = self.params
         voxels, pts = self._cand[rows], self._centre[rows]
         hits = self.hits[voxels].astype(np.float64)
@@ -488,9 +507,7 @@ class CarvingGrid:
         gaps = np.maximum(seen - hits, 0.0)
         votes = np.maximum(self._votes[rows], 1).astype(np.float64)
         floor = self.seafloor_z_m if self.seafloor_z_m is not None else float(self.origin[2])
-        # neighbours: voted voxels within 1.75 voxels (the 3 x 3 x 3 block around it, itself included)
-        neighbours = (cKDTree(pts).query_ball_point(pts, 1.75 * p.voxel_m, return_length=True) if len(pts)
-                      else np.zeros(0))
+        neighbours = self._neighbours(voxels)
         return dict(hits=hits, misses=misses, darks=darks, gaps=gaps, gap_frac=gaps / np.maximum(seen, 1.0),
                     votes=votes, front_votes=self._front_votes[rows].astype(np.float64),
                     sigma_m=np.sqrt(self._extent2[rows] / votes / 12.0), height_m=pts[:, 2].astype(np.float64) - floor,

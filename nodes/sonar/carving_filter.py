@@ -40,29 +40,51 @@ def feature_matrix(evidence: dict[str, np.ndarray]) -> np.ndarray:
 
 @lru_cache(maxsize=4)
 def load_model(path: str | Path = MODEL_PATH) -> dict:
-    """The tree ensemble: ``baseline``, ``threshold_p`` (the probability it was chosen to keep) and ``trees``, each
-    ``feature``, ``threshold``, ``left``, ``right``, ``value`` arrays (a leaf has ``left == -1``)."""
+    """The tree ensemble: ``baseline``, ``threshold_p`` (the probability it was chosen to keep), ``depth``, and
+    every tree as a complete binary tree of that depth in heap order (children of ``i``: ``2i + 1`` left, ``2i + 2``
+    right): ``feature`` and ``threshold`` (T, 2^depth - 1) of the inner nodes, ``value`` (T, 2^depth) of the leaves.
+    A leaf above the bottom is repeated below a split that sends everything left."""
     data = json.loads(Path(path).read_text())
     if tuple(data.get("features", ())) != FEATURES:
         raise ValueError(f"{path}: trained on features {data.get('features')}, this code computes {FEATURES}")
-    trees = [{k: np.asarray(t[k], np.float64 if k in ("threshold", "value") else np.int64) for k in
-              ("feature", "threshold", "left", "right", "value")} for t in data["trees"]]
-    return dict(baseline=float(data["baseline"]), threshold_p=float(data["threshold_p"]), trees=trees,
-                trained_on=data.get("trained_on", []), depth=int(data.get("max_depth", 3)))
+    depth = int(data.get("max_depth", 3))
+    n_inner = 2 ** depth - 1
+    feature = np.zeros((len(data["trees"]), n_inner), np.int64)
+    threshold = np.full((len(data["trees"]), n_inner), np.inf)
+    value = np.zeros((len(data["trees"]), 2 ** depth))
+    for t, tree in enumerate(data["trees"]):
+        stack = [(0, 0, 0)]                               # (node of the stored tree, heap index, level)
+        while stack:
+            node, heap, level = stack.pop()
+            if tree["left"][node] < 0:                    # a leaf: every leaf below this heap position
+                first = heap
+                for _ in range(depth - level):
+                    first = 2 * first + 1
+                value[t, first - n_inner:first - n_inner + 2 ** (depth - level)] = tree["value"][node]
+                continue
+            if level >= depth:
+                raise ValueError(f"{path}: tree {t} is deeper than max_depth {depth}")
+            feature[t, heap], threshold[t, heap] = tree["feature"][node], tree["threshold"][node]
+            stack += [(tree["left"][node], 2 * heap + 1, level + 1), (tree["right"][node], 2 * heap + 2, level + 1)]
+    return dict(baseline=float(data["baseline"]), threshold_p=float(data["threshold_p"]), depth=depth,
+                feature=feature, threshold=threshold, value=value, trees=len(data["trees"]),
+                trained_on=data.get("trained_on", []))
 
 
 def surface_probability(x: np.ndarray, model: dict | None = None) -> np.ndarray:
     """Probability (K,) that each row of ``x`` (:func:`feature_matrix`) is within 0.2 m of a structure's surface."""
     model = model or load_model()
-    raw = np.full(len(x), model["baseline"])
-    rows = np.arange(len(x))
-    for tree in model["trees"]:
-        node = np.zeros(len(x), np.int64)
-        for _ in range(model["depth"] + 1):           # a node goes left when its feature <= its threshold
-            inner = tree["left"][node] >= 0
-            go_left = x[rows, np.maximum(tree["feature"][node], 0)] <= tree["threshold"][node]
-            node = np.where(inner, np.where(go_left, tree["left"][node], tree["right"][node]), node)
-        raw += tree["value"][node]
+    n_trees, n_inner = model["feature"].shape
+    if len(x) == 0 or n_trees == 0:
+        return np.full(len(x), 1.0 / (1.0 + np.exp(-model["baseline"])))
+    xt = np.ascontiguousarray(x.T)                      # one contiguous row per feature
+    rows, raw = np.arange(len(x)), np.full(len(x), model["baseline"])
+    for feature, threshold, value in zip(model["feature"], model["threshold"], model["value"]):
+        right = xt[feature] > threshold[:, None]        # every inner node's test (left: feature <= threshold)
+        heap = np.zeros(len(x), np.int64)
+        for _ in range(model["depth"]):
+            heap = 2 * heap + 1 + right[heap, rows]
+        raw += value[heap - n_inner]
     return 1.0 / (1.0 + np.exp(-raw))
 
 

@@ -27,7 +27,7 @@ def test_the_exported_ensemble_gives_sklearn_s_probabilities(tmp_path) -> None:
 
 def test_the_shipped_model_loads_and_scores_every_row() -> None:
     model = load_model()
-    assert 0.5 <= model["threshold_p"] < 1 and len(model["trees"]) > 0
+    assert 0.5 <= model["threshold_p"] < 1 and model["trees"] > 0 and model["value"].shape[1] == 2 ** model["depth"]
     evidence = {k: np.linspace(0.0, 20.0, 7) for k in FEATURES}
     p = surface_probability(feature_matrix(evidence), model)
     assert p.shape == (7,) and np.all((p >= 0) & (p <= 1))
