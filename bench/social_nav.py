@@ -28,7 +28,8 @@ person for 2 s (the crowd walks ``start_shift_s`` before the robot appears; the 
 reference of a synthetic scene is sent at the same moment); ``weights_from`` names the scenes
 the weights were learnt on (``weights_from_evaluated`` must stay empty). The collision guard's
 share of control ticks where it braked or slowed the planner's command is ``guard_frac``
-(the largest over the scenarios; ``guard_frac_median`` beside it). ``out/social_nav_tradeoff.png``
+(the largest over the scenarios; ``guard_frac_median`` beside it), split by the rule that braked in
+``guard_why`` (see :func:`guarded`; ``guard_why_worst``: the scenario where it braked most). ``out/social_nav_tradeoff.png``
 plots speed against error: time / human time against closest approach, per planner.
 Writes ``out/social_nav.png`` (trajectories) and prints a table; ``--json`` prints one
 object with the metrics per scenario and method, ``pipeline_hz`` and ``plan_ms_100x100``.
@@ -101,6 +102,7 @@ class IrlStack:
     """launch/social_nav.yaml in-process: flow -> features -> cost -> planner -> guard."""
 
     name = "irl"
+    plan_reason = ""        # the planner's last status reason (guard_why: planner_kept_blocked_path)
 
     def __init__(self, world: CrowdWorld, weights: str, params: dict[str, dict] | None = None) -> None:
         params = params or {}
@@ -125,6 +127,7 @@ class IrlStack:
             t2 = time.perf_counter()
             out = self.plan.feed([(t, "flow", flow), (t, "features", grid)] + [(t, "costs", c) for c in costs])
             cmds += [o.msg for o in out if o.output == "cmd"]
+            self.plan_reason = next((o.msg.reason for o in reversed(out) if o.output == "status"), self.plan_reason)
             t3 = time.perf_counter()
             ms.setdefault("flow+features", []).append((t1 - t0) * 1e3)
             ms.setdefault("cost", []).append((t2 - t1) * 1e3)
@@ -134,14 +137,36 @@ class IrlStack:
         return guarded(self, self.guard.feed(sensed + [(t, "cmd", cmd)]), cmd)
 
 
+#: the guard's status reason (its first words) -> the rule that braked (``guard_why``)
+GUARD_RULES = (("obstacle at", "stop"), ("obstacle predicted", "stop_few_predicted"),
+               ("waiting for the path", "hold"), ("slowed", "slowed"))
+
+
 def guarded(stack, outputs, cmd: Twist2D) -> tuple[float, float]:
-    """The guard's command; counts the ticks where it braked or slowed what the planner asked for."""
+    """The guard's command; counts the ticks where it braked or slowed what the planner asked for, and why.
+
+    ``guard_why`` (per rule of :data:`GUARD_RULES`, and 'other'): 'stop' an obstacle seen (or >= 3 flow points
+    predicted) on the commanded path within the stop distance; 'stop_few_predicted' fewer predicted points;
+    'hold' the release time after a stop; 'slowed' the braking-distance cap. 'planner_kept_blocked_path' counts
+    the braked ticks (of any rule) while the planner was keeping a path it had itself flagged as passing people
+    (its ``replan_margin_m``)."""
     safe = [o.msg for o in outputs if o.output == "cmd"]
     if safe:
         stack.safe = (safe[-1].vx_mps, safe[-1].wz_radps)
+    status = [o.msg.reason for o in outputs if o.output == "status"]
+    if status:
+        stack.guard_reason = status[-1]
     v, w = getattr(stack, "safe", (0.0, 0.0))
+    braked = cmd.vx_mps > 0 and v < cmd.vx_mps - 1e-6
     stack.ticks = getattr(stack, "ticks", 0) + 1
-    stack.guard_ticks = getattr(stack, "guard_ticks", 0) + int(cmd.vx_mps > 0 and v < cmd.vx_mps - 1e-6)
+    stack.guard_ticks = getattr(stack, "guard_ticks", 0) + int(braked)
+    if braked:
+        why = stack.__dict__.setdefault("guard_why", {})
+        reason = getattr(stack, "guard_reason", "")
+        rule = next((k for prefix, k in GUARD_RULES if reason.startswith(prefix)), "other")
+        why[rule] = why.get(rule, 0) + 1
+        if "path kept" in getattr(stack, "plan_reason", ""):
+            why["planner_kept_blocked_path"] = why.get("planner_kept_blocked_path", 0) + 1
     return v, w
 
 
@@ -231,6 +256,7 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
         world.step(v, w, DT)
     return Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms,
                    by_robot=world.collisions_by_robot, guard_ticks=getattr(stack, "guard_ticks", 0),
+                   guard_why=dict(getattr(stack, "guard_why", {})),
                    ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s)
 
 
@@ -438,6 +464,7 @@ def headline(report: dict, goals: dict, args: argparse.Namespace) -> dict:
            "scenario_count": len(report),
            "guard_frac": round(float(np.max(ticks["irl"])), 4) if ticks["irl"] else None,
            "guard_frac_median": round(float(np.median(ticks["irl"])), 4) if ticks["irl"] else None,
+           "guard_why_worst": _worst_why(report),
            "dwa_predicts": DWA_PREDICTS,
            "params_chosen_on": PARAMS_CHOSEN_ON,
            "weights_from": list((w.extra or {}).get("trained_on", [])),
@@ -454,6 +481,15 @@ def headline(report: dict, goals: dict, args: argparse.Namespace) -> dict:
     evaluated = {sc.replay.dataset for sc in (load_scene(n) for n in report) if sc.replay is not None}
     out["weights_from_evaluated"] = sorted(set(out["weights_from"]) & evaluated)    # must stay empty
     return out
+
+
+def _worst_why(report: dict) -> dict:
+    """IRL's ``guard_why`` (share of control ticks per braking rule) on the scenario where its guard braked most."""
+    rows = [(r["irl"]["guard_frac"], name) for name, r in report.items() if r["irl"]["guard_frac"] is not None]
+    if not rows:
+        return {}
+    name = max(rows)[1]
+    return {"scenario": name, **report[name]["irl"]["guard_why"]}
 
 
 def _median(values: list) -> float | None:

@@ -27,6 +27,7 @@ class Episode:
     guard_ticks: int = 0                 # control ticks where the collision guard changed the planner's command
     ticks: int = 0                       # control ticks
     start_shift_s: float = 0.0           # the crowd walked this long before the robot appeared (clear start)
+    guard_why: dict[str, int] = dataclasses.field(default_factory=dict)   # braked ticks by guard rule (social_nav.guarded)
 
 
 def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
@@ -53,6 +54,7 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
             "success": bool(ep.goal_t is not None and ep.collisions == 0),
             **strict_contacts(ep),
             "guard_frac": round(ep.guard_ticks / ep.ticks, 4) if ep.ticks else None,
+            "guard_why": {k: round(n / ep.ticks, 4) for k, n in sorted(ep.guard_why.items())} if ep.ticks else {},
             "stopped_at_closest": stopped_at_closest,
             "start_shift_s": round(ep.start_shift_s, 2)}
 
