@@ -267,7 +267,8 @@ def main() -> None:
           f"structure (publishable only by a method that knows which arcs run along a surface)")
     print(f"\nthe check (parameters chosen on the demo pass only; the same 20 s pass over other structures, and the tripod "
           f"there and back): at sigma <= {DEFAULT_SIGMA} m, within 0.2 m % / completeness %; then completeness % at >= 90 % "
-          f"accuracy")
+          f"accuracy. The evidence filter at p >= {EVIDENCE_P:g}: these passes are its training data (the tripod's return "
+          f"leg too; its first leg is the held-out demo pass)")
     checks = [(n, d) for n, d in scenes.items()] + ([("tripod there+back", two_pass)] if two_pass else [])
     for name, d in checks:
         cells = [f"highlight {100 * d['highlight']['acc_frac_0p2']:.1f} / {100 * d['highlight']['completeness_0p2']:.1f}"]
