@@ -79,13 +79,11 @@ def run_pass(scene_name: str, t0: float, t1: float, seed: int) -> dict:
         hits.append(r.hits_m[r.hit_labels > 0])
         grid.integrate(r.intensities, r.bearings_rad, r.range_resolution_m, pose, r.vertical_aperture_rad)
     grid.flush()
-    rows = grid.voted_rows()
+    rows = grid.off_floor(grid.voted_rows())               # what CarvingGrid.cloud scores
     pts = grid.candidate_points()[rows]
-    above = pts[:, 2] > scene.seafloor.z_m + grid.params.floor_margin_m
-    rows, pts = rows[above], pts[above]
     surface, _ = sample_structures(scene, 0.03)
     model, _ = sample_structures(scene, 0.1)
-    x = carving_filter.feature_matrix(grid.evidence(rows))
+    x = carving_filter.feature_matrix(grid.evidence(rows, grid.plausible_rows()))
     return dict(x=x, points=pts, on=surface_distances(pts, surface) <= 0.2, surface=surface,
                 visible=visible_surface(model, np.concatenate(hits), 0.1))
 

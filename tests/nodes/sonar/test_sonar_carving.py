@@ -141,7 +141,7 @@ def test_the_evidence_filter_keeps_a_one_sided_block_on_its_faces() -> None:
     scene = load_scene("block")
     surface, _ = sample_structures(scene, 0.03)
     kept = _run(scene, np.arange(0.0, 6.0, 0.15), keep="evidence").cloud(flush=True)
-    assert cloud_metrics(kept.points_m, surface)["acc_frac_0p2"] >= 0.9        # 0.921 (pinned: 0.938)
+    assert cloud_metrics(kept.points_m, surface)["acc_frac_0p2"] >= 0.9        # 0.923 (pinned: 0.938)
     assert len(kept.points_m) >= 300 and np.all(kept.points_m[:, 1] < 5.2)     # nothing behind the unseen back face
 
 
@@ -153,6 +153,10 @@ def test_voted_neighbours_are_counted_over_the_3x3x3_block_also_at_the_grid_s_fa
     brute = (np.abs(ijk[:, None, :] - ijk[None, :, :]).max(axis=2) <= 1).sum(axis=1)
     assert np.array_equal(grid._neighbours(voxels), brute)
     assert np.array_equal(grid._neighbours(voxels), brute)                          # the scratch is clean again
+    among = np.union1d(voxels, np.arange(0, 60, 7))                                 # counted among a larger set
+    other = np.stack(np.unravel_index(among, grid.shape), axis=1)
+    assert np.array_equal(grid._neighbours(voxels, among),
+                          (np.abs(ijk[:, None, :] - other[None, :, :]).max(axis=2) <= 1).sum(axis=1))
 
 def test_the_evidence_filter_invents_nothing_over_a_flat_seafloor_and_flags_a_single_view() -> None:
     assert len(_run(load_scene("flat"), np.arange(0.0, 6.0, 0.25), keep="evidence").cloud(flush=True).points_m) == 0
@@ -210,8 +214,8 @@ def test_the_evidence_filter_keeps_more_of_a_pile_and_says_what_the_views_left_o
     pinned = grids["sigma"].cloud(flush=True, max_sigma_m=0.3)              # the default rule at the node's sigma
     kept = grids["evidence"].cloud(flush=True)
     before, after = cloud_metrics(pinned.points_m, surface, visible), cloud_metrics(kept.points_m, surface, visible)
-    assert after["acc_frac_0p2"] >= 0.9, after                                 # 0.941 (pinned: 0.955)
-    assert after["completeness_0p2"] >= before["completeness_0p2"] + 0.1      # 0.822 against 0.645
+    assert after["acc_frac_0p2"] >= 0.9, after                                 # 0.943 (pinned: 0.955)
+    assert after["completeness_0p2"] >= before["completeness_0p2"] + 0.1      # 0.872 against 0.645
     # honest: a point the views did not pin keeps its arcs' spread as sigma, and the sigma covers the error
     assert np.mean(kept.sigma_m > 0.3) > 0.1 and kept.surface_p is not None and np.all(kept.surface_p >= 0.5)
     error = surface_distances(kept.points_m, surface)
