@@ -43,7 +43,8 @@ def load_model(path: str | Path = MODEL_PATH) -> dict:
     """The tree ensemble: ``baseline``, ``threshold_p`` (the probability it was chosen to keep), ``depth``, and
     every tree as a complete binary tree of that depth in heap order (children of ``i``: ``2i + 1`` left, ``2i + 2``
     right): ``feature`` and ``threshold`` (T, 2^depth - 1) of the inner nodes, ``value`` (T, 2^depth) of the leaves.
-    A leaf above the bottom is repeated below a split that sends everything left."""
+    A leaf above the bottom is repeated below a split that sends everything left. ``leaf_of_tests`` (T, 2^(2^depth - 1))
+    is the leaf value each pattern of the inner nodes' tests leads to (bit i set: node i sends right)."""
     data = json.loads(Path(path).read_text())
     if tuple(data.get("features", ())) != FEATURES:
         raise ValueError(f"{path}: trained on features {data.get('features')}, this code computes {FEATURES}")
@@ -66,9 +67,15 @@ def load_model(path: str | Path = MODEL_PATH) -> dict:
                 raise ValueError(f"{path}: tree {t} is deeper than max_depth {depth}")
             feature[t, heap], threshold[t, heap] = tree["feature"][node], tree["threshold"][node]
             stack += [(tree["left"][node], 2 * heap + 1, level + 1), (tree["right"][node], 2 * heap + 2, level + 1)]
+    # every pattern of the inner nodes' tests (bit i: node i sends right) -> the leaf it leads to, per tree
+    codes = np.arange(2 ** n_inner)
+    right = (codes[:, None] >> np.arange(n_inner)[None, :]) & 1
+    heap = np.zeros(codes.size, np.int64)
+    for _ in range(depth):
+        heap = 2 * heap + 1 + right[codes, heap]
     return dict(baseline=float(data["baseline"]), threshold_p=float(data["threshold_p"]), depth=depth,
-                feature=feature, threshold=threshold, value=value, trees=len(data["trees"]),
-                trained_on=data.get("trained_on", []))
+                feature=feature, threshold=threshold, value=value, leaf_of_tests=value[:, heap - n_inner],
+                trees=len(data["trees"]), trained_on=data.get("trained_on", []))
 
 
 def surface_probability(x: np.ndarray, model: dict | None = None) -> np.ndarray:
@@ -77,14 +84,12 @@ def surface_probability(x: np.ndarray, model: dict | None = None) -> np.ndarray:
     n_trees, n_inner = model["feature"].shape
     if len(x) == 0 or n_trees == 0:
         return np.full(len(x), 1.0 / (1.0 + np.exp(-model["baseline"])))
-    xt = np.ascontiguousarray(x.T)                      # one contiguous row per feature
-    rows, raw = np.arange(len(x)), np.full(len(x), model["baseline"])
-    for feature, threshold, value in zip(model["feature"], model["threshold"], model["value"]):
-        right = xt[feature] > threshold[:, None]        # every inner node's test (left: feature <= threshold)
-        heap = np.zeros(len(x), np.int64)
-        for _ in range(model["depth"]):
-            heap = 2 * heap + 1 + right[heap, rows]
-        raw += value[heap - n_inner]
+    xt = np.ascontiguousarray(x.T, dtype=np.float64)    # one contiguous row per feature
+    bit = (1 << np.arange(n_inner)).astype(np.float64)
+    raw = np.full(len(x), model["baseline"])
+    for feature, threshold, leaves in zip(model["feature"], model["threshold"], model["leaf_of_tests"]):
+        tests = bit @ (xt[feature] > threshold[:, None])    # all inner nodes' tests (left: feature <= threshold)
+        raw += leaves[tests.astype(np.int64)]
     return 1.0 / (1.0 + np.exp(-raw))
 
 
