@@ -95,6 +95,15 @@ def ping360(d: dict) -> list[Row]:
              "400 beams a turn, 0 checksum errors, resync after garbage: met (tests)")]
 
 
+def _guard_why(why: dict | None) -> str:
+    """Which of the guard's rules braked, on the scenario where it braked most (shares of all ticks)."""
+    if not why:
+        return ""
+    return (f"; on {why['scenario']}, stop {100 * why.get('stop', 0):.0f} % of ticks, hold after a stop "
+            f"{100 * why.get('hold', 0):.0f} %, slowed {100 * why.get('slowed', 0):.0f} %, and {100 * why.get('planner_kept_blocked_path', 0):.0f} % "
+            f"braked while the planner kept a path it had flagged as passing people")
+
+
 def social_nav(d: dict) -> list[Row]:
     sc = d["scenarios"]
     n = len(sc)
@@ -114,7 +123,7 @@ def social_nav(d: dict) -> list[Row]:
                                             if walk_in is not None else "") + ")" if len(closer) < n else "")
              + f", median {d['closest_median_m']:.2f} m; on time (<= 1.15x the human) {len(timely)} of {n}"
              + (f" (late: {late})" if late else "") + f"; the guard brakes in {100 * d['guard_frac']:.0f} % of ticks at "
-             f"worst (median {100 * d['guard_frac_median']:.0f} %)",
+             f"worst (median {100 * d['guard_frac_median']:.0f} %)" + _guard_why(d.get("guard_why_worst")),
              f"DWA, predicting people too: robot contacts {dwa['robot_contacts']} (strict {dwa['robot_contacts_strict']}), "
              f"median closest {dwa['closest_median_m']:.2f} m, on time {dwa['time_ok_count']} of {n}, guard "
              f"{100 * dwa['guard_frac']:.0f} %",
