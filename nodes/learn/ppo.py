@@ -6,7 +6,8 @@ and optional return-based reward scaling, global gradient clipping and a linearl
 learning rate: the choices of the PPO2 the paper ran (OpenAI baselines) and of CleanRL.
 Truncated episodes are bootstrapped with the value of their final observation (a time
 limit is not a terminal state). Box actions are diagonal Gaussians (sampled unclipped, clipped
-for the env), Discrete ones categorical, MultiBinary ones independent Bernoulli.
+for the env as in CleanRL; ``squash="tanh"`` maps them through tanh onto the bounds instead, as
+Brax's PPO does), Discrete ones categorical, MultiBinary ones independent Bernoulli.
 
 >>> agent = PPO(env.single_observation_space, env.single_action_space, PPOConfig(), seed=0)
 >>> history = agent.learn(env, 200_000)
@@ -57,6 +58,11 @@ class PPOConfig:
     norm_obs: bool = True
     norm_reward: bool = True
     obs_clip: float = 10.0
+    # Box actions to the env: "clip" (CleanRL) clips the Gaussian sample to the bounds, where a mean
+    # that has drifted past a bound gets no gradient back (every sample near it is the same action);
+    # "tanh" (Brax) maps it onto the bounds by low + (tanh(u) + 1) (high - low) / 2. The ratio of
+    # PPO needs no tanh Jacobian: both policies are scored on the same stored u, so it cancels.
+    squash: str = "clip"
 
 
 class _MLP(nn.Module):
@@ -239,6 +245,11 @@ class PPO:
         self.obs_shape = tuple(observation_space.shape)
         self.obs_dim = int(np.prod(self.obs_shape))
         cfg = self.config
+        if cfg.squash not in ("clip", "tanh"):
+            raise ValueError(f"squash must be 'clip' or 'tanh', got {cfg.squash!r}")
+        if cfg.squash == "tanh" and self.kind == "box" and not (
+                np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
+            raise ValueError("squash='tanh' needs finite Box bounds: the action space has an infinite one")
         self.actor, self.critic = _networks(cfg, self.act_dim)
         self.key = jax.random.split(jax.random.PRNGKey(seed), 3)[0]
         actor, critic = _compiled_init(self.act_dim, cfg, self.obs_dim)(jax.random.key(seed, impl="rbg"))
@@ -287,11 +298,14 @@ class PPO:
         return np.clip(z, -self.config.obs_clip, self.config.obs_clip).astype(np.float32)
 
     def to_env(self, a: np.ndarray) -> np.ndarray:
-        """Policy outputs to env actions: Box clipped to its bounds, others cast to the space's dtype."""
+        """Policy outputs to env actions: Box clipped to its bounds (or squashed onto them by tanh,
+        ``squash="tanh"``), others cast to the space's dtype."""
         a = np.asarray(a)
         if self.kind == "box":
             sp = self.action_space
-            return np.clip(a, sp.low.ravel(), sp.high.ravel()).reshape(-1, *sp.shape).astype(sp.dtype)
+            lo, hi = sp.low.ravel().astype(np.float64), sp.high.ravel().astype(np.float64)
+            a = lo + (np.tanh(a) + 1.0) * (hi - lo) / 2.0 if self.config.squash == "tanh" else np.clip(a, lo, hi)
+            return np.clip(a, lo, hi).reshape(-1, *sp.shape).astype(sp.dtype)
         if self.kind == "discrete":
             return (a.reshape(-1) + self.action_space.start).astype(np.int64)
         return a.astype(np.int8).reshape(-1, *self.action_space.shape)

@@ -87,3 +87,38 @@ def test_learns_cartpole_beyond_a_random_policy():
             n, done = n + 1, te or tr
         lengths.append(n)
     assert np.mean(lengths) > 100                 # a random policy balances ~22 steps
+
+
+def test_tanh_squash_keeps_a_gradient_past_the_bounds_and_clip_does_not():
+    import gymnasium
+
+    box = gymnasium.spaces.Box(np.array([0.0, -2.0], np.float32), np.array([2.0, 2.0], np.float32))
+    obs = gymnasium.spaces.Box(-1.0, 1.0, (3,), np.float32)
+    clip = PPO(obs, box, TINY, seed=0)
+    tanh = PPO(obs, box, PPOConfig(**{**TINY.__dict__, "squash": "tanh"}), seed=0)
+    assert PPOConfig().squash == "clip"                                 # CleanRL's default is kept
+    u = np.array([[0.0, 0.0], [0.5, 1.0], [3.0, -3.0], [3.5, -3.5]])
+    assert np.allclose(tanh.to_env(u[:2]), [[1.0, 0.0], [1.0 + np.tanh(0.5), 2.0 * np.tanh(1.0)]], atol=1e-6)
+    assert np.allclose(clip.to_env(u[:2]), [[0.0, 0.0], [0.5, 1.0]])
+    # a mean that has drifted past a bound: clipped, two such samples are the same env action
+    # (no advantage can tell them apart); squashed, they still differ, inside the bounds
+    c, t = clip.to_env(u[2:]), tanh.to_env(u[2:])
+    assert np.array_equal(c[0], c[1]) and np.all(t[0] != t[1])
+    assert np.all((t >= box.low) & (t <= box.high)) and np.all(np.abs(t[1] - [2.0, -2.0]) > 0)
+    with pytest.raises(ValueError, match="squash"):
+        PPO(obs, box, PPOConfig(squash="sigmoid"))
+    with pytest.raises(ValueError, match="finite"):
+        PPO(obs, gymnasium.spaces.Box(-np.inf, np.inf, (2,), np.float32), PPOConfig(squash="tanh"))
+
+
+def test_tanh_squash_trains_and_survives_a_checkpoint(tmp_path):
+    env = BusVecEnv("sim.car_env:ReachCar", 2)
+    agent = PPO(env.single_observation_space, env.single_action_space,
+                PPOConfig(**{**TINY.__dict__, "squash": "tanh"}), seed=1)
+    agent.learn(env, 128, seed=1)
+    obs, _ = env.reset(seed=5)
+    env.close()
+    agent.save(tmp_path / "t.ppo")
+    back = PPO.load(tmp_path / "t.ppo")
+    assert back.config.squash == "tanh"
+    assert np.array_equal(back.act(obs), agent.act(obs)) and np.all(np.abs(back.act(obs)) < 1.0)
