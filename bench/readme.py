@@ -184,6 +184,10 @@ def sonar_cloud(d: dict) -> list[Row]:
              + (f"; option `gap_weight` 2 (off by default: less accurate on a one-sided block) "
                 f"{100 * d['gaps_acc_frac_0p2']:.1f} % / completeness {100 * d['gaps_completeness_0p2']:.1f} %, best at "
                 f">= 90 % {100 * (d['gaps_completeness_at_acc90'] or 0):.1f} %" if "gaps_acc_frac_0p2" in d else "")
+             + (f"; option `keep: evidence` (off by default: a learnt filter, trained on {len(d['evidence_trained_on'])} "
+                f"other simulated passes, its last feature picked with this pass's numbers in view) {100 * d['evidence_acc_frac_0p2']:.1f} % (p90 {d['evidence_acc_p90_m']:.2f} m) / "
+                f"completeness {100 * d['evidence_completeness_0p2']:.1f} %, {d['evidence_ms_per_ping']:.1f} ms per ping "
+                f"({d['evidence_ms_per_ping_in_view']:.1f} in view)" if "evidence_acc_frac_0p2" in d else "")
              + (f" (load average {d['load_average']:g} on {d['cpu_count']} cores while timing)"
                 if d.get("load_average", 0) > d.get("cpu_count", 99) else ""),
              f"the paper's highlight cloud {100 * d['highlight_acc_frac_0p2']:.1f} % (p90 {d['highlight_acc_p90_m']:.2f} m), "
@@ -194,6 +198,9 @@ def sonar_cloud(d: dict) -> list[Row]:
                                      f"{100 * max(d['completeness_oracle_filter'].values()):.0f} %, and only "
                                      f"{100 * d['pinned_0p2_frac']:.0f} % of the seen surface is pinned to 0.2 m by any "
                                      f"view" if "completeness_oracle_filter" in d else "") + ")" if not ok[1] else "")
+             + (f"; with `keep: evidence` >= 90 % and >= 70 %: "
+                f"{_met(d['evidence_completeness_0p2'] >= 0.7 and d['evidence_acc_frac_0p2'] >= 0.9)}"
+                if "evidence_acc_frac_0p2" in d else "")
              + f"; <= 5 ms: {_met(ok[2])}")]
 
 
