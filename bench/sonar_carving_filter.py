@@ -83,7 +83,7 @@ def run_pass(scene_name: str, t0: float, t1: float, seed: int) -> dict:
     pts = grid.candidate_points()[rows]
     surface, _ = sample_structures(scene, 0.03)
     model, _ = sample_structures(scene, 0.1)
-    x = carving_filter.feature_matrix(grid.evidence(rows, grid.plausible_rows()))
+    x = carving_filter.feature_matrix(carving_filter.evidence(grid, rows, carving_filter.plausible_rows(grid)))
     return dict(x=x, points=pts, on=surface_distances(pts, surface) <= 0.2, surface=surface,
                 visible=visible_surface(model, np.concatenate(hits), 0.1))
 

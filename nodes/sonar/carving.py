@@ -43,15 +43,9 @@ face -- and gaps take that back. Off by default: measured in ``bench/sonar_cloud
 tripod demo pass, the square pier, the two piles and the wall, but a surface that returns only now and then (a
 block's top face at grazing incidence) loses to ghosts a few late pings saw, and the block's accuracy falls.
 
-Evidence filter (``keep="evidence"``): instead of the sigma and support rules, every voted voxel that a classifier
-over its whole carving evidence (hits, misses, darks, gaps, votes, sigma, height, and how many voxels around it
-arcs voted for or found near-best: a surface is continuous) finds likely on a surface, at any sigma
-(``nodes.sonar.carving_filter``; trained on simulated passes that exclude the demo pass). Off by default: on the
-demo pass (held out from training) 92.1 % of its points lie within 0.2 m and it covers 70.6 % of the seen surface
-against 49.9 % by default; each training pass left out of its training and scored: 90.4-96.3 % within 0.2 m on 12 of
-15, 87.9 and 89.9 on a deeper pass over the piles and the yawed box, 59.3 on the square pier's northern half
-(``bench/sonar_carving_filter.py``). A point it keeps that the views did not pin keeps its large sigma: the sigma
-stays what the views resolved.
+Evidence filter (``keep="evidence"``, off by default): instead of the sigma and support rules, every voted voxel
+that a classifier over its whole carving evidence finds likely on a surface, at any sigma; its sigma stays what the
+views resolved (``nodes.sonar.carving_filter``: the evidence, the model, what it measures on held-out passes).
 
 Returns and their arcs (``nodes.sonar.carving_arcs``) are every beam's front end and, with ``returns="all"``, the bright
 range blocks behind it; a beam is empty (carved) up to its front end, or the seafloor's near edge without one.
@@ -206,7 +200,7 @@ class CarvingGrid:
         self._pending: deque[_PingArcs] = deque()      # arcs still settling, oldest first
         # the evidence filter's model, read (and checked) once here rather than at the first cloud
         self._model = carving_filter.load_model() if params.keep == "evidence" else None
-        self._mark: np.ndarray | None = None
+        self._mark: np.ndarray | None = None           # scratch mask over the grid (carving_filter.neighbours)
         self.pings = 0
 
     # -- one ping -------------------------------------------------------------------------
@@ -456,11 +450,9 @@ class CarvingGrid:
         pts = self._centre[rows]
         surface_p = None
         if p.keep == "evidence":
-            model = self._model
-            surface_p = carving_filter.surface_probability(
-                carving_filter.feature_matrix(self.evidence(rows, self.plausible_rows())), model)
-            threshold = next(t for t in (min_surface_p, p.min_surface_p, model["threshold_p"]) if t is not None)
-            keep = surface_p >= threshold
+            surface_p = carving_filter.candidate_probability(self, rows, self._model)
+            keep = surface_p >= next(t for t in (min_surface_p, p.min_surface_p, self._model["threshold_p"])
+                                     if t is not None)
         else:
             voxels = self._cand[rows]
             keep = self._score(voxels) >= p.min_support * self.hits[voxels]
@@ -479,56 +471,12 @@ class CarvingGrid:
             self._vote(self._pending.popleft())
 
     def voted_rows(self, min_votes: int = 1) -> np.ndarray:
-        """Candidate rows (of :meth:`candidate_points`, :meth:`evidence`) with >= ``min_votes`` votes."""
+        """Candidate rows (of :meth:`candidate_points`, :func:`nodes.sonar.carving_filter.evidence`) with
+        >= ``min_votes`` votes."""
         return np.flatnonzero(self._votes[:self._count] >= min_votes)
-
-    def plausible_rows(self) -> np.ndarray:
-        """Candidate rows off the seafloor that an arc voted for or that were near-best in two arcs' samples or more
-        (``keep="evidence"`` counts those): where a surface may be, for the filter's neighbour count."""
-        return self.off_floor(np.flatnonzero((self._votes[:self._count] >= 1) | (self._near_votes[:self._count] >= 2)))
 
     def off_floor(self, rows: np.ndarray) -> np.ndarray:
         """``rows`` whose voxel centre is above the seafloor by more than ``floor_margin_m`` (all without one)."""
         if self.seafloor_z_m is None:
             return rows
         return rows[self._centre[rows, 2] > self.seafloor_z_m + self.params.floor_margin_m]
-
-    def _neighbours(self, voxels: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
-        """How many of ``among`` (default ``voxels``) lie in each voxel's 3 x 3 x 3 block (itself included),
-        float64."""
-        among = voxels if among is None else among
-        if self._mark is None:
-            self._mark = np.zeros(int(np.prod(self.shape)), bool)      # scratch, left all False after each use
-        self._mark[among] = True
-        ijk = np.unravel_index(voxels, self.shape)
-        _, ny, nz = self.shape
-        count = np.zeros(voxels.size, np.int32)
-        for di, dj, dk in np.ndindex(3, 3, 3):
-            inside = np.ones(voxels.size, bool)
-            for idx, d, n in zip(ijk, (di, dj, dk), self.shape):
-                if d != 1:                                 # an offset of -1 or +1 along this axis: stay in the grid
-                    inside &= (idx >= 1) if d == 0 else (idx < n - 1)
-            offset = (di - 1) * ny * nz + (dj - 1) * nz + (dk - 1)
-            count[inside] += self._mark[voxels[inside] + offset]
-        self._mark[among] = False
-        return count.astype(np.float64)
-
-    def evidence(self, rows: np.ndarray, plausible: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """The carving evidence of candidates ``rows`` (voted for at least once), one (K,) array per name of
-        :data:`nodes.sonar.carving_filter.FEATURES`; neighbours are counted among the candidates ``plausible``
-        (:meth:`plausible_rows`; default ``rows``); gaps need ``seen`` (counted with ``keep="evidence"``)."""
-        p = self.params
-        voxels, pts = self._cand[rows], self._centre[rows]
-        hits = self.hits[voxels].astype(np.float64)
-        misses, darks = self.misses[voxels].astype(np.float64), self.darks[voxels].astype(np.float64)
-        seen = self.seen[voxels].astype(np.float64) if self.seen is not None else hits
-        gaps = np.maximum(seen - hits, 0.0)
-        votes = np.maximum(self._votes[rows], 1).astype(np.float64)
-        floor = self.seafloor_z_m if self.seafloor_z_m is not None else float(self.origin[2])
-        neighbours = self._neighbours(voxels, None if plausible is None else self._cand[plausible])
-        return dict(hits=hits, misses=misses, darks=darks, gaps=gaps, gap_frac=gaps / np.maximum(seen, 1.0),
-                    votes=votes, front_votes=self._front_votes[rows].astype(np.float64),
-                    sigma_m=np.sqrt(self._extent2[rows] / votes / 12.0), height_m=pts[:, 2].astype(np.float64) - floor,
-                    support=(hits - p.miss_weight * misses - p.dark_weight * darks) / np.maximum(hits, 1.0),
-                    votes_per_hit=votes / np.maximum(hits, 1.0), neighbours=np.asarray(neighbours, np.float64),
-                    seen=seen)

@@ -145,19 +145,6 @@ def test_the_evidence_filter_keeps_a_one_sided_block_on_its_faces() -> None:
     assert len(kept.points_m) >= 300 and np.all(kept.points_m[:, 1] < 5.2)     # nothing behind the unseen back face
 
 
-
-def test_voted_neighbours_are_counted_over_the_3x3x3_block_also_at_the_grid_s_faces() -> None:
-    grid = CarvingGrid(((0, 0, 0), (0.5, 0.4, 0.3)), CarvingParams(voxel_m=0.1))      # 5 x 4 x 3 voxels
-    voxels = np.random.default_rng(0).choice(60, 25, replace=False)
-    ijk = np.stack(np.unravel_index(voxels, grid.shape), axis=1)
-    brute = (np.abs(ijk[:, None, :] - ijk[None, :, :]).max(axis=2) <= 1).sum(axis=1)
-    assert np.array_equal(grid._neighbours(voxels), brute)
-    assert np.array_equal(grid._neighbours(voxels), brute)                          # the scratch is clean again
-    among = np.union1d(voxels, np.arange(0, 60, 7))                                 # counted among a larger set
-    other = np.stack(np.unravel_index(among, grid.shape), axis=1)
-    assert np.array_equal(grid._neighbours(voxels, among),
-                          (np.abs(ijk[:, None, :] - other[None, :, :]).max(axis=2) <= 1).sum(axis=1))
-
 def test_the_evidence_filter_invents_nothing_over_a_flat_seafloor_and_flags_a_single_view() -> None:
     assert len(_run(load_scene("flat"), np.arange(0.0, 6.0, 0.25), keep="evidence").cloud(flush=True).points_m) == 0
     target = np.array([0.0, 8.0, -3.0])

@@ -1,5 +1,6 @@
 """Carving's evidence filter (nodes.sonar.carving_filter): the numpy tree ensemble gives scikit-learn's
-probabilities, the shipped model loads, bad features and a model for other features are refused."""
+probabilities, the shipped model loads, bad features and a model for other features are refused; a grid's voxels'
+neighbours are counted right at its faces."""
 from __future__ import annotations
 
 import json
@@ -8,7 +9,9 @@ import numpy as np
 import pytest
 
 from nodes.sonar import carving_filter
-from nodes.sonar.carving_filter import FEATURES, export_model, feature_matrix, load_model, surface_probability
+from nodes.sonar.carving import CarvingGrid, CarvingParams
+from nodes.sonar.carving_filter import (FEATURES, export_model, feature_matrix, load_model, neighbours,
+                                        surface_probability)
 
 
 def test_the_exported_ensemble_gives_sklearn_s_probabilities(tmp_path) -> None:
@@ -42,3 +45,16 @@ def test_missing_features_and_a_model_for_other_features_are_refused(tmp_path) -
     with pytest.raises(ValueError, match="trained on features"):
         load_model.__wrapped__(path)
     assert carving_filter.MODEL_PATH.is_file()
+
+
+def test_voted_neighbours_are_counted_over_the_3x3x3_block_also_at_the_grid_s_faces() -> None:
+    grid = CarvingGrid(((0, 0, 0), (0.5, 0.4, 0.3)), CarvingParams(voxel_m=0.1))      # 5 x 4 x 3 voxels
+    voxels = np.random.default_rng(0).choice(60, 25, replace=False)
+    ijk = np.stack(np.unravel_index(voxels, grid.shape), axis=1)
+    brute = (np.abs(ijk[:, None, :] - ijk[None, :, :]).max(axis=2) <= 1).sum(axis=1)
+    assert np.array_equal(neighbours(grid, voxels), brute)
+    assert np.array_equal(neighbours(grid, voxels), brute)                          # the scratch is clean again
+    among = np.union1d(voxels, np.arange(0, 60, 7))                                 # counted among a larger set
+    other = np.stack(np.unravel_index(among, grid.shape), axis=1)
+    assert np.array_equal(neighbours(grid, voxels, among),
+                          (np.abs(ijk[:, None, :] - other[None, :, :]).max(axis=2) <= 1).sum(axis=1))
