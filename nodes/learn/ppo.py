@@ -441,6 +441,7 @@ class PPO:
                              f"this environment gives {tuple(observation_space.shape)}: retrain or use the matching scenario")
         cfg = dict(doc["config"])
         cfg["hidden"] = tuple(cfg["hidden"])
+        cfg.setdefault("squash", "clip")            # checkpoints from before the option were all clipped
         agent = cls(obs_space, act_space, PPOConfig(**cfg))
         agent.params = serialization.from_state_dict(agent.params, doc["params"])
         if doc.get("opt_state") is not None:            # None in an exported policy

@@ -122,3 +122,15 @@ def test_tanh_squash_trains_and_survives_a_checkpoint(tmp_path):
     back = PPO.load(tmp_path / "t.ppo")
     assert back.config.squash == "tanh"
     assert np.array_equal(back.act(obs), agent.act(obs)) and np.all(np.abs(back.act(obs)) < 1.0)
+
+
+def test_a_checkpoint_from_before_the_squash_option_loads_as_clipped(tmp_path):
+    from flax import serialization
+
+    env = BusVecEnv("sim.car_env:ReachCar", 2)
+    agent = PPO(env.single_observation_space, env.single_action_space, TINY, seed=0)
+    env.close()
+    doc = agent.state_dict()
+    del doc["config"]["squash"]
+    (tmp_path / "old.ppo").write_bytes(serialization.msgpack_serialize(doc))
+    assert PPO.load(tmp_path / "old.ppo").config.squash == "clip"
