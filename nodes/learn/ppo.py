@@ -62,6 +62,9 @@ class PPOConfig:
     # that has drifted past a bound gets no gradient back (every sample near it is the same action);
     # "tanh" (Brax) maps it onto the bounds by low + (tanh(u) + 1) (high - low) / 2. The ratio of
     # PPO needs no tanh Jacobian: both policies are scored on the same stored u, so it cancels.
+    # Measured on the car's reach task (bench/rl_car.py protocol, 4M steps, checkpoint picked on
+    # validation seeds, mean over 100 held-out episodes), clip -> tanh: seed 0 13.96 -> 0.29 mm,
+    # seed 1 395 -> 669 mm, seed 2 5145 -> 9044 mm: not every seed is better, clip stays the default.
     squash: str = "clip"
 
 
