@@ -255,7 +255,7 @@ def plot(path: str, runs: dict[str, dict], skip_s: float) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5))
     first = next(iter(runs.values()))["log"]
     ax.plot(first[:, 4], first[:, 5], "k--", lw=1, label="reference")
     for name, r in runs.items():
@@ -265,15 +265,15 @@ def plot(path: str, runs: dict[str, dict], skip_s: float) -> None:
     bx.axvline(skip_s, color="gray", ls=":", lw=1)
     bx.axhline(10.0, color="C3", ls="--", lw=1, label="goal 10 mm")
     ax.set_aspect("equal")
-    ax.set_title("figure-eight, controller -> CiA 402 bus -> simulated drives -> vehicle")
+    fig.suptitle("figure-eight, controller -> CiA 402 bus -> simulated drives -> vehicle")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.16), ncol=2)
     bx.set_xlabel("t (s)")
     bx.set_ylabel("position error (mm)")
-    bx.legend(fontsize=7)
+    bx.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.16))
     bx.grid(alpha=0.3, which="both")
     fig.tight_layout()
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")      # the legends sit below the axes
     plt.close(fig)
 
 
