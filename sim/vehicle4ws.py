@@ -291,6 +291,8 @@ class Vehicle4WS(Node):
         m = self.model
         x, y, th = m.pose
         w = m.wheels
-        return {"state": VehicleState(stamp_ns=self.now_ns(), frame_id=self.config.frame_id, x_m=x, y_m=y,
+        # Stamped with the time the pose is for (what _advance integrated to), not a second
+        # clock reading: a preemption between the two would date the pose late.
+        return {"state": VehicleState(stamp_ns=self._t_ns, frame_id=self.config.frame_id, x_m=x, y_m=y,
                                       theta_rad=th, v_front_mps=w.v_front, v_rear_mps=w.v_rear,
                                       delta_front_rad=w.delta_front, delta_rear_rad=w.delta_rear)}
