@@ -27,8 +27,10 @@ also started in real time as a user starts it (``--launched`` runs each way, ``-
 processes beside it): as shipped, its cyclic nodes run SCHED_FIFO (``rt_priority``), and with those
 lines stripped, normal scheduling -- how often SYNC is lost either way. (20 s runs beside 8 such
 processes, 8 each: normal scheduling lost SYNC once; the CAN master and drives alone at SCHED_FIFO
-never, but the controller and vehicle, left behind, tracked worse -- max 6.8-29 mm against 0.2-3.8;
-every cyclic node at SCHED_FIFO, as shipped: never, max 2.2-12.6 mm.) Reference, in
+never; every cyclic node at SCHED_FIFO, as shipped: never. Those runs' larger max errors at
+SCHED_FIFO, 2.2-29 mm, were the vehicle simulator stamping its pose with a second clock reading
+after being preempted by the higher-priority nodes, fixed; since, 5 launches each way: max
+0.41 mm median at SCHED_FIFO, 0.45 mm with normal scheduling.) Reference, in
 the same run: launch/ackermann_can.yaml itself in lockstep (sim.lockstep: every node, the
 CANopen master and the drives on a synchronous bus in virtual time -- no scheduling noise),
 and the same controller on the pure model with no bus and with the bus modelled as a delay +
