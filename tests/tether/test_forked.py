@@ -120,7 +120,9 @@ def test_a_forked_node_holds_none_of_its_launchers_descriptors(runtime_env: dict
         log = open(os.path.join(os.environ["TETHER_RUNTIME_DIR"] + "-file"), "w")
         mine = [os.readlink(f"/proc/self/fd/{fd}") for fd in (sibling_read, sibling_write, log.fileno())]
         proc = forked.ForkedNode(crasher(after_s=60.0), dict(os.environ))
-        time.sleep(1.0)
+        deadline = time.monotonic() + 30.0                   # until the child has its own session: the
+        while os.getsid(proc.pid) == os.getsid(0) and time.monotonic() < deadline:   # descriptors went first
+            time.sleep(0.01)
         theirs = []
         for entry in os.listdir(f"/proc/{proc.pid}/fd"):
             try:
