@@ -307,8 +307,9 @@ class PPO:
         if self.kind == "box":
             sp = self.action_space
             lo, hi = sp.low.ravel().astype(np.float64), sp.high.ravel().astype(np.float64)
-            a = lo + (np.tanh(a) + 1.0) * (hi - lo) / 2.0 if self.config.squash == "tanh" else np.clip(a, lo, hi)
-            return np.clip(a, lo, hi).reshape(-1, *sp.shape).astype(sp.dtype)
+            if self.config.squash == "tanh":
+                a = lo + (np.tanh(a) + 1.0) * (hi - lo) / 2.0
+            return np.clip(a, lo, hi).reshape(-1, *sp.shape).astype(sp.dtype)   # tanh: rounding at the ends only
         if self.kind == "discrete":
             return (a.reshape(-1) + self.action_space.start).astype(np.int64)
         return a.astype(np.int8).reshape(-1, *self.action_space.shape)
