@@ -165,6 +165,22 @@ def sonar_polar(d: dict) -> list[Row]:
              f"<= {d['goal_fan1024_ms']:g} ms: {_met(d['fan1024_ms'] <= d['goal_fan1024_ms'])}")]
 
 
+def sonar_carving_filter(d: dict) -> list[Row]:
+    """``--fresh``: the shipped evidence filter beside the default cloud on passes nothing was trained or chosen on."""
+    p, e, dflt = d["passes"], d["evidence"], d["default"]
+    worst = min(p, key=lambda n: p[n]["evidence"]["acc_frac_0p2"])
+    return [(f"`sonar_carving_filter.py` --fresh: {len(p)} never-seen passes (tracks heading west, south and diagonally; "
+             f"a four-legged jacket no scene has)",
+             f"`keep: evidence` (p >= {d['threshold_p']:g}): median {100 * e['acc_frac_0p2_median']:.1f} % within 0.2 m, "
+             f"completeness {100 * e['completeness_0p2_median']:.1f} %, >= 90 % within 0.2 m on {e['passes_acc_ge_0p9']} "
+             f"of {e['passes']}; worst {worst} {100 * p[worst]['evidence']['acc_frac_0p2']:.1f} % / "
+             f"{100 * p[worst]['evidence']['completeness_0p2']:.1f} %",
+             f"the default cloud: median {100 * dflt['acc_frac_0p2_median']:.1f} % / {100 * dflt['completeness_0p2_median']:.1f} %, "
+             f">= 90 % on {dflt['passes_acc_ge_0p9']} of {dflt['passes']}; on {worst} "
+             f"{100 * p[worst]['default']['acc_frac_0p2']:.1f} % / {100 * p[worst]['default']['completeness_0p2']:.1f} %",
+             "no goal (the check that chose nothing); the evidence filter stays off by default")]
+
+
 def sonar_cloud(d: dict) -> list[Row]:
     ok = (d["acc_frac_0p2"] >= 0.9, d["completeness_0p2"] >= 0.7, d["ms_per_ping"] <= 5.0)
     return [(f"`sonar_cloud.py` {d['beams']}-beam ping, highlight extension", f"{d['height_ms_per_ping']:.2f} ms; height "
@@ -634,6 +650,7 @@ FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "nav_plan": ([], nav_plan),
     "sonar_polar": ([], sonar_polar),
     "sonar_cloud": ([], sonar_cloud),
+    "sonar_carving_filter": (["--fresh"], sonar_carving_filter),
     "nav_flow": ([], nav_flow),
     "transport": ([], transport),
     "sonar_icp": ([], sonar_icp),
