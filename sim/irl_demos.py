@@ -165,6 +165,79 @@ def track_demos(dataset: str | Tracks, n_peds: int, *, horizon_s: float = 8.0, e
     return demos
 
 
+def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6.0, slack: float = 1.5,
+                    every_s: float = 2.0, seed: int = 0, cell_m: float = 0.25, pace: float = 0.75,
+                    margin_m: float = 1.5,
+                    radii_m: tuple[float, ...] = (0.5, 1.0), companions: str = "exclude",
+                    companion_m: float = 1.5, companion_mps: float = 0.5) -> tuple[list, dict]:
+    """Demonstrations of the space-time model (:mod:`nodes.nav.irl_spacetime`) from recorded walkers.
+
+    Each demo is ``horizon_s`` of one walker's gapless track from a start time t0 (one every
+    ``every_s`` along each walk, ``n_demos`` of them drawn with ``seed``), resampled at the
+    walker's own pace, dt = ``pace`` x ``cell_m`` / its median speed (clipped to 0.1-0.5 s), so
+    its usual walking is ``pace`` cells per step (below 1: a faster stretch rarely needs two cells
+    in one step) and a repeated cell is a slow-down, a wait or the rounding of that pace.
+    The model may take ``slack`` x as many steps as the walk did. Features: another walker
+    (recorded position at t0 + k dt, exact) within each distance band of ``radii_m`` of the
+    cell at step k. ``companions="exclude"`` leaves out the walkers who walk with it at t0
+    (within ``companion_m`` and ``companion_mps`` of its velocity: a group, not people to
+    avoid); ``"keep"`` keeps everybody.
+
+    Returns the demos and counts (``windows``, ``clipped_steps``, ``companions_left_out``).
+    """
+    from nodes.nav.irl_spacetime import demo_from_track
+
+    if companions not in ("exclude", "keep"):
+        raise ValueError(f"companions must be 'exclude' or 'keep', got {companions!r}")
+    tracks = load_tracks(dataset) if isinstance(dataset, str) else dataset
+    windows = []
+    for i in range(len(tracks.ids)):
+        for t, xy in tracks.segments(i):
+            if len(t) < 3:
+                continue
+            v = np.linalg.norm(np.diff(xy, axis=0), axis=1) / np.diff(t)
+            dt = float(np.clip(pace * cell_m / max(float(np.median(v)), 1e-3), 0.1, 0.5))
+            for t0 in np.arange(t[0], t[-1] - horizon_s + 1e-9, every_s):
+                windows.append((i, t, xy, float(t0), dt))
+    rng = np.random.default_rng(seed)
+    pick = sorted(rng.choice(len(windows), size=min(n_demos, len(windows)), replace=False).tolist())
+    demos, counts = [], {"windows": len(windows), "clipped_steps": 0, "steps": 0, "companions_left_out": 0}
+    for i, t, xy, t0, dt in (windows[j] for j in pick):
+        n = int(round(horizon_s / dt))
+        k_max = int(np.ceil(slack * n))
+        times = t0 + dt * np.arange(k_max + 1)
+        walker = np.column_stack([np.interp(times[:n + 1], t, xy[:, 0]), np.interp(times[:n + 1], t, xy[:, 1])])
+        ids0, xy0, v0 = tracks.state_at(t0)
+        me = np.flatnonzero(ids0 == tracks.ids[i])
+        skip = set()
+        if companions == "exclude" and len(me):
+            near = (np.linalg.norm(xy0 - xy0[me[0]], axis=1) < companion_m) & \
+                   (np.linalg.norm(v0 - v0[me[0]], axis=1) < companion_mps)
+            skip = {int(p) for p in ids0[near]} - {int(tracks.ids[i])}
+        counts["companions_left_out"] += len(skip)
+        skip.add(int(tracks.ids[i]))
+        slots: dict[int, int] = {}
+        rows = []
+        for tk in times:
+            ids, pos, _ = tracks.state_at(float(tk))
+            rows.append({int(p): q for p, q in zip(ids, pos) if int(p) not in skip})
+            for p in rows[-1]:
+                slots.setdefault(p, len(slots))
+        others = np.full((len(times), len(slots), 2), np.nan)
+        for k, row in enumerate(rows):
+            for p, q in row.items():
+                others[k, slots[p]] = q
+        try:
+            demo, clipped = demo_from_track(walker, others, cell_m=cell_m, margin_m=margin_m, radii_m=radii_m)
+        except ValueError:                 # a walker standing still for the whole window demonstrates nothing
+            continue
+        demos.append(demo)
+        counts["clipped_steps"] += clipped
+        counts["steps"] += len(demo.path) - 1
+    log.info("%s: %d space-time demos of %d windows", tracks.name, len(demos), len(windows))
+    return demos, counts
+
+
 def _futures(tracks: Tracks, ids: np.ndarray, t_s: float, taus_s: np.ndarray,
              pose: tuple[float, float, float]) -> np.ndarray:
     """Recorded places (P, T, 2) of pedestrians ``ids`` at ``t_s + taus_s``, in the robot frame of ``pose``;
