@@ -29,7 +29,9 @@ reference of a synthetic scene is sent at the same moment); ``weights_from`` nam
 the weights were learnt on (``weights_from_evaluated`` must stay empty). The collision guard's
 share of control ticks where it braked or slowed the planner's command is ``guard_frac``
 (the largest over the scenarios; ``guard_frac_median`` beside it), split by the rule that braked in
-``guard_why`` (see :func:`guarded`; ``guard_why_worst``: the scenario where it braked most). ``out/social_nav_tradeoff.png``
+``guard_why`` (see :func:`guarded`; ``guard_why_worst``: the scenario where it braked most), and by who was ahead
+(``ahead_*``, ground truth: the nearest person in front within 1.8 m walking toward the robot, the same way,
+across, standing, or nobody; :func:`social_nav_episode.ahead_kind`). ``out/social_nav_tradeoff.png``
 plots speed against error: time / human time against closest approach, per planner.
 Writes ``out/social_nav.png`` (trajectories) and prints a table; ``--json`` prints one
 object with the metrics per scenario and method, ``pipeline_hz`` and ``plan_ms_100x100``.
@@ -64,7 +66,7 @@ from nodes.nav.demos import PLANNER_PARAMS, FeaturePipeline  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
 from sim.crowd import CrowdWorld  # noqa: E402
 from sim.crowd_scenes import PedestrianSpec, load_scene  # noqa: E402
-from social_nav_episode import Episode, contact_onsets, metrics  # noqa: E402
+from social_nav_episode import Episode, ahead_kind, contact_onsets, metrics  # noqa: E402
 from tether.testing import Harness  # noqa: E402
 
 DT = 1.0 / 15.0
@@ -252,7 +254,11 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
         if world.goal_reached:
             goal_t = t
             break
+        braked = getattr(stack, "guard_ticks", 0)
         v, w = stack.step(world, t, ms)
+        if getattr(stack, "guard_ticks", 0) > braked:        # who was ahead (ground truth): guard_why ahead_*
+            kind = "ahead_" + ahead_kind(world.pose, p.xy_m, p.vel_mps)
+            stack.guard_why[kind] = stack.guard_why.get(kind, 0) + 1
         world.step(v, w, DT)
     return Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms,
                    by_robot=world.collisions_by_robot, guard_ticks=getattr(stack, "guard_ticks", 0),

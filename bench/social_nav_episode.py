@@ -30,6 +30,31 @@ class Episode:
     guard_why: dict[str, int] = dataclasses.field(default_factory=dict)   # braked ticks by guard rule (social_nav.guarded)
 
 
+#: who was ahead when the guard braked (``guard_why`` keys ``ahead_*``): the nearest pedestrian centre in front of the
+#: robot within AHEAD_M, by its velocity along / across the robot's heading (AHEAD_MPS apart from standing)
+AHEAD_M = 1.8
+AHEAD_MPS = 0.3
+
+
+def ahead_kind(pose: tuple[float, float, float], xy_m: np.ndarray, vel_mps: np.ndarray) -> str:
+    """'toward' (walking at the robot), 'same_way', 'crossing', 'standing' or 'nobody' (no centre ahead within AHEAD_M).
+
+    Ground truth, for the bench's diagnosis of guard stops: the guard itself sees depth points, not people."""
+    x, y, yaw = pose
+    heading, left = np.array([np.cos(yaw), np.sin(yaw)]), np.array([-np.sin(yaw), np.cos(yaw)])
+    rel = np.asarray(xy_m, float).reshape(-1, 2) - (x, y)
+    ahead = (rel @ heading > 0) & (np.hypot(rel[:, 0], rel[:, 1]) < AHEAD_M)
+    if not ahead.any():
+        return "nobody"
+    i = np.flatnonzero(ahead)[np.argmin(np.hypot(rel[ahead, 0], rel[ahead, 1]))]
+    along, across = float(np.asarray(vel_mps, float).reshape(-1, 2)[i] @ heading), float(np.asarray(vel_mps, float).reshape(-1, 2)[i] @ left)
+    if along < -AHEAD_MPS:
+        return "toward"
+    if along > AHEAD_MPS:
+        return "same_way"
+    return "crossing" if abs(across) > AHEAD_MPS else "standing"
+
+
 def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
     """The paper's metrics (centre distances, m; times, s) from an episode."""
     d = np.full(len(ep.t), np.inf)
