@@ -24,6 +24,7 @@ pipeline), so the master also runs in virtual time. Bring-up runs in a backgroun
 from __future__ import annotations
 
 import logging
+import math
 import struct
 import threading
 import time
@@ -57,6 +58,7 @@ class Cia402Master:
         self._stop = threading.Event()
         self._next_master_hb = 0.0
         self._next_sync: float | None = None
+        self._last_sync_s: float | None = None
         self.syncs_sent = 0
         self._sync_failures = 0
         self._thread: threading.Thread | None = None
@@ -270,16 +272,24 @@ class Cia402Master:
         self._produce_sync(now_s)
 
     def _produce_sync(self, now_s: float) -> None:
-        """SYNC after this cycle's RPDOs, on a fixed grid of 1/sync_hz (a late step skips, never bursts)."""
+        """SYNC after this cycle's RPDOs, on a fixed grid of 1/sync_hz. A step up to half a step period
+        early still serves its slot; a late step sends its SYNC and the grid moves on to the first slot
+        not yet due, and no two SYNCs go out less than half a SYNC period apart: the catch-up steps after
+        a stall skip the slots they missed instead of bursting SYNCs a millisecond or two apart, which is
+        not the cycle (0x1006) the drives interpolate their set-points over."""
         hz = self.cfg.sync_hz
         if hz <= 0:
             return
+        early, period = 0.5 / self.cfg.rate_hz, 1.0 / hz
         if self._next_sync is None:
             self._next_sync = now_s
-        if now_s < self._next_sync - 0.5 / self.cfg.rate_hz:      # a step a little early still serves its SYNC
+        if now_s < self._next_sync - early:
             return
-        self._next_sync = max(self._next_sync + 1.0 / hz, now_s + 0.5 / hz)
+        if self._last_sync_s is not None and now_s - self._last_sync_s < 0.5 * period:
+            return                           # a late SYNC went out just now: this slot is served
+        self._next_sync += period * (math.floor((now_s + early - self._next_sync) / period) + 1)
         if self._send(p.SYNC, b""):
+            self._last_sync_s = now_s
             self.syncs_sent += 1
             self._sync_failures = 0
         else:

@@ -108,6 +108,33 @@ def test_sync_jitter_is_tolerated(rig):
     assert r.actuals() == pytest.approx(RUN, abs=5.0)
 
 
+def test_catch_up_steps_after_a_stall_do_not_burst_sync(rig):
+    """The master's caller stalls 25 ms (2.5 SYNC periods: no drive trips), then runs its missed steps
+    back to back, a millisecond apart, as a real-time loop catching up does: one SYNC goes out, the
+    missed slots are skipped, and the next SYNC keeps the grid -- never SYNCs milliseconds apart."""
+    r = rig()
+    r.run(1.0)
+    resume = [1.026, 1.027, 1.028] + [round(1.03 + 0.01 * k, 3) for k in range(50)]
+    r.run(1.5, steps=resume)
+    syncs = [t for t, cob in r.frames if cob == p.SYNC and t > 0.9]
+    gaps = np.diff(syncs)
+    assert gaps.max() == pytest.approx(0.026, abs=1e-6)                 # the stall itself
+    assert gaps.min() >= 0.005 - 1e-9                                   # no burst after it
+    assert 1.026 in syncs and 1.04 in syncs and 1.03 not in syncs       # late SYNC, then back on the grid
+    assert r.master.enabled() and all(codes == [] for codes in r.emcy().values())
+
+
+def test_sync_keeps_its_grid_when_steps_come_late(rig):
+    """Steps 1-4 ms late (a loaded machine): every step still sends its SYNC, at most one per slot."""
+    rng = np.random.default_rng(5)
+    r = rig()
+    steps = np.round(0.01 * np.arange(1, 201) + rng.uniform(0.001, 0.004, 200), 3)
+    r.run(2.0, steps=steps)
+    syncs = [t for t, cob in r.frames if cob == p.SYNC]
+    assert len(syncs) == r.master.syncs_sent and len(syncs) >= 195
+    assert np.diff(syncs).min() >= 0.006 - 1e-9 and not r.master.latched
+
+
 def test_a_lost_sync_producer_stops_every_drive(rig):
     """The master stalls (no step: no RPDO, no SYNC): every drive quick-stops itself after three
     SYNC cycles, long before the heartbeat consumer (300 ms) would; nothing restarts when it resumes."""
