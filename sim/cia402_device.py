@@ -51,6 +51,8 @@ class SimDrive:
         self._demand_v = 0.0               # ramped velocity demand
         self.emcy_sent: list[int] = []
         self.syncs = 0
+        self.max_sync_gap_s = 0.0          # longest time the SYNC watchdog saw without a SYNC (s, diagnostic)
+        self.max_sync_gap_at_s = 0.0       # and when it saw it (the end of that gap, s)
         self._boot(now_s)
 
     # -- state -----------------------------------------------------------------------
@@ -320,6 +322,8 @@ class SimDrive:
             self._cyclic_since = now_s
         period = self._get(p.COMM_CYCLE_PERIOD) * 1e-6
         last = max(self._cyclic_since, self._sync_last if self._sync_last is not None else -math.inf)
+        if now_s - last > self.max_sync_gap_s:
+            self.max_sync_gap_s, self.max_sync_gap_at_s = now_s - last, now_s
         if period > 0 and now_s - last > SYNC_LOSS_CYCLES * period:
             self._set(0x1001, self._get(0x1001) | 0x10)      # error register: communication
             self._emcy(0x8700, self._get(0x1001))

@@ -22,7 +22,8 @@ from drivers.cia402_config import DEFAULT_DRIVES, DriveConfig
 from msgs.control import WheelCommand
 from nodes.control.can_axles import AxleDrive, command_from_actuals
 from sim.cia402_bank import LockstepDriveBank, SimDriveBank, SyncCanBus, SyncCanHub
-from sim.cia402_device import Frame, SimDrive
+from drivers.cia402 import COMM_CYCLE_PERIOD
+from sim.cia402_device import SYNC_LOSS_CYCLES, Frame, SimDrive
 from sim.cia402_od import DriveFaults
 from tether import Node, Tick
 
@@ -117,3 +118,10 @@ class Cia402DriveSim(Node):
     def teardown(self) -> None:
         self.bank.stop()
         self._bus.shutdown()
+        gaps = {name: d.max_sync_gap_s for name, d in self.bank.drives.items() if d.max_sync_gap_s > 0}
+        if gaps:        # only drives that ran in CSP / CSV watch SYNC
+            name = max(gaps, key=gaps.__getitem__)
+            drive = self.bank.drives[name]
+            limit = SYNC_LOSS_CYCLES * drive.od[(COMM_CYCLE_PERIOD, 0)].value * 1e-6
+            self.log.info("largest SYNC gap seen by the drives' watchdogs: %.1f ms (%s; quick stop beyond %.1f ms)",
+                          gaps[name] * 1e3, name, limit * 1e3)

@@ -123,6 +123,17 @@ def test_lost_sync_producer_quick_stops_after_three_cycles(mode):
     assert drive.state == p.QUICK_STOP_ACTIVE and drive.velocity == 0.0
 
 
+def test_the_drive_records_its_longest_sync_gap():
+    """The watchdog's diagnostic: the longest time without SYNC it saw while armed (a bench reports it
+    beside a run's trips: how close a run came to the 3.5-period limit)."""
+    drive = cyclic_drive(p.MODE_CSV)
+    times = np.concatenate([0.03 + PERIOD * np.arange(20), 0.22 + 0.031 + PERIOD * np.arange(10)])
+    assert run_syncs(drive, times, lambda t: 40_000) == []                # 31 ms: under 35, no stop
+    assert drive.state == p.OPERATION_ENABLED
+    assert 0.030 <= drive.max_sync_gap_s <= 0.031 + 1e-9
+    assert drive.max_sync_gap_at_s == pytest.approx(0.22 + 0.031, abs=1.5e-3)            # that gap's end
+
+
 def test_a_drive_deaf_to_sync_stops_itself():
     drive = cyclic_drive(p.MODE_CSV, sync_deaf=True)      # enabled by controlwords written by SDO
     assert drive.syncs == 0

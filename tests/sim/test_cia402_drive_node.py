@@ -38,3 +38,22 @@ def test_sim_node_answers_and_reports_achieved_motion():
         master.close()
         h.close()
     assert not any(t.name == "sim-cia402" and t.is_alive() for t in threading.enumerate())
+
+
+def test_sim_node_says_its_longest_sync_gap_as_the_bench_reads_it(caplog):
+    """The drives' longest SYNC gap, logged at teardown, is the line bench/ackermann_can.py parses for
+    the launched runs (the bench's regex is imported, so a changed wording fails here, not silently there)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location(
+        "ackermann_can_bench", os.path.join(os.path.dirname(__file__), "..", "..", "bench", "ackermann_can.py"))
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    h = Harness(Cia402DriveSim, params={"interface": "virtual", "channel": f"sim-gap-{os.getpid()}"})
+    drive = h.node.bank.drives["rear_steer"]
+    drive.od[(0x1006, 0)].value = 10_000                             # SYNC every 10 ms, as the master sets it
+    drive.max_sync_gap_s = 0.0271                                    # as its watchdog would have seen it
+    with caplog.at_level("INFO"):
+        h.close()
+    m = bench.GAP_LINE.search(caplog.text)
+    assert m and float(m.group(1)) == pytest.approx(27.1)
+    assert "rear_steer" in caplog.text and "quick stop beyond 35.0 ms" in caplog.text
