@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -26,8 +27,8 @@ def test_pose_error_wraps_heading_and_nearest_picks_the_closest_stamp() -> None:
     assert [nearest(stamps, s) for s in (0, 14, 16, 26, 99)] == [0, 0, 1, 2, 2]
 
 
-def test_summary_measures_corrected_error_and_counts_confident_wrong_poses() -> None:
-    h = Harness(SonarEvaluation, params={"png": False, "out_dir": "/tmp/tether-test-eval"})
+def test_summary_measures_corrected_error_and_counts_confident_wrong_poses(tmp_path: Path) -> None:
+    h = Harness(SonarEvaluation, params={"png": False, "out_dir": str(tmp_path)})
     drift = drift_matrix(0.4, -0.3, math.radians(3.0))
     events = []
     for i in range(10):

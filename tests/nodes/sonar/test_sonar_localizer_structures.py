@@ -7,6 +7,7 @@ worse than the navigation's.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -28,17 +29,27 @@ def _error(est: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(est[:3, 3] - truth[:3, 3])), abs(math.degrees(math.remainder(dh, 2 * math.pi)))
 
 
-def _pass(scene_name: str, model: str, yaw_deg: float, *, bad_pings: bool = False) -> dict:
+@functools.lru_cache(maxsize=None)
+def _renders(scene_name: str) -> tuple:
+    """The pass's pings, rendered once per scene (seeded: the two tripod passes see the same ones)."""
     scene = load_scene(scene_name)
-    drift = drift_matrix(0.4, -0.3, math.radians(yaw_deg))
     rng = np.random.default_rng(0)
+    out = []
+    for t in np.arange(8.0, 21.0, 1 / 6):
+        truth = scene.sonar_pose(float(t))
+        r = render_ping(scene, truth, PingSettings(n_beams=192, range_m=20.0, elevation_rays=24), rng=rng)
+        r.intensities.flags.writeable = False            # shared between tests: nothing may change it
+        out.append((t, truth, r))
+    return tuple(out)
+
+
+def _pass(scene_name: str, model: str, yaw_deg: float, *, bad_pings: bool = False) -> dict:
+    drift = drift_matrix(0.4, -0.3, math.radians(yaw_deg))
     cloud = Harness(HighlightCloud, params={"seafloor_z_m": -6.0, "include_seafloor": False, "publish_scan": True})
     loc = Harness(IcpLocalizer, params={**LAUNCH, "model": model, "spacing_m": 0.15})
     truth_at, nav_at = {}, {}
-    for k, t in enumerate(np.arange(8.0, 21.0, 1 / 6)):
+    for k, (t, truth, r) in enumerate(_renders(scene_name)):
         stamp = int(round(t * 1e9))
-        truth = scene.sonar_pose(float(t))
-        r = render_ping(scene, truth, PingSettings(n_beams=192, range_m=20.0, elevation_rays=24), rng=rng)
         img, gains = r.intensities, np.ones(r.intensities.shape[0], np.float32)
         if bad_pings and k % 3 == 0:
             gains[:] = 0.0                                   # all-zero gains: passes through unscaled
