@@ -285,11 +285,11 @@ class Cia402Master:
             self._next_sync = now_s
         if now_s < self._next_sync - early:
             return
-        if self._last_sync_s is not None and now_s - self._last_sync_s < 0.5 * period:
+        if self._last_sync_s is not None and self._clock() - self._last_sync_s < 0.5 * period:
             return                           # a late SYNC went out just now: this slot is served
         self._next_sync += period * (math.floor((now_s + early - self._next_sync) / period) + 1)
         if self._send(p.SYNC, b""):
-            self._last_sync_s = now_s
+            self._last_sync_s = self._clock()     # when it went out (``now_s`` may be a stale reading)
             self.syncs_sent += 1
             self._sync_failures = 0
         else:

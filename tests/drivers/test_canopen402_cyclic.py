@@ -124,6 +124,22 @@ def test_catch_up_steps_after_a_stall_do_not_burst_sync(rig):
     assert r.master.enabled() and all(codes == [] for codes in r.emcy().values())
 
 
+def test_a_step_stamped_before_a_stall_does_not_make_the_next_sync_a_burst(rig):
+    """A loop reads the clock, is stalled 15 ms, then steps with that stale reading: its SYNC goes out
+    at the true time, so the next step 2 ms later must not send another (spacing by the clock)."""
+    r = rig()
+    r.run(1.0)
+    stale = 1.0101                                         # the tick's clock reading, just before the stall
+    r.t = 1.016
+    r.hub.advance(r.t)
+    r.master.step(stale, RUN)
+    r.t = 1.018
+    r.hub.advance(r.t)
+    r.master.step(r.t, RUN)
+    syncs = [t for t, cob in r.frames if cob == p.SYNC and t > 1.0]
+    assert syncs == [1.016]
+
+
 def test_sync_keeps_its_grid_when_steps_come_late(rig):
     """Steps 1-4 ms late (a loaded machine): every step still sends its SYNC, at most one per slot."""
     rng = np.random.default_rng(5)
