@@ -19,9 +19,15 @@ included; "steady" leaves out the first ``--skip`` seconds.
 
 Knob swept: the master's set-point rate (50-200 Hz) and the control rate. One run uses the
 cyclic synchronous modes (steering CSP, wheels CSV, the master's step producing SYNC): there
-every drive quick-stops itself when SYNC is missing for 3 cycles (35 ms at 100 Hz), so a stall
-of this Python loop that long (seen here at 58-66 ms on a loaded machine) trips the run --
-what real drives would do too; the lockstep run has no such stalls. These in-process runs take
+every drive quick-stops itself when SYNC is missing for 3.5 cycles (35 ms at 100 Hz), as real
+drives do. What holds SYNC back that long here is the machine, not this process: this VM's vCPUs
+are descheduled by the hypervisor (host steal), one or both at a time, ~11 ms on a 100 ms grid
+when the machine is busy and now and then 20-42 ms; a thread whose wakeup timer sits on a frozen
+vCPU cannot run until it is back, whichever process it is in (measured with 1 ms sleepers pinned
+to each CPU at SCHED_FIFO 60: every SYNC gap over 15 ms coincided with such a freeze; no garbage
+collection, GIL hold-up, python-can or canopen stall was found). So each CSP run reports the
+drives' longest SYNC gap, how much of it a CPU was frozen (:class:`StallWatch`, run beside it),
+the longest freezes and the host steal time; the launched runs report the same. These in-process runs take
 SCHED_FIFO (``--rt-priority``, 50 as the launch file's CAN master; 0 for normal scheduling). The launch file itself is
 also started in real time as a user starts it (``--launched`` runs each way, ``--busy`` CPU-bound
 processes beside it): as shipped, its cyclic nodes run SCHED_FIFO (``rt_priority``), and with those
@@ -42,6 +48,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import re
 import statistics
@@ -84,6 +91,77 @@ def start_reference(ramp_s: float, align_s: float):
     return at
 
 
+def host_steal_s() -> float | None:
+    """CPU time the hypervisor took from this virtual machine so far (s, all vCPUs; /proc/stat
+    "steal"), None where not reported. A vCPU descheduled by the host stops every thread on it."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+_STALL_WATCH = """
+import os, sys, time
+os.sched_setaffinity(0, {int(sys.argv[2])})
+if int(sys.argv[1]):
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(sys.argv[1])))
+    except OSError:
+        pass
+t = time.monotonic()
+while True:
+    time.sleep(0.001)
+    now = time.monotonic()
+    if now - t > 0.003:
+        print(f"{t:.6f} {now:.6f}", flush=True)
+    t = now
+"""
+
+
+class StallWatch:
+    """One process per CPU, pinned to it, that sleeps 1 ms at a time and notes every wakeup late by over
+    3 ms: stalls of the machine itself (a vCPU the hypervisor took away, a kernel hold-up), which no
+    Python thread of the process under test causes. At SCHED_FIFO ``priority`` when allowed (above the
+    run's own). :meth:`stop` returns the stalls, every CPU's, as ``(start, end)`` in ``time.monotonic`` s."""
+
+    def __init__(self, priority: int = 0) -> None:
+        cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+        self._procs = [subprocess.Popen([sys.executable, "-c", _STALL_WATCH, str(priority), str(cpu)],
+                                        stdout=subprocess.PIPE, text=True) for cpu in cpus]
+        self._stalls: list[tuple[float, float]] | None = None
+
+    def stop(self) -> list[tuple[float, float]]:
+        if self._stalls is None:
+            self._stalls = []
+            for proc in self._procs:
+                proc.terminate()
+                out, _ = proc.communicate(timeout=10)
+                self._stalls += [(float(a), float(b)) for a, b in (line.split() for line in out.splitlines()
+                                                                   if line.strip())]
+        return self._stalls
+
+
+def _can_fifo() -> bool:
+    """Whether this process may take SCHED_FIFO (CAP_SYS_NICE or an rtprio limit)."""
+    if os.sched_getscheduler(0) == os.SCHED_FIFO:
+        return True
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except OSError:
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True
+
+
+def _watch_priority() -> int:
+    """Ten above this process's SCHED_FIFO priority (0 when it runs normal scheduling)."""
+    if os.sched_getscheduler(0) != os.SCHED_FIFO:
+        return 0
+    return min(99, os.sched_getparam(0).sched_priority + 10)
+
+
 @contextlib.contextmanager
 def realtime(priority: int) -> Iterator[int]:
     """SCHED_FIFO for this process's real-time loop (and the bus threads it starts) while inside, as
@@ -124,24 +202,32 @@ def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: s
     master = Cia402Master(master_bus, cfg)
     master.start()
     axles = [d.axle_drive() for d in DEFAULT_DRIVES]
+    watch: StallWatch | None = None
     try:
-        t_ready = time.monotonic()
-        while not master.enabled():
-            held = Wheels(*command_from_actuals(bank.actuals(), axles))
-            master.step(time.monotonic(), setpoints_from_command(0.0, held.delta_front, 0.0, held.delta_rear, axles)
-                        if master.ready() else None)
-            time.sleep(1.0 / master_hz)
+        watch = StallWatch(_watch_priority())
+        ctrl = FinalController(lead_s=TAU_S + 0.5 / master_hz + 0.001)
+        Vehicle4WSModel(params)     # the first one imports numpy.random (~7 ms): before the SYNC grid starts
+        t_ready = next_master = time.monotonic()
+        while not master.enabled():        # on the master's grid, which the run below keeps: no SYNC gap between
+            now = time.monotonic()
+            if now >= next_master:
+                next_master += (math.floor((now - next_master) * master_hz) + 1) / master_hz
+                held = Wheels(*command_from_actuals(bank.actuals(), axles))
+                master.step(now, setpoints_from_command(0.0, held.delta_front, 0.0, held.delta_rear, axles)
+                            if master.ready() else None)
+            time.sleep(max(0.0, next_master - time.monotonic()))
             if time.monotonic() - t_ready > 10:
                 raise RuntimeError("drives never came up")
         bring_up_s = time.monotonic() - t_ready
-        ctrl = FinalController(lead_s=TAU_S + 0.5 / master_hz + 0.001)
         wheels = Wheels(*command_from_actuals(bank.actuals(), axles))
         model = Vehicle4WSModel(params, pose=tuple(map(float, r0.p[0])), wheels=wheels)
         setpoints = setpoints_from_command(0.0, wheels.delta_front, 0.0, wheels.delta_rear, axles)
         log, step_us, master_us, late = [], [], [], []
-        t0 = last = time.monotonic()
-        next_ctrl, next_master, next_phys = t0, t0, t0
+        time.sleep(max(0.0, next_master - time.monotonic()))
+        t0 = last = next_master          # the clock starts on a master tick: control and bus ticks in phase
+        next_ctrl, next_phys = t0, t0
         frames0 = frames[0]
+        steal0 = host_steal_s()
         while True:
             now = time.monotonic()
             t = now - t0
@@ -159,13 +245,20 @@ def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: s
                 step_us.append((time.perf_counter() - c0) * 1e6)
                 setpoints = setpoints_from_command(*cmd, axles, steer_limit_rad=cfg.steer_limit_rad)
                 log.append((t, *model.pose, *map(float, r.p), cmd.v_rear, cmd.delta_rear))
-            if now >= next_master:
-                next_master += 1.0 / master_hz
+            if now >= next_master:      # ticks missed in a stall are skipped, not run back to back
+                now = time.monotonic()  # not the reading at the loop's top: a stall may have come between
+                next_master += (math.floor((now - next_master) * master_hz) + 1) / master_hz
                 c0 = time.perf_counter()
                 master.step(now, setpoints)
                 master_us.append((time.perf_counter() - c0) * 1e6)
             next_phys = now + 1.0 / PHYSICS_HZ
             time.sleep(max(0.0, min(next_phys, next_ctrl, next_master) - time.monotonic()))
+        steal1 = host_steal_s()
+        stalls = [(a, b) for a, b in watch.stop() if b >= t0]
+        worst = max(drives.values(), key=lambda d: d.max_sync_gap_s)    # the run's gap, before the shutdown's
+        sync_gap_s, gap_end = worst.max_sync_gap_s, worst.max_sync_gap_at_s
+        # how much of that gap a CPU was stalled for too (the machine, not this process): the longest overlap
+        gap_machine_s = max((max(0.0, min(b, gap_end) - max(a, gap_end - sync_gap_s)) for a, b in stalls), default=0.0)
         arr = np.array(log)
         err = np.hypot(arr[:, 1] - arr[:, 4], arr[:, 2] - arr[:, 5])
         head = np.abs((arr[:, 3] - arr[:, 6] + np.pi) % (2 * np.pi) - np.pi)
@@ -178,8 +271,16 @@ def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: s
                 "step_us": statistics.median(step_us), "master_step_us": statistics.median(master_us),
                 "tick_late_ms_p95": float(np.percentile(late, 95) * 1e3), "tick_late_ms_max": float(max(late) * 1e3),
                 "bring_up_s": bring_up_s, "tripped": master.latched,
+                "drive_sync_gap_max_ms": sync_gap_s * 1e3 if cyclic else None,
+                "drive_sync_gap_machine_ms": gap_machine_s * 1e3 if cyclic else None,
+                "drive_sync_gap_at_s": gap_end - t0 if cyclic else None,
+                "machine_stall_max_ms": max((b - a for a, b in stalls), default=0.0) * 1e3,
+                "machine_stalls_20ms": sum(b - a > 0.02 for a, b in stalls),
+                "steal_ms": (steal1 - steal0) * 1e3 if steal0 is not None and steal1 is not None else None,
                 "tx_frames_per_s": (frames[0] - frames0) / duration_s, "log": arr, "err": err}
     finally:
+        if watch is not None:
+            watch.stop()
         master.close()
         bank.stop()
         sim_bus.shutdown()
@@ -208,6 +309,7 @@ def lockstep_run(*, duration_s: float, overrides: dict | None = None) -> dict:
 
 
 RMS_LINE = re.compile(r"tracking over the whole run .*?position RMS ([0-9.]+) mm max ([0-9.]+) mm")
+GAP_LINE = re.compile(r"largest SYNC gap seen by the drives' watchdogs: ([0-9.]+) ms")
 
 
 def launched_run(*, rt: bool, busy: int, duration_s: float) -> dict:
@@ -220,6 +322,8 @@ def launched_run(*, rt: bool, busy: int, duration_s: float) -> dict:
     if not rt:
         text = re.sub(r"(?m)^\s*rt_priority:.*\n", "", text)
     hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(busy)]
+    steal0 = host_steal_s()
+    watch = StallWatch(60 if rt and _can_fifo() else 0)     # above the launch file's priorities (47-50)
     try:
         with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as f:
             f.write(text)
@@ -227,16 +331,22 @@ def launched_run(*, rt: bool, busy: int, duration_s: float) -> dict:
                               "--param", "eval.png=out/ackermann_can_launched.png"],
                              cwd=REPO, capture_output=True, text=True, timeout=duration_s + 120)
     finally:
+        stalls = watch.stop()
         os.unlink(f.name)
         for h in hogs:
             h.kill()
             h.wait()
+    steal1 = host_steal_s()
     out = res.stdout + res.stderr
     m = RMS_LINE.search(out)
+    gap = GAP_LINE.search(out)
     tripped = "quick stop of all drives" in out or "EMCY 0x8700" in out
     applied = out.count("running SCHED_FIFO at priority")
     return {"rms_mm": float(m.group(1)) if m else float("nan"), "max_mm": float(m.group(2)) if m else float("nan"),
-            "tripped": tripped, "rt_applied": applied, "rc": res.returncode}
+            "tripped": tripped, "rt_applied": applied, "rc": res.returncode,
+            "drive_sync_gap_max_ms": float(gap.group(1)) if gap else None,
+            "machine_stall_max_ms": max((b - a for a, b in stalls), default=0.0) * 1e3,
+            "steal_ms": (steal1 - steal0) * 1e3 if steal0 is not None and steal1 is not None else None}
 
 
 def model_run(*, rate_hz: float, duration_s: float, bus: bool) -> dict:
@@ -316,6 +426,10 @@ def main() -> None:
             f"{r['step_us']:8.0f} {r['master_step_us']:9.0f} {r['tx_frames_per_s']:8.0f} {r['tick_late_ms_p95']:7.2f}ms"
             f" {r['tick_late_ms_max']:7.1f}ms {duration:7.1f}"
             + (f"  TRIPPED: {r['tripped']} (drives quick-stopped)" if r["tripped"] else "")
+            + (f"  SYNC gap at the drives max {r['drive_sync_gap_max_ms']:.1f} ms (stop beyond 35 ms; a CPU "
+               f"itself stalled {r['drive_sync_gap_machine_ms']:.1f} ms of it), machine stalls: longest "
+               f"{r['machine_stall_max_ms']:.1f} ms, {r['machine_stalls_20ms']} over 20 ms"
+               + (f", host steal {r['steal_ms']:.0f} ms" if r["steal_ms"] is not None else "") if csp else "")
             + (f"  rear wheel reversed {r['rear_reversed_s']:.1f} s (branch flip)" if r["rear_reversed_s"] else ""))
     lock = lockstep_run(duration_s=duration + 0.1)
     runs["launch file in lockstep (virtual time)"] = lock
@@ -332,17 +446,23 @@ def main() -> None:
             r = launched_run(rt=sched == "rt_priority", busy=args.busy, duration_s=duration)
             launched[sched].append(r)
             print(f"launched {k + 1}/{args.launched} {sched}: {'TRIPPED' if r['tripped'] else 'ran'}, "
-                  f"{r['rms_mm']:.2f} mm RMS, SCHED_FIFO nodes {r['rt_applied']}", file=sys.stderr, flush=True)
+                  f"{r['rms_mm']:.2f} mm RMS, SCHED_FIFO nodes {r['rt_applied']}, SYNC gap at the drives max "
+                  f"{r['drive_sync_gap_max_ms']} ms, machine stalls: longest {r['machine_stall_max_ms']:.1f} ms, "
+                  f"host steal {r['steal_ms']:.0f} ms", file=sys.stderr, flush=True)
     launched_summary = {
         sched: {"tripped": sum(r["tripped"] for r in rs), "runs": len(rs),
                 "rms_mm_median": statistics.median([r["rms_mm"] for r in rs]) if rs else None,
                 "max_mm_median": statistics.median([r["max_mm"] for r in rs]) if rs else None,
-                "rt_applied": max((r["rt_applied"] for r in rs), default=0)} for sched, rs in launched.items()}
+                "rt_applied": max((r["rt_applied"] for r in rs), default=0),
+                "drive_sync_gap_max_ms": max((r["drive_sync_gap_max_ms"] or 0.0 for r in rs), default=None),
+                "machine_stall_max_ms": max((r["machine_stall_max_ms"] for r in rs), default=None)}
+        for sched, rs in launched.items()}
     for sched, s in launched_summary.items():
         if s["runs"]:
             say(f"{'launch file in real time, ' + sched:>44s} tripped {s['tripped']} of {s['runs']}, median "
                 f"{s['rms_mm_median']:.2f} mm RMS ({args.busy} CPU-bound processes beside it, "
-                f"{s['rt_applied']} nodes SCHED_FIFO)")
+                f"{s['rt_applied']} nodes SCHED_FIFO); SYNC gap at the drives max {s['drive_sync_gap_max_ms']:.1f} ms, "
+                f"machine stalls up to {s['machine_stall_max_ms']:.1f} ms")
     head = runs[next(n for n in runs if "bus 100 Hz" in n and "ctrl 50" in n and "udp" in n and "CSP" not in n)]
     csp_rt = next((r for n, r in runs.items() if "CSP" in n), None)
     ratio = head["rms_mm_steady"] / max(ref["model, no bus"]["rms_mm"], 1e-9)
@@ -369,6 +489,10 @@ def main() -> None:
             "can_steady_vs_nobus_ratio": ratio, "can_tripped": head["tripped"],
             "fig8_rms_mm_can_csp_realtime": csp_rt["rms_mm"] if csp_rt else None,
             "can_csp_realtime_tripped": csp_rt["tripped"] if csp_rt else None,
+            "can_csp_drive_sync_gap_max_ms": csp_rt["drive_sync_gap_max_ms"] if csp_rt else None,
+            "can_csp_sync_gap_machine_ms": csp_rt["drive_sync_gap_machine_ms"] if csp_rt else None,
+            "can_csp_machine_stall_max_ms": csp_rt["machine_stall_max_ms"] if csp_rt else None,
+            "can_csp_steal_ms": csp_rt["steal_ms"] if csp_rt else None,
             "inprocess_rt_priority": max(r.get("rt_priority", 0) for r in runs.values()),
             "launched_realtime": launched_summary, "launched_busy_processes": args.busy,
             "launched_realtime_is": "tether launch launch/ackermann_can.yaml in real time (CSP/CSV, SYNC 100 Hz) "
