@@ -24,8 +24,13 @@ drives do. What holds SYNC back that long here is the machine, not this process:
 are descheduled by the hypervisor (host steal), one or both at a time, ~11 ms on a 100 ms grid
 when the machine is busy and now and then 20-42 ms; a thread whose wakeup timer sits on a frozen
 vCPU cannot run until it is back, whichever process it is in (measured with 1 ms sleepers pinned
-to each CPU at SCHED_FIFO 60: every SYNC gap over 15 ms coincided with such a freeze; no garbage
-collection, GIL hold-up, python-can or canopen stall was found). So each CSP run reports the
+to each CPU at SCHED_FIFO 60: in 18 runs every largest SYNC gap over 16 ms had a CPU frozen for
+11-32 ms of it, and both trips a 32 ms freeze; no garbage collection, GIL hold-up, python-can or
+canopen stall was found). One process is only somewhat more exposed than the launch file: under
+the same injected freezes (every process SIGSTOPped 26 ms, 9 times a run) this run tripped 4 of 4,
+the launch file 2 of 4 when its drives' process resumed first and 0 of 4 when the master's did --
+after a freeze the drives' thread checks at once, while the loop needs 1-3 ms (GIL, its own
+physics) to get its SYNC out. So each CSP run reports the
 drives' longest SYNC gap, how much of it a CPU was frozen (:class:`StallWatch`, run beside it),
 the longest freezes and the host steal time; the launched runs report the same. These in-process runs take
 SCHED_FIFO (``--rt-priority``, 50 as the launch file's CAN master; 0 for normal scheduling). The launch file itself is
