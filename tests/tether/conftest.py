@@ -32,12 +32,28 @@ def tether(*args: str, env: dict[str, str], timeout: float = 120, **kw) -> subpr
 
 def wait_for_topic(topic: str, env: dict[str, str], *, timeout_s: float = 30.0,
                    alive: subprocess.Popen | None = None) -> None:
-    """Bounded poll until a running graph registers ``topic`` (and ``alive``, if given, still runs)."""
+    """Bounded poll until a running graph registers ``topic`` (and ``alive``, if given, still runs),
+    then ``tether topic list --all`` must list it too.
+
+    The poll reads ``env``'s registry in this process every 20 ms: polling with the command line
+    started one Python process after another (~0.3 s of CPU each) while the graph itself was
+    starting, on a machine whose two cores the other test worker shares.
+    """
     import time
+    from unittest import mock
+
+    from tether import registry
 
     deadline = time.monotonic() + timeout_s
-    while topic not in tether("topic", "list", "--all", env=env).stdout:
+    while True:
+        with mock.patch.dict(os.environ, {"TETHER_RUNTIME_DIR": env["TETHER_RUNTIME_DIR"]}):
+            if topic in registry.topics():
+                break
         assert time.monotonic() < deadline, f"{topic} was never registered"
+        assert alive is None or alive.poll() is None, "the process publishing it exited"
+        time.sleep(0.02)
+    while topic not in tether("topic", "list", "--all", env=env).stdout:
+        assert time.monotonic() < deadline, f"{topic} was never listed by tether topic list"
         assert alive is None or alive.poll() is None, "the process publishing it exited"
 
 
