@@ -59,11 +59,12 @@ def models(names: tuple[str, ...]) -> dict[str, dict[str, float] | None]:
 
 
 def run_config(horizon_s: float, pace: float, n: int, radii: tuple[float, ...], lam: float, companions: str,
-               loso: bool) -> dict:
+               loso: bool, others: str = "recorded") -> dict:
     """Demos, fits and held-out scores of one (horizon, pace)."""
     names = tuple(f"near_{r:g}" for r in radii)
     t0 = time.perf_counter()
-    sets = {ds: spacetime_demos(ds, n, horizon_s=horizon_s, pace=pace, seed=k, radii_m=radii, companions=companions)
+    sets = {ds: spacetime_demos(ds, n, horizon_s=horizon_s, pace=pace, seed=k, radii_m=radii, companions=companions,
+                               others=others)
             for k, ds in enumerate(TRAIN + HELD_OUT)}
     out: dict = {"horizon_s": horizon_s, "pace": pace, "names": list(names), "demo_s": round(time.perf_counter() - t0, 1),
                  "demos": {ds: {"demos": len(d), **c} for ds, (d, c) in sets.items()}}
@@ -106,13 +107,15 @@ def main() -> None:
     ap.add_argument("--radii", type=float, nargs="*", default=[0.5, 1.0, 1.5], help="near bands (m)")
     ap.add_argument("--lam", type=float, default=0.5)
     ap.add_argument("--companions", choices=("exclude", "keep"), default="exclude")
+    ap.add_argument("--others", choices=("recorded", "constant_velocity"), default="recorded",
+                    help="features from the others' recorded positions or their t0 constant-velocity prediction")
     ap.add_argument("--loso", action="store_true", help="also leave one training scene out (learnt vs shortest path)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
-    runs = [run_config(h, p, args.demos, tuple(args.radii), args.lam, args.companions, args.loso)
+    runs = [run_config(h, p, args.demos, tuple(args.radii), args.lam, args.companions, args.loso, args.others)
             for h in args.horizons for p in args.paces]
     report = {"trained_on": list(TRAIN), "held_out": list(HELD_OUT), "demos_per_set": args.demos,
-              "companions": args.companions, "lam": args.lam, "runs": runs}
+              "companions": args.companions, "others": args.others, "lam": args.lam, "runs": runs}
     if args.json:
         print(json.dumps(report, indent=1))
         return

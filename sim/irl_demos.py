@@ -169,7 +169,8 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
                     every_s: float = 2.0, seed: int = 0, cell_m: float = 0.25, pace: float = 0.75,
                     margin_m: float = 1.5,
                     radii_m: tuple[float, ...] = (0.5, 1.0), companions: str = "exclude",
-                    companion_m: float = 1.5, companion_mps: float = 0.5) -> tuple[list, dict]:
+                    companion_m: float = 1.5, companion_mps: float = 0.5, others: str = "recorded"
+                    ) -> tuple[list, dict]:
     """Demonstrations of the space-time model (:mod:`nodes.nav.irl_spacetime`) from recorded walkers.
 
     Each demo is ``horizon_s`` of one walker's gapless track from a start time t0 (one every
@@ -181,7 +182,9 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
     (recorded position at t0 + k dt, exact) within each distance band of ``radii_m`` of the
     cell at step k. ``companions="exclude"`` leaves out the walkers who walk with it at t0
     (within ``companion_m`` and ``companion_mps`` of its velocity: a group, not people to
-    avoid); ``"keep"`` keeps everybody.
+    avoid); ``"keep"`` keeps everybody. ``others="constant_velocity"`` asks the features of the
+    others' positions at t0 moved on at their t0 velocity instead (the runtime conflict
+    feature's prediction; people who appear after t0 are not seen).
 
     Returns the demos and counts (``windows``, ``clipped_steps``, ``companions_left_out``).
     """
@@ -189,6 +192,8 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
 
     if companions not in ("exclude", "keep"):
         raise ValueError(f"companions must be 'exclude' or 'keep', got {companions!r}")
+    if others not in ("recorded", "constant_velocity"):
+        raise ValueError(f"others must be 'recorded' or 'constant_velocity', got {others!r}")
     tracks = load_tracks(dataset) if isinstance(dataset, str) else dataset
     windows = []
     for i in range(len(tracks.ids)):
@@ -219,16 +224,19 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
         slots: dict[int, int] = {}
         rows = []
         for tk in times:
-            ids, pos, _ = tracks.state_at(float(tk))
+            if others == "recorded":
+                ids, pos, _ = tracks.state_at(float(tk))
+            else:
+                ids, pos = ids0, xy0 + v0 * (tk - t0)
             rows.append({int(p): q for p, q in zip(ids, pos) if int(p) not in skip})
             for p in rows[-1]:
                 slots.setdefault(p, len(slots))
-        others = np.full((len(times), len(slots), 2), np.nan)
+        seen = np.full((len(times), len(slots), 2), np.nan)
         for k, row in enumerate(rows):
             for p, q in row.items():
-                others[k, slots[p]] = q
+                seen[k, slots[p]] = q
         try:
-            demo, clipped = demo_from_track(walker, others, cell_m=cell_m, margin_m=margin_m, radii_m=radii_m)
+            demo, clipped = demo_from_track(walker, seen, cell_m=cell_m, margin_m=margin_m, radii_m=radii_m)
         except ValueError:                 # a walker standing still for the whole window demonstrates nothing
             continue
         demos.append(demo)

@@ -171,3 +171,25 @@ def test_spacetime_demos_leave_companions_out():
     assert min(near) > 0 and all(d.features.sum() == 0 for d in left)
     with pytest.raises(ValueError, match="companions"):
         spacetime_demos(tracks, 4, companions="maybe")
+
+
+def test_constant_velocity_others_see_a_crossing_that_never_happened():
+    from sim.irl_demos import spacetime_demos
+
+    t = np.arange(0, 12.01, 0.4)
+    walker = np.column_stack([1.2 * t, np.zeros_like(t)])                 # at x = 6 m at t = 5 s
+    t2 = np.arange(0, 5.21, 0.4)
+    other = np.column_stack([np.full_like(t2, 6.0), 3.0 - 0.6 * np.minimum(t2, 2.0)])   # heads for the walker, stops
+    tracks = Tracks("toy", np.array([1, 2]), (t, t2), (walker, other), 0.4, 1.0)
+    kw = {"every_s": 20.0, "radii_m": (0.5, 1.0)}
+    recorded, _ = spacetime_demos(tracks, 5, **kw)
+    predicted, _ = spacetime_demos(tracks, 5, others="constant_velocity", **kw)
+    assert len(recorded) == len(predicted) == 1
+    def on_path(d):
+        return d.features[np.arange(1, len(d.path)), d.path[1:, 0], d.path[1:, 1]].sum(axis=0)
+
+    assert recorded[0].features.sum() > 0                     # the stopped walker is on the grid ...
+    assert on_path(recorded[0]).sum() == 0                      # ... but never near the walker's path
+    assert on_path(predicted[0])[0] > 0                         # the prediction puts it on the path
+    with pytest.raises(ValueError, match="others"):
+        spacetime_demos(tracks, 5, others="guess")
