@@ -416,10 +416,14 @@ def _inprocess_csp(d: dict) -> str:
     if d.get("fig8_rms_mm_can_csp_realtime") is None:
         return ""
     prio = f" at SCHED_FIFO {d['inprocess_rt_priority']}" if d.get("inprocess_rt_priority") else ""
+    gap = d.get("can_csp_drive_sync_gap_max_ms")
+    why = (f"longest SYNC gap {gap:.1f} ms, of which a vCPU was frozen by the host {d['can_csp_sync_gap_machine_ms']:.1f} ms"
+           if gap is not None and d.get("can_csp_sync_gap_machine_ms") is not None else "")
     if d.get("can_csp_realtime_tripped"):
-        return (f"; CSP/CSV+SYNC with master and drives in one process{prio}: SYNC lost (a stall of over 35 ms), "
-                f"quick stop")
-    return f"; CSP/CSV+SYNC with master and drives in one process{prio}: {d['fig8_rms_mm_can_csp_realtime']:.2f} mm RMS"
+        return (f"; CSP/CSV+SYNC with master and drives in one process{prio}: SYNC lost, quick stop"
+                + (f" ({why}; the drive stops at 35 ms)" if why else " (a stall of over 35 ms)"))
+    return (f"; CSP/CSV+SYNC with master and drives in one process{prio}: {d['fig8_rms_mm_can_csp_realtime']:.2f} mm RMS"
+            + (f" ({why})" if why else ""))
 
 
 def _launched(d: dict) -> list[Row]:
