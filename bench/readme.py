@@ -157,6 +157,28 @@ def nav_plan(d: dict) -> list[Row]:
              f"<= {d['goal_plan_ms_100x100']:g} ms: {_met(d['plan_ms_100x100'] <= d['goal_plan_ms_100x100'])}")]
 
 
+def irl_spacetime(d: dict) -> list[Row]:
+    r = d["runs"][0]
+    near = r["names"][0]
+    ratio = r["learnt"]["ratios_to_step_cost"][near]
+    loso = [v["learnt"]["ratios_to_step_cost"][near] for v in (r.get("leave_one_scene_out") or {}).values()]
+    counts = {n: v["near_counts_expert_vs_shortest_path"][near] for n, v in r["demos"].items()}
+    fewer = [b / a for a, b in counts.values() if a > 0]
+    held = [h for h in d["held_out"] if h in r["learnt"]]
+    nll = "; ".join(f"{h} learnt {r['learnt'][h]['nll_per_step']:.3f}, shortest path {r['shortest_path'][h]['nll_per_step']:.3f}, "
+                    f"hand ratio {r['hand_conflict']['ratios_to_step_cost'][near]:g} {r['hand_conflict'][h]['nll_per_step']:.3f}"
+                    for h in held)
+    return [(f"`irl_spacetime.py` space-time MaxEnt IRL (cells x {r['horizon_s']:g} s, 8 moves + wait) on ETH/UCY walkers, "
+             f"trained on {', '.join(d['trained_on'])}",
+             f"walkers are within {near.split('_')[1]} m of someone at the same time {min(fewer):.1f}-{max(fewer):.0f}x less "
+             f"often than the shortest path, yet the learnt price is {ratio:.2f} x the step cost"
+             + (f" (leave-one-scene-out {min(loso):.2f}-{max(loso):.2f})" if loso else "")
+             + f"; held-out NLL per step: {nll}; fit {r['learnt']['fit_s']:.0f} s",
+             f"shortest path (no price); the spatial MAP-BIRL ratio {r['spatial_birl']['ratios_to_step_cost'][near]:.3f}; "
+             f"the shipped hand ratio", "no goal; mapped to the planner's conflict weight, the social_nav bench did worse than "
+             "the hand-set 4.0 (nodes/nav/weights/default.json: conflict_weight.spacetime_experiment), so 4.0 stays")]
+
+
 def sonar_polar(d: dict) -> list[Row]:
     return [("`sonar_polar.py` 1024x1024 fan", f"{d['fan1024_ms']:.2f} ms (LUT, nearest); bilinear on cached cv2 maps "
              f"{d['fan1024_ms_cv2']:.2f} ms",
@@ -651,6 +673,7 @@ FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "winding": ([], winding),
     "ping360": ([], ping360),
     "social_nav": ([], social_nav),
+    "irl_spacetime": (["--demos", "60", "--horizons", "6", "--loso"], irl_spacetime),
     "nav_plan": ([], nav_plan),
     "sonar_polar": ([], sonar_polar),
     "sonar_cloud": ([], sonar_cloud),
