@@ -101,7 +101,11 @@ def _guard_why(why: dict | None) -> str:
         return ""
     return (f"; on {why['scenario']}, stop {100 * why.get('stop', 0):.0f} % of ticks, hold after a stop "
             f"{100 * why.get('hold', 0):.0f} %, slowed {100 * why.get('slowed', 0):.0f} %, and {100 * why.get('planner_kept_blocked_path', 0):.0f} % "
-            f"braked while the planner kept a path it had flagged as passing people")
+            f"braked while the planner kept a path it had flagged as passing people"
+            + ("; the nearest person ahead walked toward the robot in {:.0f} % of ticks, across {:.0f} %, stood {:.0f} %, "
+               "went its way {:.0f} %, nobody within 1.8 m {:.0f} %".format(
+                   *(100 * why.get(f"ahead_{k}", 0) for k in ("toward", "crossing", "standing", "same_way", "nobody")))
+               if any(k.startswith("ahead_") for k in why) else ""))
 
 
 def social_nav(d: dict) -> list[Row]:
