@@ -20,6 +20,8 @@ demo: $(VENV)/.installed
 	$(BIN)/tether launch launch/sonar_localize.yaml --duration 20
 
 # Two workers (CI has 2 cores), whole files to one worker so module fixtures are built once.
+# This 2-core machine, quiet: serial 326 s, 2 workers 186 s, 3 workers 159 s (one run; more
+# oversubscription for the timing-sensitive launch tests, so not the default: TEST_WORKERS=3).
 TEST_WORKERS ?= 2
 
 test: $(VENV)/.installed-dev
