@@ -65,6 +65,7 @@ log = logging.getLogger("tether.shm")
 SHM_DIR = "/dev/shm"
 TOPIC_PREFIX = b"@shm/"
 DRAFT_PREFIX = ".tether-draft-"     # + uid: a segment being made, before it has its name
+DRAFT_GRACE_S = 10.0             # a draft this young may be one being made: sweeps leave it (a dead maker's goes later)
 DUAL_PREFIX = b"@dual/"          # marker: this subscriber takes slot tables but is subscribed plain too, for now
 MAGIC = b"TETHSHM1"
 MAX_SLOTS = 256
@@ -607,6 +608,11 @@ def sweep_stale_segments() -> int:
         except OSError:
             continue
         try:
+            # a draft is unlocked between its creation and its owner's lock: a sweep in a tight loop took
+            # the same creator's draft three times running on a loaded machine ("its draft was swept three
+            # times"). Young drafts stay; one left by a maker killed mid-creation is swept once it is old.
+            if name.startswith(DRAFT_PREFIX) and time.time() - os.fstat(fd).st_mtime < DRAFT_GRACE_S:
+                continue
             if _lock(fd, fcntl.F_WRLCK, _LOCK_OWNER):     # nobody owns it any more
                 os.unlink(os.path.join(SHM_DIR, name))
                 removed += 1

@@ -7,6 +7,7 @@ import stat
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import msgpack
@@ -282,6 +283,23 @@ def test_a_sweep_in_another_process_never_unlinks_a_segment_being_created() -> N
     finally:
         sweeper.kill()
         sweeper.wait(30)
+
+
+def test_a_sweep_leaves_a_young_unlocked_draft_and_takes_an_old_one() -> None:
+    """A draft is unlocked for a moment while it is being made: only a draft older than the grace is a dead maker's."""
+    young = Path(shm.SHM_DIR, f"{shm.DRAFT_PREFIX}{os.getuid()}-{os.getpid()}-young")
+    old = Path(shm.SHM_DIR, f"{shm.DRAFT_PREFIX}{os.getuid()}-{os.getpid()}-old")
+    try:
+        for path in (young, old):
+            path.write_bytes(b"")
+            path.chmod(0o600)
+        past = time.time() - shm.DRAFT_GRACE_S - 5
+        os.utime(old, (past, past))
+        shm.sweep_stale_segments()
+        assert young.exists() and not old.exists()
+    finally:
+        for path in (young, old):
+            path.unlink(missing_ok=True)
 
 
 def test_a_loaned_array_is_published_without_a_copy() -> None:
