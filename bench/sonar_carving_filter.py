@@ -37,11 +37,12 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from nodes.sonar import carving_filter  # noqa: E402
+from nodes.sonar.carved_cloud import Config as CarvedCloudConfig  # noqa: E402
 from nodes.sonar.carving import CarvingGrid, CarvingParams  # noqa: E402
 from nodes.sonar.evaluation import cloud_metrics, surface_distances, visible_surface  # noqa: E402
 
 BOUNDS = ((-12, -12, -6.5), (12, 12, 0.0))
-DEFAULT_SIGMA_M = 0.3        # nodes.sonar.carved_cloud Config.max_sigma_m
+DEFAULT_SIGMA_M = CarvedCloudConfig().max_sigma_m     # the published cloud's sigma rule
 # name: (scene, first s, last s, noise seed)
 # a second box, longer, yawed and nearer the track than the one-sided block (training only)
 BOX2 = {"name": "box2", "seafloor": {"type": "plane", "z_m": -6.0},
@@ -50,13 +51,18 @@ BOX2 = {"name": "box2", "seafloor": {"type": "plane", "z_m": -6.0},
                                                 "speed_mps": 1.5}}
 
 
-def moved_track(name: str, x_m: float, depth_m: float) -> dict:
-    """Scene ``name`` with its straight northward track moved to ``x_m`` east at ``depth_m``."""
+def track(name: str | dict, start_m: list[float], end_m: list[float], depth_m: float) -> dict:
+    """Scene ``name`` (or a scene dict) with a straight track from ``start_m`` to ``end_m`` at ``depth_m``."""
     from tether.yamlsafe import load_yaml_file
 
-    scene = dict(load_yaml_file(ROOT / "sim" / "scenes" / f"fls_{name}.yaml"))
-    scene["platform"] = dict(scene["platform"], start_m=[x_m, -30.0], end_m=[x_m, 30.0], depth_m=depth_m)
+    scene = dict(name) if isinstance(name, dict) else dict(load_yaml_file(ROOT / "sim" / "scenes" / f"fls_{name}.yaml"))
+    scene["platform"] = dict(scene["platform"], start_m=start_m, end_m=end_m, depth_m=depth_m)
     return scene
+
+
+def moved_track(name: str, x_m: float, depth_m: float) -> dict:
+    """Scene ``name`` with its straight northward track moved to ``x_m`` east at ``depth_m``."""
+    return track(name, [x_m, -30.0], [x_m, 30.0], depth_m)
 
 
 TRAIN = {"tripod_seed1": ("tripod", 0.05, 20.0, 1), "tripod_back": ("tripod", 40.0, 60.0, 0),
@@ -70,15 +76,6 @@ TRAIN = {"tripod_seed1": ("tripod", 0.05, 20.0, 1), "tripod_back": ("tripod", 40
          "piles2": ("piles2", 0.0, 20.0, 0), "piles2_north": ("piles2", 20.0, 40.0, 2),
          "wall": ("wall", 0.0, 20.0, 0), "block": ("block", 0.0, 6.0, 0), "box2": (BOX2, 0.0, 13.0, 3)}
 HELD_OUT = {"tripod_demo": ("tripod", 0.0, 20.0, 0)}
-
-
-def track(name: str | dict, start_m: list[float], end_m: list[float], depth_m: float) -> dict:
-    """Scene ``name`` (or a scene dict) with a straight track from ``start_m`` to ``end_m`` at ``depth_m``."""
-    from tether.yamlsafe import load_yaml_file
-
-    scene = dict(name) if isinstance(name, dict) else dict(load_yaml_file(ROOT / "sim" / "scenes" / f"fls_{name}.yaml"))
-    scene["platform"] = dict(scene["platform"], start_m=start_m, end_m=end_m, depth_m=depth_m)
-    return scene
 
 
 def _leg(name: str, foot: list[float], top: list[float]) -> dict:
@@ -112,37 +109,13 @@ FRESH = {"tripod_diagonal": (track("tripod", [-16.0, -18.0], [14.0, 12.0], 1.2),
 THRESHOLDS = np.round(np.arange(0.5, 0.96, 0.01), 2)
 
 
-def run_pass(scene_name: str, t0: float, t1: float, seed: int) -> dict:
-    """Carve one pass (keep="evidence" counts what the features need); every voted voxel off the seafloor with
-    its features, its distance to the surface, and the surface the pass saw."""
-    from sim.fls import PingSettings, load_scene, render_ping, sample_structures
-
-    scene = load_scene(scene_name)
-    grid = CarvingGrid(BOUNDS, CarvingParams(keep="evidence"), seafloor_z_m=scene.seafloor.z_m)
-    rng, hits = np.random.default_rng(seed), []
-    for t in np.arange(t0, t1, 0.1):
-        pose = scene.sonar_pose(float(t))
-        r = render_ping(scene, pose, PingSettings(n_beams=512, range_m=20.0), rng=rng)
-        hits.append(r.hits_m[r.hit_labels > 0])
-        grid.integrate(r.intensities, r.bearings_rad, r.range_resolution_m, pose, r.vertical_aperture_rad)
-    grid.flush()
-    rows = grid.off_floor(grid.voted_rows())               # what CarvingGrid.cloud scores
-    pts = grid.candidate_points()[rows]
-    surface, _ = sample_structures(scene, 0.03)
-    model, _ = sample_structures(scene, 0.1)
-    x = carving_filter.feature_matrix(carving_filter.evidence(grid, rows, carving_filter.plausible_rows(grid)))
-    return dict(x=x, points=pts, on=surface_distances(pts, surface) <= 0.2, surface=surface,
-                visible=visible_surface(model, np.concatenate(hits), 0.1))
-
-
-def fresh_pass(scene_spec, t0: float, t1: float, seed: int) -> dict:
-    """One never-seen pass carved twice from the same pings: the default cloud and the shipped evidence filter's."""
+def carve_pass(scene_spec, t0: float, t1: float, seed: int, params: dict[str, CarvingParams]):
+    """Render one pass (10 pings/s, 512 beams, 20 m, true poses) and carve it into a grid per ``params``.
+    Returns the grids, the structure's surface (3 cm samples) and the part of it the pass saw."""
     from sim.fls import PingSettings, load_scene, render_ping, sample_structures
 
     scene = load_scene(scene_spec)
-    floor = scene.seafloor.z_m
-    grids = {"default": CarvingGrid(BOUNDS, CarvingParams(), seafloor_z_m=floor),
-             "evidence": CarvingGrid(BOUNDS, CarvingParams(keep="evidence"), seafloor_z_m=floor)}
+    grids = {k: CarvingGrid(BOUNDS, p, seafloor_z_m=scene.seafloor.z_m) for k, p in params.items()}
     rng, hits = np.random.default_rng(seed), []
     for t in np.arange(t0, t1, 0.1):
         pose = scene.sonar_pose(float(t))
@@ -152,7 +125,25 @@ def fresh_pass(scene_spec, t0: float, t1: float, seed: int) -> dict:
             grid.integrate(r.intensities, r.bearings_rad, r.range_resolution_m, pose, r.vertical_aperture_rad)
     surface, _ = sample_structures(scene, 0.03)
     model, _ = sample_structures(scene, 0.1)
-    visible = visible_surface(model, np.concatenate(hits), 0.1)
+    return grids, surface, visible_surface(model, np.concatenate(hits), 0.1)
+
+
+def run_pass(scene_spec, t0: float, t1: float, seed: int) -> dict:
+    """Carve one pass (keep="evidence" counts what the features need); every voted voxel off the seafloor with
+    its features, its distance to the surface, and the surface the pass saw."""
+    grids, surface, visible = carve_pass(scene_spec, t0, t1, seed, {"evidence": CarvingParams(keep="evidence")})
+    grid = grids["evidence"]
+    grid.flush()
+    rows = grid.off_floor(grid.voted_rows())               # what CarvingGrid.cloud scores
+    pts = grid.candidate_points()[rows]
+    x = carving_filter.feature_matrix(carving_filter.evidence(grid, rows, carving_filter.plausible_rows(grid)))
+    return dict(x=x, points=pts, on=surface_distances(pts, surface) <= 0.2, surface=surface, visible=visible)
+
+
+def fresh_pass(scene_spec, t0: float, t1: float, seed: int) -> dict:
+    """One never-seen pass carved twice from the same pings: the default cloud and the shipped evidence filter's."""
+    grids, surface, visible = carve_pass(scene_spec, t0, t1, seed,
+                                         {"default": CarvingParams(), "evidence": CarvingParams(keep="evidence")})
     return {"default": cloud_metrics(grids["default"].cloud(flush=True, max_sigma_m=DEFAULT_SIGMA_M).points_m,
                                      surface, visible),
             "evidence": cloud_metrics(grids["evidence"].cloud(flush=True).points_m, surface, visible)}
