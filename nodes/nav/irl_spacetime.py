@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
+from scipy.special import logsumexp
 
 #: the 9 actions (d_row, d_col): 8 moves, then the wait (index 8)
 ACTIONS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1), (0, 0)])
@@ -82,13 +83,6 @@ def _shift(a: np.ndarray, dr: int, dc: int, fill: float) -> np.ndarray:
     return out
 
 
-def _logsumexp0(z: np.ndarray) -> np.ndarray:
-    m = np.max(z, axis=0)
-    safe = np.where(np.isfinite(m), m, 0.0)
-    with np.errstate(divide="ignore"):
-        return safe + np.log(np.sum(np.exp(z - safe), axis=0))
-
-
 def soft_policy(demo: SpaceTimeDemo, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Finite-horizon soft value iteration backwards in time, to the demo's goal (its last cell).
 
@@ -115,7 +109,7 @@ def _soft_policy(f: np.ndarray, goal: tuple[int, int], theta: np.ndarray) -> tup
         for a, (dr, dc) in enumerate(ACTIONS):
             step = theta[1] if a == WAIT else _LEN[a] * theta[0]
             z[a] = _shift(log_z[k + 1] - _EXPOSURE[a] * cell_cost[k + 1], dr, dc, -np.inf) - step
-        lz = _logsumexp0(z)
+        lz = logsumexp(z, axis=0)                              # -inf where no action reaches the goal
         with np.errstate(invalid="ignore"):
             log_pi[k] = np.where(np.isfinite(lz), z - lz, -np.inf)
         lz[goal] = 0.0                                          # arrived: stops, pays nothing more
