@@ -25,7 +25,7 @@ Measured (60 demos per set, horizon 6 s, pace 0.75, 2-core machine shared, ~7.5 
 ``--loso``): learnt near_0.5 = 0.10 x c0 (LOSO 0.07-0.28; 0.06-0.16 over horizons 4 / 8 s and
 paces 0.5 / 1.0); held-out NLL per step students003 / zara03: learnt 1.003 / 0.975, shortest
 path 1.009 / 0.983, spatial_birl 1.056 / 0.976, hand_conflict 1.503 / 1.052. Walkers are
-within 0.5 m of someone 1.5-15x less often than the shortest-path model, yet a small price
+within 0.5 m of someone 1.5-21x less often than the shortest-path model, yet a small price
 explains it: a one-step change of timing avoids most such moments. With ``--others
 constant_velocity`` (the runtime feature's prediction) walkers are near predicted positions
 about as often as the shortest path and the learnt ratio is 0.007. Details and the bench

@@ -47,7 +47,8 @@ def ahead_kind(pose: tuple[float, float, float], xy_m: np.ndarray, vel_mps: np.n
     if not ahead.any():
         return "nobody"
     i = np.flatnonzero(ahead)[np.argmin(np.hypot(rel[ahead, 0], rel[ahead, 1]))]
-    along, across = float(np.asarray(vel_mps, float).reshape(-1, 2)[i] @ heading), float(np.asarray(vel_mps, float).reshape(-1, 2)[i] @ left)
+    v = np.asarray(vel_mps, float).reshape(-1, 2)[i]
+    along, across = float(v @ heading), float(v @ left)
     if along < -AHEAD_MPS:
         return "toward"
     if along > AHEAD_MPS:
