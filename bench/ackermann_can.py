@@ -452,8 +452,8 @@ def main() -> None:
             launched[sched].append(r)
             print(f"launched {k + 1}/{args.launched} {sched}: {'TRIPPED' if r['tripped'] else 'ran'}, "
                   f"{r['rms_mm']:.2f} mm RMS, SCHED_FIFO nodes {r['rt_applied']}, SYNC gap at the drives max "
-                  f"{r['drive_sync_gap_max_ms']} ms, machine stalls: longest {r['machine_stall_max_ms']:.1f} ms, "
-                  f"host steal {r['steal_ms']:.0f} ms", file=sys.stderr, flush=True)
+                  f"{r['drive_sync_gap_max_ms']} ms, machine stalls: longest {r['machine_stall_max_ms']:.1f} ms"
+                  + (f", host steal {r['steal_ms']:.0f} ms" if r["steal_ms"] is not None else ""), file=sys.stderr, flush=True)
     launched_summary = {
         sched: {"tripped": sum(r["tripped"] for r in rs), "runs": len(rs),
                 "rms_mm_median": statistics.median([r["rms_mm"] for r in rs]) if rs else None,

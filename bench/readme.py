@@ -443,8 +443,9 @@ def _inprocess_csp(d: dict) -> str:
         return ""
     prio = f" at SCHED_FIFO {d['inprocess_rt_priority']}" if d.get("inprocess_rt_priority") else ""
     gap = d.get("can_csp_drive_sync_gap_max_ms")
-    why = (f"longest SYNC gap {gap:.1f} ms, of which a vCPU was frozen by the host {d['can_csp_sync_gap_machine_ms']:.1f} ms"
-           if gap is not None and d.get("can_csp_sync_gap_machine_ms") is not None else "")
+    frozen = d.get("can_csp_sync_gap_machine_ms")
+    why = "" if gap is None or frozen is None else f"longest SYNC gap {gap:.1f} ms, " + (
+        f"of which a vCPU was frozen by the host {frozen:.1f} ms" if frozen > 0 else "no vCPU freeze during it")
     if d.get("can_csp_realtime_tripped"):
         return (f"; CSP/CSV+SYNC with master and drives in one process{prio}: SYNC lost, quick stop"
                 + (f" ({why}; the drive stops at 35 ms)" if why else " (a stall of over 35 ms)"))
