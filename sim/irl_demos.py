@@ -186,7 +186,7 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
     others' positions at t0 moved on at their t0 velocity instead (the runtime conflict
     feature's prediction; people who appear after t0 are not seen).
 
-    Returns the demos and counts (``windows``, ``clipped_steps``, ``companions_left_out``).
+    Returns the demos and counts (``windows``, ``clipped_steps``, ``companions_left_out``, ``windows_skipped``).
     """
     from nodes.nav.irl_spacetime import demo_from_track
 
@@ -206,7 +206,8 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
                 windows.append((i, t, xy, float(t0), dt))
     rng = np.random.default_rng(seed)
     pick = sorted(rng.choice(len(windows), size=min(n_demos, len(windows)), replace=False).tolist())
-    demos, counts = [], {"windows": len(windows), "clipped_steps": 0, "steps": 0, "companions_left_out": 0}
+    demos, counts = [], {"windows": len(windows), "clipped_steps": 0, "steps": 0, "companions_left_out": 0,
+                         "windows_skipped": 0}
     for i, t, xy, t0, dt in (windows[j] for j in pick):
         n = int(round(horizon_s / dt))
         k_max = int(np.ceil(slack * n))
@@ -237,12 +238,16 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
                 seen[k, slots[p]] = q
         try:
             demo, clipped = demo_from_track(walker, seen, cell_m=cell_m, margin_m=margin_m, radii_m=radii_m)
-        except ValueError:                 # a walker standing still for the whole window demonstrates nothing
+        except ValueError as exc:          # a walker standing still for the whole window demonstrates nothing
+            if "demonstrates nothing" not in str(exc):
+                raise                      # anything else is a bug in the windows above, not a quiet walker
+            counts["windows_skipped"] += 1
             continue
         demos.append(demo)
         counts["clipped_steps"] += clipped
         counts["steps"] += len(demo.path) - 1
-    log.info("%s: %d space-time demos of %d windows", tracks.name, len(demos), len(windows))
+    log.info("%s: %d space-time demos of %d windows (%d drawn made no demo: the walker ended where it started)",
+             tracks.name, len(demos), len(windows), counts["windows_skipped"])
     return demos, counts
 
 
