@@ -39,6 +39,7 @@ LINK_CHECK_NS = 100_000_000
 ERROR_LOG_PERIOD_NS = 5_000_000_000
 SUBSCRIPTIONS_PERIOD_NS = 20_000_000      # how stale a publisher's view of who subscribes (plain or @shm/) may be
 READ_AHEAD = 16
+RETIRE_NS = 2_000_000_000                   # longest a replaced SUB socket keeps receiving beside its successor
 # Plain ints: pyzmq's flag enums cost an enum construction per operation on the hot path.
 _SNDMORE, _NOBLOCK, _RCVMORE, _EVENTS, _POLLIN = (int(zmq.SNDMORE), int(zmq.NOBLOCK), int(zmq.RCVMORE),
                                                    int(zmq.EVENTS), int(zmq.POLLIN))
@@ -150,11 +151,15 @@ class NodeRuntime(Context):
         self._links: LinkWatch | None = None
         self._resubscribe_due = False
         self._largest_in: dict[str, int] = {}
+        self._retiring: list[zmq.Socket] = []     # replaced SUB sockets, still read until their successors overlap
+        self._retire_by_ns = 0
+        self._overlapped: set[str] = set()         # inputs whose new socket delivered a message the old one did
         self._subscribe({})
 
-    def _subscribe(self, rcvhwm: dict[bool, int]) -> None:
+    def _subscribe(self, rcvhwm: dict[bool, int], *, retire: bool = False) -> None:
         """(Re)make the SUB sockets -- receive high-water marks ``rcvhwm`` by kind (secure or not),
-        set before they connect -- for every input that has a topic; close the old ones."""
+        set before they connect -- for every input that has a topic; close the old ones, or with
+        ``retire`` keep reading them until the new ones are proven to receive (:meth:`_resubscribe`)."""
         subs = Subscriptions(self.ctx, self.curve, rcvhwm=rcvhwm)
         for name in self.inputs:
             src = self.spec.inputs.get(name)
@@ -176,6 +181,11 @@ class NodeRuntime(Context):
         self._poll_lists: dict[zmq.Socket, list[tuple[zmq.Socket, int]]] = {}
         self._rcvtimeo = -1
         self._poller: zmq.Poller | None = None
+        if retire:
+            self._retiring.extend(old)
+            self._retire_by_ns = time.monotonic_ns() + RETIRE_NS
+            self._overlapped = set()
+            return
         for sock in old:
             sock.close(linger=0)
 
@@ -416,6 +426,17 @@ class NodeRuntime(Context):
             if sum(len(st.queue) for st in self.inputs.values() if st.maxlen > 1) >= READ_AHEAD:
                 return
 
+    def _receive(self, timeout_ms: int, order: itertools.count) -> None:
+        """Wait up to ``timeout_ms`` for messages and queue what arrived (replaced sockets first)."""
+        if self._retiring:
+            self._read_retiring(order, timeout_ms)
+            return
+        if self._poller is None:
+            self._poller = zmq.Poller()
+            for sock in self.subs:
+                self._poller.register(sock, zmq.POLLIN)
+        self._wait_and_drain(timeout_ms, self._poller, order)
+
     def _wait_and_drain(self, timeout_ms: int, poller: zmq.Poller, order: itertools.count) -> None:
         if len(self.subs) == 1:
             # One socket: a blocking recv with a timeout beats a Python-level poll per message.
@@ -446,6 +467,11 @@ class NodeRuntime(Context):
             self._log_error(state, f"dropped undecodable message on {state.topic} ({nbytes} bytes): "
                                    f"{type(exc).__name__}: {exc}")
             return
+        if self._retiring and 0 < msg.seq <= state.last_seq:
+            state.stats["received"] -= 1          # the same message on the replaced socket and its successor
+            state.stats["received_bytes"] -= nbytes
+            self._overlapped.add(state.name)
+            return
         state.track_seq(msg.seq)
         # ZeroMQ's receive queue holds what came through it: a slot table, not the slot (the
         # publisher's pool bounds those), so a shared-memory stream does not shrink it
@@ -460,8 +486,9 @@ class NodeRuntime(Context):
         A high-water mark cannot safely change on a connected socket (see ``make_sub``), so a
         socket whose mark should fall to half or less is replaced, between handling rounds, by
         one made with the new mark (:meth:`_resubscribe`); what its queue held is lost and
-        counted as a seq gap. The largest message only grows, so this happens a few times
-        per run at most."""
+        counted as a seq gap -- except that the old socket is read until the new one has
+        delivered what it did (:meth:`_resubscribe`). The largest message only grows, so this
+        happens a few times per run at most."""
         self._largest_in[state.name] = nbytes
         sock = self._socket_of[state.name]
         hwm = min(hwm_for(st.max_bytes, self._largest_in.get(st.name, 0)) for st in self.inputs.values()
@@ -481,9 +508,39 @@ class NodeRuntime(Context):
         return out
 
     def _resubscribe(self) -> None:
-        """Replace the SUB sockets by ones made with the wanted receive high-water marks."""
+        """Replace the SUB sockets by ones made with the wanted receive high-water marks, make before break.
+
+        A new SUB socket receives only what its publisher sends once the subscription has
+        reached it, and closing the old one drops what its queue holds: a publisher that
+        sent its last messages in between would never be heard again, and no later seq gap
+        would count them (CI: a latest-only input never saw a finished camera's last image).
+        So the old sockets stay open and are read first; a message that arrives twice
+        (``seq`` not above the input's last) is dropped uncounted, which also proves the new
+        socket receives. The old ones close once every input has had such an overlap, or
+        after :data:`RETIRE_NS`. Publishers keep their numbering across restarts
+        (:class:`tether.inputs.SeqStore`), so a repeated ``seq`` is a copy, not a restart."""
         self._resubscribe_due = False
-        self._subscribe(self._wanted_rcvhwm())
+        self._subscribe(self._wanted_rcvhwm(), retire=True)
+
+    def _read_retiring(self, order: itertools.count, timeout_ms: int) -> None:
+        """Wait on the replaced sockets and their successors together, reading the replaced ones
+        first (what only they hold was sent before anything the new ones have); close them once
+        every input has overlapped or their time is up."""
+        if time.monotonic_ns() >= self._retire_by_ns or self._overlapped.issuperset(self._socket_of):
+            for sock in self._retiring:
+                while _zmq_poll([(sock, _POLLIN)], 0):
+                    self._route(*self._recv(sock, _NOBLOCK), order)
+                sock.close(linger=0)
+            self._retiring = []
+            self._poller = None
+            return
+        poller = zmq.Poller()
+        for sock in [*self._retiring, *self.subs]:
+            poller.register(sock, zmq.POLLIN)
+        ready = dict(poller.poll(timeout_ms))
+        for sock in [*self._retiring, *self.subs]:     # the poller's answer is unordered
+            if sock in ready:
+                self._drain(sock, order)
 
     def _log_error(self, state: InputState, text: str) -> None:
         now = time.monotonic_ns()
@@ -685,11 +742,7 @@ class NodeRuntime(Context):
                 wake = min([next_stats, *due.values()])
                 timeout_ms = max(0, min(100, (wake - now) // 1_000_000 + (1 if wake > now else 0)))
                 if self.subs:
-                    if self._poller is None:
-                        self._poller = zmq.Poller()
-                        for sock in self.subs:
-                            self._poller.register(sock, zmq.POLLIN)
-                    self._wait_and_drain(timeout_ms, self._poller, order)
+                    self._receive(timeout_ms, order)
                 elif timeout_ms:
                     self.stop_event.wait(timeout_ms / 1000)
                 if due:
@@ -725,9 +778,9 @@ class NodeRuntime(Context):
         if self._seq_store is not None:
             self._seq_store.close()
             self._seq_store = None
-        for sock in self.subs:
+        for sock in [*self.subs, *self._retiring]:
             sock.close(linger=0)
-        self.subs = []
+        self.subs, self._retiring = [], []
         if self.pub is not None:
             self.pub.close()
             self.pub = None

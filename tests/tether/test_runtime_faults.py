@@ -4,6 +4,7 @@ extremes of every registered message type through a live two-process graph."""
 from __future__ import annotations
 
 import importlib
+import itertools
 import json
 import pkgutil
 import subprocess
@@ -145,6 +146,48 @@ def test_queues_are_bounded_in_bytes_and_zeromq_queues_follow_the_message_size(r
     rt._handle_pending()
     assert blob.queued_bytes == 0 and blob.stats["handled"] == 2
     rt.close()
+
+
+def _pump(rt: NodeRuntime, done: Callable[[], bool], timeout_s: float = 5.0) -> None:
+    """Run the runtime's receive-and-handle step until ``done()`` (or the time is up)."""
+    order = itertools.count()
+    deadline = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < deadline:
+        rt._receive(20, order)
+        rt._handle_pending()
+
+
+def test_a_message_sent_while_the_receive_queue_is_replaced_is_not_lost(runtime_env: dict) -> None:
+    """The last message of a finished publisher, sent while its subscriber swaps its SUB socket (to a
+    smaller receive queue), arrives: the old socket is read until the new one is proven (CI: a
+    latest-only input never saw a camera's last image; before, the old socket was closed at once)."""
+    rt = _runtime()
+    pub = zmq.Context.instance().socket(zmq.PUB)
+    pub.bind(rt.spec.inputs["value"].endpoint)
+    try:
+        sent = itertools.count(1)
+        def first_seen() -> bool:
+            pub.send_multipart([b"a/value", *_frames(Float64(data=0.0, seq=next(sent)))])
+            return bool(rt.node.seen)
+        _pump(rt, first_seen)                                          # subscribed: messages flow
+        assert rt.node.seen
+        rt._resubscribe()                                              # e.g. the first large message shrank the queue
+        last = next(sent)
+        pub.send_multipart([b"a/value", *_frames(Float64(data=1.0, seq=last))])   # the publisher's last
+        _pump(rt, lambda: rt.node.seen[-1].seq == last)
+        value = rt.inputs["value"]
+        assert rt.node.seen[-1].seq == last and value.stats["dropped_seq_gap"] == 0
+        assert [m.seq for m in rt.node.seen] == sorted({m.seq for m in rt.node.seen})   # no copy handled twice
+        following = [next(sent) for _ in range(3)]                     # both sockets get these: each handled once
+        for seq in following:
+            pub.send_multipart([b"a/value", *_frames(Float64(data=2.0, seq=seq))])
+        _pump(rt, lambda: rt.node.seen[-1].seq == following[-1] and not rt._retiring)
+        assert [m.seq for m in rt.node.seen][-4:] == [last, *following]
+        assert value.stats["received"] == value.stats["handled"] == len(rt.node.seen)
+        assert not rt._retiring                                        # the old socket closed once proven
+    finally:
+        pub.close(linger=0)
+        rt.close()
 
 
 def test_a_publisher_bounds_its_send_queue_in_bytes(runtime_env: dict) -> None:
