@@ -66,7 +66,8 @@ from nodes.nav.demos import PLANNER_PARAMS, FeaturePipeline  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
 from sim.crowd import CrowdWorld  # noqa: E402
 from sim.crowd_scenes import PedestrianSpec, load_scene  # noqa: E402
-from social_nav_episode import Episode, ahead_kind, contact_onsets, metrics  # noqa: E402
+from social_nav_episode import Episode, ahead_kind, contact_onsets  # noqa: E402
+from social_nav_episode import metrics as episode_metrics  # noqa: E402
 from tether.testing import Harness  # noqa: E402
 
 DT = 1.0 / 15.0
@@ -110,9 +111,10 @@ class IrlStack:
         params = params or {}
         self.pipe = FeaturePipeline()
         self.cost = Harness(IrlCost, params={"weights_path": weights}, roundtrip=False, node_id="cost")
-        self.plan = Harness(DijkstraPlanner, params={**PLANNER_PARAMS, **params.get("planner", {})}, roundtrip=False,
-                            node_id="planner")
+        self.plan = Harness(DijkstraPlanner, params={**PLANNER_PARAMS, "weights_path": weights, **params.get("planner", {})},
+                            roundtrip=False, node_id="planner")
         self.guard = Harness(CollisionGuard, params=params.get("guard", {}), roundtrip=False, node_id="guard")
+        self.guard_old = old_rule_guard(params)
         goal, grid = _static(world)
         self.pipe.set_goal((goal.x_m, goal.y_m), 0.0)
         self.plan.feed([(0.0, "goal", goal), (0.0, "map", grid)])
@@ -135,7 +137,9 @@ class IrlStack:
             ms.setdefault("cost", []).append((t2 - t1) * 1e3)
             ms.setdefault("plan", []).append((t3 - t2) * 1e3)
         cmd = cmds[-1] if cmds else Twist2D()
+        planner_paced(self, self.plan.node.planner, cmd)
         sensed = [(t, "odom", odom), (t, "rgbd", frame)] + ([(t, "points", flow)] if flow is not None else [])
+        shadow_guarded(self, self.guard_old.feed(sensed + [(t, "cmd", cmd)]), cmd)
         return guarded(self, self.guard.feed(sensed + [(t, "cmd", cmd)]), cmd)
 
 
@@ -172,6 +176,35 @@ def guarded(stack, outputs, cmd: Twist2D) -> tuple[float, float]:
     return v, w
 
 
+def old_rule_guard(params: dict[str, dict]):
+    """A second guard with the old stop rule (``stop_along_path`` false: the straight distance now to any point the
+    commanded arc touches), fed what the real one is, its commands unused: ``guard_frac_old_rule`` is how often it
+    would have braked the same planner on the same run. The old rule's own closed loop is not this run."""
+    return Harness(CollisionGuard, params={**params.get("guard", {}), "stop_along_path": False}, roundtrip=False,
+                   node_id="guard_old")
+
+
+def shadow_guarded(stack, outputs, cmd: Twist2D) -> None:
+    """Counts the ticks the old-rule guard (:func:`old_rule_guard`) would have braked ``cmd`` (``guard_ticks_old``)."""
+    safe = [o.msg for o in outputs if o.output == "cmd"]
+    if safe:
+        stack.safe_old = (safe[-1].vx_mps, safe[-1].wz_radps)
+    v = getattr(stack, "safe_old", (0.0, 0.0))[0]
+    stack.guard_ticks_old = getattr(stack, "guard_ticks_old", 0) + int(cmd.vx_mps > 0 and v < cmd.vx_mps - 1e-6)
+
+
+def planner_paced(stack, planner, cmd: Twist2D) -> None:
+    """Counts the control ticks where the planner's own speed profile (path-velocity decomposition,
+    :func:`nodes.nav.plan_geometry.speed_profile`) made it wait (speed 0 where steering would drive) or slow
+    down for predicted people (``planner_why``: 'wait', 'slow')."""
+    choice = planner.speed
+    if choice is None or not choice.limited or cmd.vx_mps >= planner.speed_steer_mps - 1e-6:
+        return
+    why = stack.__dict__.setdefault("planner_why", {})
+    key = "wait" if cmd.vx_mps <= 1e-6 else "slow"
+    why[key] = why.get(key, 0) + 1
+
+
 class DwaStack:
     """launch/social_nav_dwa.yaml in-process: (flow ->) DWA -> guard. With ``DWA_PREDICTS`` the flow
     node's moving points reach DWA (``predict_s``) and its guard (``points``): the IRL stack's prediction."""
@@ -184,6 +217,7 @@ class DwaStack:
         dwa_params = ({"predict_s": DWA_PREDICT_S} if DWA_PREDICTS else {}) | params.get("dwa", {})
         self.dwa = Harness(Dwa, params=dwa_params, roundtrip=False, node_id="dwa")
         self.guard = Harness(CollisionGuard, params=params.get("guard", {}), roundtrip=False, node_id="guard")
+        self.guard_old = old_rule_guard(params)
         goal, grid = _static(world)
         self.dwa.feed([(0.0, "goal", goal), (0.0, "map", grid)])
 
@@ -199,7 +233,9 @@ class DwaStack:
         ms.setdefault("dwa", []).append((time.perf_counter() - t0) * 1e3)
         cmds = [o.msg for o in out if o.output == "cmd"]
         cmd = cmds[-1] if cmds else Twist2D()
-        return guarded(self, self.guard.feed([(t, "odom", odom), (t, "rgbd", frame)] + flow + [(t, "cmd", cmd)]), cmd)
+        sensed = [(t, "odom", odom), (t, "rgbd", frame)] + flow + [(t, "cmd", cmd)]
+        shadow_guarded(self, self.guard_old.feed(sensed), cmd)
+        return guarded(self, self.guard.feed(sensed), cmd)
 
 
 def node_params(overrides: list[str]) -> dict[str, dict]:
@@ -260,10 +296,28 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
             kind = "ahead_" + ahead_kind(world.pose, p.xy_m, p.vel_mps)
             stack.guard_why[kind] = stack.guard_why.get(kind, 0) + 1
         world.step(v, w, DT)
-    return Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms,
-                   by_robot=world.collisions_by_robot, guard_ticks=getattr(stack, "guard_ticks", 0),
-                   guard_why=dict(getattr(stack, "guard_why", {})),
-                   ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s)
+    ep = Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms,
+                 by_robot=world.collisions_by_robot, guard_ticks=getattr(stack, "guard_ticks", 0),
+                 guard_why=dict(getattr(stack, "guard_why", {})),
+                 ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s)
+    ep.planner_why = dict(getattr(stack, "planner_why", {})) if stack.name == "irl" else None
+    ep.guard_ticks_old = getattr(stack, "guard_ticks_old", None)
+    return ep
+
+
+def metrics(ep: Episode) -> dict:
+    """The episode's metrics (:func:`social_nav_episode.metrics`), and for the IRL planner how often its own speed
+    profile waited or slowed for predicted people: ``planner_wait_frac`` (either, share of control ticks) and
+    ``planner_why`` ('wait': speed 0 where steering would drive, 'slow')."""
+    m = episode_metrics(ep)
+    old = getattr(ep, "guard_ticks_old", None)
+    if old is not None and ep.ticks:
+        m["guard_frac_old_rule"] = round(old / ep.ticks, 4)
+    why = getattr(ep, "planner_why", None)
+    if why is not None and ep.ticks:
+        m["planner_wait_frac"] = round(sum(why.values()) / ep.ticks, 4)
+        m["planner_why"] = {k: round(n / ep.ticks, 4) for k, n in sorted(why.items())}
+    return m
 
 
 # -- human references -------------------------------------------------------------------------------

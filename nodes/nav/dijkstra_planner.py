@@ -14,7 +14,9 @@ import numpy as np
 from msgs.geometry import Odometry2D, Path2D, Twist2D
 from msgs.nav import CostGrid, FeatureGrid, FlowPoints, Goal2D, PlanStatus
 from msgs.sensor import Grid
+from nodes.nav.features import CONFLICT
 from nodes.nav.grid_frame import GridFrame
+from nodes.nav.irl_cost import load_weights
 from nodes.nav.plan_geometry import predict_conflicts
 from nodes.nav.social_planner import PlannerParams, SocialPlanner
 from tether import Node
@@ -45,8 +47,21 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     fov_deg: float = _DEFAULT.fov_deg
     camera_x_m: float = _DEFAULT.camera_x_m
     min_range_m: float = _DEFAULT.min_range_m
+    conflict_price: float = -1.0  # the speed profile's price of a conflict; < 0: the weights file's 'conflict' weight
+    weights_path: str = ""        # the IRL cost's weights file ("" = the shipped default; as IrlCost's)
+    speed_horizon_s: float = _DEFAULT.speed_horizon_s   # 0 = no speed profile (steering's speed only)
+    headway_s: float = _DEFAULT.headway_s
+    accel_mps2: float = _DEFAULT.accel_mps2
+    people_timeout_s: float = _DEFAULT.people_timeout_s
     density_feature: str = "density_high"   # the FeatureGrid feature that flags an obstacle (Algorithm 2)
     density_index: int = 0                  # used when the grid carries no feature names
+
+
+def conflict_weight(weights_path: str = "") -> float:
+    """The learnt cost's price of a conflict cell (its 'conflict' weight) in a weights file ("" = the shipped one);
+    0 when the file has no such feature (the speed profile is then off)."""
+    w = load_weights(weights_path)
+    return float(w.weights[list(w.names).index(CONFLICT)]) if CONFLICT in w.names else 0.0
 
 
 def high_density_mask(grid: FeatureGrid, name: str, index: int) -> np.ndarray:
@@ -75,7 +90,11 @@ class DijkstraPlanner(Node):
 
     def setup(self) -> None:
         c = self.config
-        self.planner = SocialPlanner(PlannerParams(**{f.name: getattr(c, f.name) for f in fields(PlannerParams)}))
+        params = {f.name: getattr(c, f.name) for f in fields(PlannerParams)}
+        if c.conflict_price < 0:
+            params["conflict_price"] = conflict_weight(c.weights_path)
+        self.planner = SocialPlanner(PlannerParams(**params))
+        self._v_now = 0.0
         self._poses: deque[tuple[int, tuple[float, float, float]]] = deque(maxlen=64)
         self._high: np.ndarray | None = None
         self._map: np.ndarray | None = None
@@ -94,9 +113,10 @@ class DijkstraPlanner(Node):
             self.log.error("odometry with a non-finite pose dropped (%d so far)", self.bad_inputs)
             return None
         self._poses.append((msg.stamp_ns, pose))
+        self._v_now = float(msg.twist.vx_mps) if np.isfinite(msg.twist.vx_mps) else 0.0
         if self.planner.mode == "idle":
             return None         # nothing decided yet (no goal or no cost grid): say nothing, the robot waits
-        v, w = self.planner.command(pose)
+        v, w = self.planner.command(pose, msg.stamp_ns * 1e-9, self._v_now)
         return {"cmd": Twist2D(stamp_ns=msg.stamp_ns, frame_id="base", vx_mps=v, wz_radps=w)}
 
     def on_goal(self, msg: Goal2D) -> None:
@@ -117,6 +137,9 @@ class DijkstraPlanner(Node):
 
     def on_flow(self, msg: FlowPoints) -> None:
         self._flow = msg
+        pose = self._pose_at(msg.stamp_ns)
+        if pose is not None and len(msg.points_m) == len(msg.velocity_mps):
+            self.planner.set_people(pose, msg.points_m, msg.velocity_mps, msg.stamp_ns * 1e-9)
 
     def on_features(self, msg: FeatureGrid) -> None:
         self._high = high_density_mask(msg, self.config.density_feature, self.config.density_index)
@@ -139,7 +162,8 @@ class DijkstraPlanner(Node):
         d = self.planner.update(pose, cost, frame, high, msg.stamp_ns * 1e-9, predicted)
         status = PlanStatus(stamp_ns=msg.stamp_ns, state=_STATE[d.mode] if d.event or d.mode != "local" else "following",
                             reason="/".join(x for x in (d.mode, d.event, d.reason) if x), plan_ms=d.plan_ms)
-        v, w = self.planner.command(self._poses[-1][1])        # steer on the fresh decision right away
+        stamp, now = self._poses[-1]
+        v, w = self.planner.command(now, stamp * 1e-9, self._v_now)       # steer on the fresh decision right away
         out: list[tuple[str, object]] = [("status", status),
                                          ("cmd", Twist2D(stamp_ns=msg.stamp_ns, frame_id="base", vx_mps=v, wz_radps=w))]
         if len(d.path_xy) >= 2:

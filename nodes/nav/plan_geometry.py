@@ -7,6 +7,8 @@ in the world; grids are robot-frame :class:`~nodes.nav.grid_frame.GridFrame` cel
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.ndimage import grey_dilation
 
@@ -186,3 +188,116 @@ def footprint_cost(cost: np.ndarray, radius_cells: float) -> np.ndarray:
         return cost
     yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
     return grey_dilation(cost, footprint=np.hypot(yy, xx) <= radius_cells + 1e-9, mode="nearest")
+
+
+def people_motion(points_m: np.ndarray, velocity_mps: np.ndarray, *, cell_m: float = 0.25, moving_mps: float = 0.3,
+                  min_points: int = 5, z_min_m: float = 0.1, z_max_m: float = 2.0,
+                  thin_m: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Flow points (robot frame, (N, 3) positions m and velocities m/s) -> obstacle points (M, 2) m and the
+    velocities (M, 2) m/s they will keep: the median velocity of their ``cell_m`` cell when that cell holds
+    at least ``min_points`` points moving at ``moving_mps`` or faster, else 0 (standing). Height band
+    [``z_min_m``, ``z_max_m``]; one point per ``thin_m`` square. The same constant-velocity, cell-median
+    prediction as :func:`predict_conflicts` (and the crowd features' conflict cells), kept as points so a
+    speed profile can ask where they will be at any time."""
+    from nodes.nav.dwa_core import thin_points
+
+    p = np.asarray(points_m, float).reshape(-1, 3)
+    v = np.asarray(velocity_mps, float).reshape(-1, 3)
+    if len(p) != len(v):
+        raise ValueError(f"points ({len(p)}) and velocities ({len(v)}) must pair up")
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(v).all(axis=1) & (p[:, 2] >= z_min_m) & (p[:, 2] <= z_max_m)
+    if not ok.any():
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    xy = p[ok, :2]
+    cell_v, n, of_point = cell_velocity(xy, v[ok, :2], cell_m)
+    vel = cell_v[of_point]
+    still = (n[of_point] < min_points) | (np.hypot(vel[:, 0], vel[:, 1]) < moving_mps)
+    vel[still] = 0.0
+    xy, keep = thin_points(xy, thin_m, return_index=True)
+    return xy, vel[keep]
+
+
+def resample_path(path_xy: np.ndarray, length_m: float, step_m: float = 0.05) -> np.ndarray:
+    """Points (S, 2) every ``step_m`` along a polyline (n, 2), from its start, up to ``length_m`` or its end."""
+    path_xy = np.asarray(path_xy, float).reshape(-1, 2)
+    if len(path_xy) < 2:
+        return path_xy[:1].copy()
+    seg = np.hypot(*np.diff(path_xy, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    q = np.arange(0.0, min(length_m, s[-1]) + 1e-9, step_m)
+    return np.column_stack([np.interp(q, s, path_xy[:, 0]), np.interp(q, s, path_xy[:, 1])])
+
+
+@dataclass(frozen=True)
+class SpeedChoice:
+    """What :func:`speed_profile` chose: the speed to drive now (m/s), and per candidate speed (m/s) its time in
+    conflict (s) and total cost (the planning grid's units)."""
+
+    v_mps: float
+    candidates_mps: np.ndarray
+    conflict_s: np.ndarray
+    cost: np.ndarray
+
+    @property
+    def limited(self) -> bool:
+        """Did a conflict make the profile choose below the fastest candidate?"""
+        return bool(self.v_mps < self.candidates_mps[-1] - 1e-9)
+
+
+def speed_profile(path_xy: np.ndarray, people_xy: np.ndarray, people_v: np.ndarray, *, v_now_mps: float,
+                  v_max_mps: float, conflict_price: float, progress_price: float, cell_m: float, clear_m: float,
+                  headway_s: float = 1.0, horizon_s: float = 2.0, step_s: float = 0.1, accel_mps2: float = 0.8,
+                  n_speeds: int = 6, path_step_m: float = 0.05) -> SpeedChoice:
+    """The speed along a chosen path that keeps predicted people out of the robot's way in time
+    (path-velocity decomposition, Kant & Zucker 1986): the path is fixed, only when the robot gets where.
+
+    Candidates: ``n_speeds`` speeds from 0 to ``v_max_mps``, each reached from ``v_now_mps`` at
+    ``accel_mps2`` and held for ``horizon_s``. Every ``step_s`` the robot, at arc length s(t) along
+    ``path_xy`` (robot frame, (n, 2), starting at the robot), needs the path from s(t) to
+    s(t) + ``headway_s`` x v(t) clear within ``clear_m`` of every person (``people_xy`` (M, 2) now, moving at
+    ``people_v`` (M, 2), see :func:`people_motion`): its personal space, stretched ahead by the time it
+    keeps to whoever it follows or meets. A step where it is not is a step in conflict. The cost of a
+    candidate, in the learnt cost's units: every second in conflict costs ``conflict_price`` (the
+    learnt price of a conflict cell) per cell of ``cell_m`` the robot would cross in it at ``v_max_mps``, and
+    the progress it gives up against the fastest candidate costs ``progress_price`` (the typical cell
+    cost, the exchange rate the local plan trades detours at) per cell. The cheapest candidate wins; ties
+    go to the faster one. So the robot slows or waits where the conflict costs more than the time, and
+    goes where it does not; it is what the spatial plan does with a detour, done with time.
+    """
+    if not (v_max_mps > 0 and horizon_s > 0 and step_s > 0 and cell_m > 0 and n_speeds >= 2):
+        raise ValueError("speed_profile needs v_max_mps, horizon_s, step_s, cell_m > 0 and n_speeds >= 2; got "
+                         f"{v_max_mps}, {horizon_s}, {step_s}, {cell_m}, {n_speeds}")
+    speeds = np.linspace(0.0, v_max_mps, n_speeds)
+    taus = np.arange(step_s, horizon_s + 1e-9, step_s)
+    # each candidate's speed and arc length at every step (accelerating or braking at accel_mps2)
+    v0 = float(np.clip(v_now_mps, 0.0, v_max_mps))
+    vk = np.empty((len(speeds), len(taus)))
+    sk = np.empty_like(vk)
+    for c, target in enumerate(speeds):
+        t_ramp = abs(target - v0) / accel_mps2
+        a = np.sign(target - v0) * accel_mps2
+        ramp = np.minimum(taus, t_ramp)
+        vk[c] = v0 + a * ramp
+        sk[c] = v0 * ramp + 0.5 * a * ramp ** 2 + target * (taus - ramp)
+    pts = resample_path(path_xy, float(sk.max() + headway_s * v_max_mps + path_step_m), path_step_m)
+    along = np.arange(len(pts)) * path_step_m
+    sk = np.minimum(sk, along[-1])                          # the path (the goal) ends: the robot stops there
+    conflict = np.zeros((len(speeds), len(taus)), bool)
+    xy = np.asarray(people_xy, float).reshape(-1, 2)
+    vel = np.asarray(people_v, float).reshape(-1, 2)
+    if len(xy) and len(pts) >= 1:
+        for k, tau in enumerate(taus):
+            q = xy + vel * tau
+            d = np.hypot(pts[:, None, 0] - q[None, :, 0], pts[:, None, 1] - q[None, :, 1]).min(axis=1)   # (S,)
+            blocked = d < clear_m
+            if not blocked.any():
+                continue
+            b = along[blocked]
+            lo, hi = sk[:, k], sk[:, k] + headway_s * vk[:, k]
+            conflict[:, k] = ((b[None, :] >= lo[:, None] - 1e-9) & (b[None, :] <= hi[:, None] + 1e-9)).any(axis=1)
+    conflict_s = conflict.sum(axis=1) * step_s
+    progress = sk[:, -1]
+    cost = (conflict_price * conflict_s * v_max_mps / cell_m
+            + progress_price * (progress.max() - progress) / cell_m)
+    best = len(speeds) - 1 - int(np.argmin(cost[::-1]))      # ties -> the faster
+    return SpeedChoice(float(speeds[best]), speeds, conflict_s, cost)

@@ -22,8 +22,9 @@ import numpy as np
 
 from nodes.nav.dijkstra import GridGraph, backtrack, cost_from, smooth_path
 from nodes.nav.grid_frame import GridFrame, densify, extract_waypoint, inflate, plan_on_map, steer, to_robot, to_world
-from nodes.nav.plan_geometry import (footprint_cost, on_rim, passes_people, person_floor_cost, polyline_cost,
-                                     remaining_m, rest_of_path, unseen_by_camera, waypoint_reach)
+from nodes.nav.plan_geometry import (SpeedChoice, footprint_cost, on_rim, passes_people, people_motion,
+                                     person_floor_cost, polyline_cost, remaining_m, rest_of_path, speed_profile,
+                                     unseen_by_camera, waypoint_reach)
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,13 @@ class PlannerParams:
     fov_deg: float = 57.0         # the camera's horizontal field of view
     camera_x_m: float = 0.3       # camera ahead of the robot centre
     min_range_m: float = 0.4      # the camera measures nothing nearer
+    # when to go (path-velocity decomposition, plan_geometry.speed_profile): the speed along the path is chosen
+    # against the people's predicted motion (set_people), priced with the learnt cost
+    conflict_price: float = 0.0   # the learnt price of a conflict cell (weights file 'conflict'); 0 = speed off
+    speed_horizon_s: float = 2.0  # how far ahead in time the speed candidates are compared
+    headway_s: float = 1.0        # the path ahead of the robot kept clear: this many seconds of its own travel
+    accel_mps2: float = 0.8       # the robot's acceleration and braking (sim.crowd max_accel_mps2)
+    people_timeout_s: float = 0.5  # predictions older than this are not used
 
 
 @dataclass
@@ -86,6 +94,11 @@ class SocialPlanner:
         self._subgoal: np.ndarray | None = None
         self._path: np.ndarray | None = None           # local path being followed (world, m)
         self._memory: list[tuple] = []
+        self._walls: np.ndarray | None = None           # map cells on or next to static obstacles (not inflated)
+        self._people: tuple[float, np.ndarray, np.ndarray] | None = None   # (t_s, world xy, world velocity)
+        self._typical = 0.0                            # the planning grid's typical cell cost (last update)
+        self.speed: SpeedChoice | None = None          # the last command's speed choice (None: not asked)
+        self.speed_steer_mps = 0.0                     # ... and the speed steering alone asked for
 
     # -- inputs -----------------------------------------------------------------------------------
     def set_goal(self, xy: tuple[float, float], tolerance_m: float = 0.3) -> None:
@@ -100,8 +113,26 @@ class SocialPlanner:
         """Occupancy (rows = y, cols = x; > 0.5 occupied) of the known world map."""
         radius = (self.p.robot_radius_m + self.p.inflate_margin_m) / frame.resolution_m
         self.occupied = inflate(np.asarray(occupancy) > 0.5, radius)
+        self._walls = inflate(np.asarray(occupancy) > 0.5, 0.15 / frame.resolution_m)
         self.map_frame = frame
         self.global_path, self._event = None, "new_map"
+
+    def set_people(self, pose: tuple[float, float, float], points_m: np.ndarray, velocity_mps: np.ndarray,
+                   t_s: float) -> None:
+        """The flow's points (robot frame at ``pose``, (N, 3) m and m/s, taken at ``t_s``): what the speed
+        profile predicts people from (:func:`nodes.nav.plan_geometry.people_motion`). Points on or within
+        0.15 m of the map's static obstacles are not people."""
+        xy, v = people_motion(points_m, velocity_mps)
+        world = to_world(pose, xy)
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        v_world = np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
+        if self._walls is not None and self.map_frame is not None and len(world):
+            cells = self.map_frame.cell_of(world)
+            inside = self.map_frame.inside(cells)
+            cells = self.map_frame.clamp(cells)
+            keep = ~(inside & self._walls[cells[:, 0], cells[:, 1]])
+            world, v_world = world[keep], v_world[keep]
+        self._people = (float(t_s), world, v_world)
 
     def _graph(self, shape: tuple[int, int]) -> GridGraph:
         if shape not in self._graphs:
@@ -156,6 +187,10 @@ class SocialPlanner:
         if predicted is not None and predicted.shape == cost.shape and predicted.any():
             high_density = high_density | (predicted & ~static)
         cost = person_floor_cost(cost, high_density, self.p.person_cost)
+        finite = np.isfinite(cost)
+        if finite.any():
+            dilated = footprint_cost(cost, (self.p.robot_radius_m + self.p.crowd_margin_m) / frame.resolution_m)
+            self._typical, self._cell_m = float(np.median(dilated[np.isfinite(dilated)])), frame.resolution_m
         event = self._replan_event(pose, frame, high_density, t_s)
         if not event:
             return Decision(self.mode, "", self.waypoint)
@@ -352,8 +387,15 @@ class SocialPlanner:
         return remaining_m(self.global_path, pose[:2], xy)
 
     # -- command ----------------------------------------------------------------------------------
-    def command(self, pose: tuple[float, float, float]) -> tuple[float, float]:
-        """(v_mps, w_radps) toward the current waypoint (global mode: the carrot); 0 when idle; held: turn in place."""
+    def command(self, pose: tuple[float, float, float], t_s: float | None = None,
+                v_now_mps: float | None = None) -> tuple[float, float]:
+        """(v_mps, w_radps) toward the current waypoint (global mode: the carrot); 0 when idle; held: turn in place.
+
+        With ``t_s`` (and people from :meth:`set_people` no older than ``people_timeout_s``) and a
+        ``conflict_price``, the speed is at most what :meth:`_speed` chooses along the path ahead; the
+        turn rate is steering's. ``v_now_mps`` is the robot's speed (odometry; default: steering's).
+        """
+        self.speed = None
         if self.goal is None or self.mode in ("idle", "reached", "unreachable"):
             return 0.0, 0.0
         if np.hypot(*(self.goal - pose[:2])) <= self.goal_tol_m:
@@ -369,5 +411,47 @@ class SocialPlanner:
         final = bool(np.allclose(target, self.goal))
         # brake to stop on the goal point itself: it is reached on entering the tolerance, and braking
         # to stop inside it (0.15 m short) cost ~0.1 s at 0.8 m/s^2 for nothing
-        return steer(pose, target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps,
+        v, w = steer(pose, target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps,
                      stop_at_m=0.0 if final else None)
+        self.speed_steer_mps = v
+        if t_s is not None and v > 0:
+            choice = self._speed(pose, target, t_s, v if v_now_mps is None else v_now_mps)
+            if choice is not None:
+                self.speed = choice
+                v = min(v, choice.v_mps)
+        return v, w
+
+    def _ahead(self, pose: tuple[float, float, float], target: np.ndarray) -> np.ndarray:
+        """The path the robot will drive (world, (n, 2)): to ``target``, then on along the local path being
+        followed (or the global path) beyond it."""
+        if self.mode == "local" and self._path is not None and len(self._path) >= 2 and self.waypoint is not None:
+            beyond = rest_of_path(self._path, target)[1:]
+        elif self.global_path is not None:
+            i = int(np.argmin(np.hypot(*(self.global_path - target).T)))
+            beyond = self.global_path[i + 1:]
+        else:
+            beyond = np.zeros((0, 2))
+        return np.vstack([np.asarray(pose[:2], float)[None], np.asarray(target, float)[None], beyond])
+
+    def _speed(self, pose: tuple[float, float, float], target: np.ndarray, t_s: float,
+               v_now_mps: float) -> SpeedChoice | None:
+        """The speed profile's choice along the path ahead (None: off, or no fresh prediction of people)."""
+        if self.p.conflict_price <= 0 or self.p.speed_horizon_s <= 0 or self._people is None:
+            return None
+        t0, xy, vel = self._people
+        if not 0 <= t_s - t0 <= self.p.people_timeout_s:
+            return None
+        now = xy + vel * (t_s - t0)
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        rel_v = np.column_stack([c * vel[:, 0] + s * vel[:, 1], -s * vel[:, 0] + c * vel[:, 1]])
+        path = to_robot(pose, self._ahead(pose, target))
+        cell = getattr(self, "_cell_m", 0.25)
+        return speed_profile(path, to_robot(pose, now), rel_v, v_now_mps=v_now_mps, v_max_mps=self.p.v_max_mps,
+                             conflict_price=self.p.conflict_price, progress_price=self._typical or 2.0, cell_m=cell,
+                             clear_m=self._clear_full_m, headway_s=self.p.headway_s,
+                             horizon_s=self.p.speed_horizon_s, accel_mps2=self.p.accel_mps2)
+
+    @property
+    def _clear_full_m(self) -> float:
+        """The robot's personal space: its radius plus the crowd margin (the footprint the cost grid is dilated by)."""
+        return self.p.robot_radius_m + self.p.crowd_margin_m

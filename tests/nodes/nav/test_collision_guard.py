@@ -65,7 +65,9 @@ def test_points_in_robot_frame_floor_and_ceiling_ignored():
     assert nearest_obstacle_m(np.zeros((0, 3))) == float("inf")
     with Harness(CollisionGuard) as h:
         outs = h.feed([(0.0, "points", FlowPoints(points_m=pts.astype(np.float32))), (0.01, "cmd", GO)])
-    assert cmds(outs)[-1] == (0.0, 0.3)
+    # the floor point 0.5 m and the ceiling point 0.6 m straight ahead would stop it; the one 0.86 m to the left,
+    # which the arc bending left touches after 0.55 m (1.0 m along the path, room to brake), leaves it as it is
+    assert cmds(outs)[-1] == (0.8, 0.3)
 
 
 def post(depth_m: float, hole: bool = False, t: float = 0.0) -> RgbdFrame:
@@ -192,3 +194,26 @@ def test_a_person_who_steps_up_into_the_near_blind_zone_stays_an_obstacle():
             out = h.feed([(t, "odom", odom_at(0.0, t)), (t, "rgbd", rgbd), (t + 0.01, "cmd", straight)])
             per_frame.append(cmds(out)[-1][0])
     assert per_frame == [0.0, 0.0, 0.0]
+
+
+def _stop_with(points_xy, cmd: Twist2D, **params) -> tuple[float, float]:
+    pts = np.column_stack([np.asarray(points_xy, float), np.full(len(points_xy), 1.0)]).astype(np.float32)
+    with Harness(CollisionGuard, params=params) as h:
+        return cmds(h.feed([(0.0, "points", FlowPoints(points_m=pts)), (0.01, "cmd", cmd)]))[-1]
+
+
+def test_a_tight_turn_does_not_stop_for_someone_its_full_circle_would_reach_only_later():
+    """A 0.6 m/s, -1.2 rad/s command's arc is a 0.5 m circle; a walker 0.9 m to the right lies on its far side,
+    ~1.3 m of turning away. The old rule (straight distance now, 0.92 m < 1 m) stopped; along the path it is
+    beyond 1 m, so the robot turns on, no faster than it can still stop before them."""
+    side = [[0.2, -0.9], [0.25, -0.9], [0.2, -0.95]]
+    turn = Twist2D(vx_mps=0.6, wz_radps=-1.2)
+    assert _stop_with(side, turn, stop_along_path=False)[0] == 0.0
+    v, w = _stop_with(side, turn)
+    assert 0.0 < v <= 0.6 and w == -1.2
+
+
+def test_an_obstacle_straight_ahead_stops_the_robot_under_either_rule():
+    ahead = [[0.8, 0.0], [0.8, 0.05], [0.85, -0.05]]
+    for old in (False, True):
+        assert _stop_with(ahead, Twist2D(vx_mps=0.8, wz_radps=0.0), stop_along_path=not old)[0] == 0.0
