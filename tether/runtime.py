@@ -534,10 +534,11 @@ class NodeRuntime(Context):
             self._retiring = []
             self._poller = None
             return
-        poller = zmq.Poller()
-        for sock in [*self._retiring, *self.subs]:
-            poller.register(sock, zmq.POLLIN)
-        ready = dict(poller.poll(timeout_ms))
+        if self._poller is None:
+            self._poller = zmq.Poller()
+            for sock in [*self._retiring, *self.subs]:
+                self._poller.register(sock, zmq.POLLIN)
+        ready = dict(self._poller.poll(timeout_ms))
         for sock in [*self._retiring, *self.subs]:     # the poller's answer is unordered
             if sock in ready:
                 self._drain(sock, order)
