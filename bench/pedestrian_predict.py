@@ -1,0 +1,211 @@
+"""Pedestrian trajectory prediction on ETH/UCY, leave one scene out: learnt MLP vs constant velocity vs a hand baseline.
+
+    nice -n 5 python bench/pedestrian_predict.py [--json] [--steps 1000] [--hidden 64 64] [--save]
+
+Each of the five scenes (biwi_eth, biwi_hotel, uni_examples, students003, crowds_zara03) is
+held out in turn: the MLP (:mod:`nodes.nav.predict`, trained by
+:mod:`nodes.nav.predict_train`) and the hand baseline's two knobs (velocity window, per-step
+decay; grid search on ADE at 4.8 s) are fitted on the other four, then every walker of the
+held-out scene seen for 8 steps (3.2 s) with its next 12 known (4.8 s) is predicted. Training
+uses every walker seen now with 12 known future steps (a shorter history is filled as
+standing still) and the scenes mirrored (y -> -y). Reports ADE / FDE at 1.2 / 2.4 / 4.8 s
+(m) for the MLP, constant velocity (the runtime conflict feature's assumption) and the hand
+baseline, per fold and averaged over folds, and the time to predict a frame of 20 walkers
+(median over repetitions, encode + forward, numpy).
+
+A second model, ``three_scene``, is trained on biwi_eth, biwi_hotel, uni_examples only (the
+crowd cost's training scenes) and scored on students003 and crowds_zara03 (the social_nav
+bench's real crowds). ``--save`` writes the five fold models (npz, with what they were trained
+on) to nodes/nav/weights/predictor/loso_<held-out scene>.npz, the predictors that
+``bench/irl_spacetime.py --others predicted`` uses; ``--png`` draws held-out predictions.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from nodes.nav.predict import (HORIZONS_S, MlpPredictor, errors, predict_cv, predict_damped,  # noqa: E402
+                               resample_scene, scene_samples)
+from nodes.nav.predict_train import targets, train_mlp  # noqa: E402
+from sim.pedestrian_data import load_tracks  # noqa: E402
+
+SCENES = ("biwi_eth", "biwi_hotel", "uni_examples", "students003", "crowds_zara03")
+SHIPPED_TRAIN = ("biwi_eth", "biwi_hotel", "uni_examples")
+WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "nodes" / "nav" / "weights" / "predictor"
+WINDOWS = (1, 2, 3, 4)
+DECAYS = (0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 1.0)
+
+
+def load_scenes() -> dict[str, dict]:
+    """Per scene: training samples (original + mirrored, any history) and test samples (8 seen steps)."""
+    out = {}
+    for name in SCENES:
+        xy = resample_scene(load_tracks(name))
+        mirror = xy * np.array([1.0, -1.0])
+        train = [scene_samples(a, full_history=False) for a in (xy, mirror)]
+        out[name] = {"train": tuple(np.concatenate(parts) for parts in zip(*train)),
+                     "test": scene_samples(xy), "xy": xy}
+    return out
+
+
+def fit_hand(hist: np.ndarray, fut: np.ndarray) -> tuple[int, float]:
+    """The hand baseline's window and decay with the least ADE at 4.8 s on the given samples."""
+    best = (np.inf, 1, 1.0)
+    for w in WINDOWS:
+        for d in DECAYS:
+            ade = errors(predict_damped(hist, window=w, decay=d), fut)["ade_4.8s"]
+            best = min(best, (ade, w, d))
+    return best[1], best[2]
+
+
+def _stack(scenes: dict, names: tuple[str, ...], part: str) -> tuple[np.ndarray, ...]:
+    return tuple(np.concatenate(parts) for parts in zip(*(scenes[n][part] for n in names)))
+
+
+def predict_mlp_batched(model: MlpPredictor, x: np.ndarray, rot: np.ndarray, hist: np.ndarray) -> np.ndarray:
+    """The MLP's prediction of test samples whose inputs were encoded with their frame's neighbours."""
+    return model.predict_encoded(x, rot, hist)
+
+
+def score(model: MlpPredictor, hand: tuple[int, float], test: tuple[np.ndarray, ...]) -> dict:
+    x, rot, hist, fut = test
+    return {"samples": int(len(x)),
+            "mlp": errors(predict_mlp_batched(model, x, rot, hist), fut),
+            "cv": errors(predict_cv(hist), fut),
+            "hand": errors(predict_damped(hist, window=hand[0], decay=hand[1]), fut),
+            "hand_window_decay": [hand[0], hand[1]]}
+
+
+def time_frame(model: MlpPredictor, scene: np.ndarray, *, people: int = 20, reps: int = 200) -> dict[str, float]:
+    """Median ms to predict one frame of ``people`` walkers (the first frame with that many seen 8 steps)."""
+    for j in range(7, len(scene)):
+        here = np.flatnonzero(np.isfinite(scene[j - 7:j + 1]).all(axis=(0, 2)))
+        if len(here) >= people:
+            hist = scene[j - 7:j + 1, here[:people]].transpose(1, 0, 2)
+            break
+    else:
+        raise ValueError(f"no frame with {people} walkers seen for 8 steps")
+    out = {}
+    for name, fn in (("mlp", model.predict), ("cv", predict_cv), ("hand", predict_damped)):
+        ts = []
+        for _ in range(reps):
+            t = time.perf_counter()
+            fn(hist)
+            ts.append(time.perf_counter() - t)
+        out[f"ms_per_frame_{name}"] = round(1e3 * float(np.median(ts)), 4)
+    out["people"] = people
+    out["ms_per_agent"] = round(out["ms_per_frame_mlp"] / people, 5)
+    return out
+
+
+def draw(model: MlpPredictor, hand: tuple[int, float], test: tuple[np.ndarray, ...], scene: str, path: Path,
+         n: int = 12, seed: int = 0) -> None:
+    """Observed, true and predicted paths of ``n`` held-out walkers that turn or slow (the interesting ones)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x, rot, hist, fut = test
+    pm = predict_mlp_batched(model, x, rot, hist)
+    pc = predict_cv(hist)
+    ph = predict_damped(hist, window=hand[0], decay=hand[1])
+    err_cv = np.linalg.norm(pc[:, -1] - fut[:, -1], axis=1)
+    rng = np.random.default_rng(seed)
+    pool = np.flatnonzero(err_cv > np.quantile(err_cv, 0.5))
+    pick = rng.choice(pool, size=min(n, len(pool)), replace=False)
+    cols = 4
+    fig, axes = plt.subplots(int(np.ceil(len(pick) / cols)), cols, figsize=(4 * cols, 3.6 * np.ceil(len(pick) / cols)))
+    for ax, i in zip(np.ravel(axes), pick):
+        o = hist[i] - hist[i, -1]
+        ax.plot(*o.T, "k.-", label="observed 3.2 s")
+        for p, style, lab in ((fut[i], "g.-", "truth 4.8 s"), (pc[i], "r--", "constant velocity"),
+                              (ph[i], "m:", "hand (damped)"), (pm[i], "b.-", "MLP")):
+            q = np.vstack([np.zeros(2), p - hist[i, -1]])
+            ax.plot(*q.T, style, label=lab, ms=3)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(f"#{i}: FDE cv {err_cv[i]:.2f} mlp {np.linalg.norm(pm[i, -1] - fut[i, -1]):.2f} m", fontsize=9)
+    np.ravel(axes)[0].legend(fontsize=7)
+    fig.suptitle(f"held-out {scene} (MLP trained on the other four scenes); metres from the walker's position now")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--steps", type=int, default=1000, help="training minibatches per model")
+    ap.add_argument("--hidden", type=int, nargs="*", default=[64, 64])
+    ap.add_argument("--save", action="store_true", help="write the models to nodes/nav/weights/predictor/")
+    ap.add_argument("--png", default="out/pedestrian_predict.png", help="held-out predictions picture ('' for none)")
+    ap.add_argument("--png-scene", default="students003")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s", stream=sys.stderr)
+    t0 = time.perf_counter()
+    scenes = load_scenes()
+    report: dict = {"scenes": list(SCENES), "steps": args.steps, "hidden": args.hidden, "folds": {},
+                    "load_s": round(time.perf_counter() - t0, 1)}
+    models = {}
+    for held in SCENES:
+        train_names = tuple(n for n in SCENES if n != held)
+        x, rot, hist, fut = _stack(scenes, train_names, "train")
+        logging.info("fold %s: %d training samples", held, len(x))
+        meta = {"trained_on": list(train_names), "held_out": [held], "data": "ETH/UCY eth_ucy_sgan_format, 0.4 s "
+                "resampled, mirrored y", "bench": "bench/pedestrian_predict.py"}
+        model = train_mlp(x, targets(rot, hist, fut), hidden=tuple(args.hidden), steps=args.steps, meta=meta)
+        hand = fit_hand(*_stack(scenes, train_names, "test")[2:])
+        models[held] = (model, hand)
+        report["folds"][held] = score(model, hand, scenes[held]["test"]) | {"train_s": model.meta["train_s"]}
+        if args.save:
+            WEIGHTS_DIR.mkdir(parents=True, exist_ok=True)
+            model.save(WEIGHTS_DIR / f"loso_{held}.npz")
+    x, rot, hist, fut = _stack(scenes, SHIPPED_TRAIN, "train")
+    meta = {"trained_on": list(SHIPPED_TRAIN), "held_out": ["students003", "crowds_zara03"],
+            "data": "ETH/UCY eth_ucy_sgan_format, 0.4 s resampled, mirrored y", "bench": "bench/pedestrian_predict.py"}
+    three = train_mlp(x, targets(rot, hist, fut), hidden=tuple(args.hidden), steps=args.steps, meta=meta)
+    hand = fit_hand(*_stack(scenes, SHIPPED_TRAIN, "test")[2:])
+    report["three_scene"] = {held: score(three, hand, scenes[held]["test"]) for held in ("students003", "crowds_zara03")}
+    for kind in ("mlp", "cv", "hand"):
+        for metric in ("ade", "fde"):
+            for h in HORIZONS_S:
+                vals = [report["folds"][s][kind][f"{metric}_{h:g}s"] for s in SCENES]
+                report.setdefault(f"{metric}_{kind}_by_horizon_m", {})[f"{h:g}"] = round(float(np.mean(vals)), 4)
+    report["ade_m"] = report["ade_mlp_by_horizon_m"]["4.8"]
+    report["fde_m"] = report["fde_mlp_by_horizon_m"]["4.8"]
+    report["ade_cv_m"] = report["ade_cv_by_horizon_m"]["4.8"]
+    report["fde_cv_m"] = report["fde_cv_by_horizon_m"]["4.8"]
+    report["ade_hand_m"] = report["ade_hand_by_horizon_m"]["4.8"]
+    report["fde_hand_m"] = report["fde_hand_by_horizon_m"]["4.8"]
+    report["mlp_beats_cv_folds"] = sum(report["folds"][s]["mlp"]["ade_4.8s"] < report["folds"][s]["cv"]["ade_4.8s"]
+                                       for s in SCENES)
+    report["mlp_beats_hand_folds"] = sum(report["folds"][s]["mlp"]["ade_4.8s"] < report["folds"][s]["hand"]["ade_4.8s"]
+                                         for s in SCENES)
+    report |= time_frame(three, scenes["students003"]["xy"])
+    if args.png:
+        Path(args.png).parent.mkdir(parents=True, exist_ok=True)
+        draw(*models[args.png_scene], scenes[args.png_scene]["test"], args.png_scene, Path(args.png))
+        report["png"] = args.png
+    report["total_s"] = round(time.perf_counter() - t0, 1)
+    report = json.loads(json.dumps(report), parse_float=lambda s: round(float(s), 4))
+    if args.json:
+        print(json.dumps(report, indent=1))
+        return
+    print(f"{'fold':14s} {'samples':>7s}  ADE/FDE 4.8 s (m): {'mlp':>11s} {'cv':>11s} {'hand':>11s}")
+    for s in SCENES:
+        f = report["folds"][s]
+        cells = "  ".join(f"{f[k]['ade_4.8s']:.3f}/{f[k]['fde_4.8s']:.3f}" for k in ("mlp", "cv", "hand"))
+        print(f"{s:14s} {f['samples']:7d}  {cells}")
+    print(f"mean ADE/FDE 4.8 s: mlp {report['ade_m']}/{report['fde_m']}  cv {report['ade_cv_m']}/{report['fde_cv_m']}"
+          f"  hand {report['ade_hand_m']}/{report['fde_hand_m']};  {report['ms_per_frame_mlp']} ms per frame of 20")
+
+
+if __name__ == "__main__":
+    main()
