@@ -60,13 +60,22 @@ def models(names: tuple[str, ...]) -> dict[str, dict[str, float] | None]:
             "spatial_birl": zero | {names[0]: SPATIAL_BIRL_RATIO}}
 
 
+def predictor_for(scene: str, kind: str) -> object:
+    """The others' predictor of demos from ``scene``: the MLP that never saw ``scene`` (leave one scene
+    out), or constant velocity from the observed history."""
+    from nodes.nav.predict import BaselinePredictor, load_loso
+
+    return load_loso(scene) if kind == "mlp" else BaselinePredictor()
+
+
 def run_config(horizon_s: float, pace: float, n: int, radii: tuple[float, ...], lam: float, companions: str,
-               loso: bool, others: str = "recorded") -> dict:
+               loso: bool, others: str = "recorded", predictor: str = "mlp") -> dict:
     """Demos, fits and held-out scores of one (horizon, pace)."""
     names = tuple(f"near_{r:g}" for r in radii)
     t0 = time.perf_counter()
     sets = {ds: spacetime_demos(ds, n, horizon_s=horizon_s, pace=pace, seed=k, radii_m=radii, companions=companions,
-                               others=others)
+                               others=others,
+                               predictor=predictor_for(ds, predictor) if others == "predicted" else None)
             for k, ds in enumerate(TRAIN + HELD_OUT)}
     out: dict = {"horizon_s": horizon_s, "pace": pace, "names": list(names), "demo_s": round(time.perf_counter() - t0, 1),
                  "demos": {ds: {"demos": len(d), **c} for ds, (d, c) in sets.items()}}
@@ -109,15 +118,22 @@ def main() -> None:
     ap.add_argument("--radii", type=float, nargs="*", default=[0.5, 1.0, 1.5], help="near bands (m)")
     ap.add_argument("--lam", type=float, default=0.5)
     ap.add_argument("--companions", choices=("exclude", "keep"), default="exclude")
-    ap.add_argument("--others", choices=("recorded", "constant_velocity"), default="recorded",
-                    help="features from the others' recorded positions or their t0 constant-velocity prediction")
+    ap.add_argument("--others", choices=("recorded", "constant_velocity", "predicted"), default="recorded",
+                    help="features from the others' recorded positions, their t0 constant-velocity prediction, or "
+                         "--predictor's prediction from their last 3.2 s")
+    ap.add_argument("--predictor", choices=("mlp", "cv"), default="mlp",
+                    help="with --others predicted: the learnt MLP held out on the demo's scene "
+                         "(nodes/nav/weights/predictor/loso_<scene>.npz), or constant velocity from the observed steps")
     ap.add_argument("--loso", action="store_true", help="also leave one training scene out (learnt vs shortest path)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
-    runs = [run_config(h, p, args.demos, tuple(args.radii), args.lam, args.companions, args.loso, args.others)
+    runs = [run_config(h, p, args.demos, tuple(args.radii), args.lam, args.companions, args.loso, args.others,
+                       args.predictor)
             for h in args.horizons for p in args.paces]
     report = {"trained_on": list(TRAIN), "held_out": list(HELD_OUT), "demos_per_set": args.demos,
               "companions": args.companions, "others": args.others, "lam": args.lam, "runs": runs}
+    if args.others == "predicted":
+        report["predictor"] = args.predictor
     if args.json:
         print(json.dumps(report, indent=1))
         return

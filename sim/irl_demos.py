@@ -169,8 +169,8 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
                     every_s: float = 2.0, seed: int = 0, cell_m: float = 0.25, pace: float = 0.75,
                     margin_m: float = 1.5,
                     radii_m: tuple[float, ...] = (0.5, 1.0), companions: str = "exclude",
-                    companion_m: float = 1.5, companion_mps: float = 0.5, others: str = "recorded"
-                    ) -> tuple[list, dict]:
+                    companion_m: float = 1.5, companion_mps: float = 0.5, others: str = "recorded",
+                    predictor: object | None = None) -> tuple[list, dict]:
     """Demonstrations of the space-time model (:mod:`nodes.nav.irl_spacetime`) from recorded walkers.
 
     Each demo is ``horizon_s`` of one walker's gapless track from a start time t0 (one every
@@ -184,7 +184,12 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
     (within ``companion_m`` and ``companion_mps`` of its velocity: a group, not people to
     avoid); ``"keep"`` keeps everybody. ``others="constant_velocity"`` asks the features of the
     others' positions at t0 moved on at their t0 velocity instead (the runtime conflict
-    feature's prediction; people who appear after t0 are not seen).
+    feature's prediction; people who appear after t0 are not seen). ``others="predicted"`` asks
+    them of ``predictor.predict(hist)`` (e.g. :class:`nodes.nav.predict.MlpPredictor`, or
+    :func:`nodes.nav.predict.predict_cv` wrapped): each walker seen at t0 with its positions at
+    t0 - 2.8 .. t0 s (8 steps of 0.4 s, NaN where unseen; what was observable at t0, never later),
+    everybody seen at t0 its neighbours; its 12 predicted steps (4.8 s) are interpolated at the
+    demo's steps and continued at the last predicted step's velocity beyond them.
 
     Returns the demos and counts (``windows``, ``clipped_steps``, ``companions_left_out``, ``windows_skipped``).
     """
@@ -192,8 +197,10 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
 
     if companions not in ("exclude", "keep"):
         raise ValueError(f"companions must be 'exclude' or 'keep', got {companions!r}")
-    if others not in ("recorded", "constant_velocity"):
-        raise ValueError(f"others must be 'recorded' or 'constant_velocity', got {others!r}")
+    if others not in ("recorded", "constant_velocity", "predicted"):
+        raise ValueError(f"others must be 'recorded', 'constant_velocity' or 'predicted', got {others!r}")
+    if others == "predicted" and not hasattr(predictor, "predict"):
+        raise ValueError("others='predicted' needs predictor= an object with predict(hist (P, 8, 2)) -> (P, 12, 2)")
     tracks = load_tracks(dataset) if isinstance(dataset, str) else dataset
     windows = []
     for i in range(len(tracks.ids)):
@@ -224,9 +231,13 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
         skip.add(int(tracks.ids[i]))
         slots: dict[int, int] = {}
         rows = []
-        for tk in times:
+        if others == "predicted":
+            ahead = _predicted(tracks, t0, ids0, xy0, predictor, times - t0)
+        for k, tk in enumerate(times):
             if others == "recorded":
                 ids, pos, _ = tracks.state_at(float(tk))
+            elif others == "predicted":
+                ids, pos = ids0, ahead[:, k]
             else:
                 ids, pos = ids0, xy0 + v0 * (tk - t0)
             rows.append({int(p): q for p, q in zip(ids, pos) if int(p) not in skip})
@@ -249,6 +260,25 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
     log.info("%s: %d space-time demos of %d windows (%d drawn made no demo: the walker ended where it started)",
              tracks.name, len(demos), len(windows), counts["windows_skipped"])
     return demos, counts
+
+
+def _predicted(tracks: Tracks, t0: float, ids0: np.ndarray, xy0: np.ndarray, predictor: object,
+               taus_s: np.ndarray) -> np.ndarray:
+    """Positions (P, T, 2) m of the walkers ``ids0`` seen at ``t0`` (at ``xy0``), ``taus_s`` after t0, as
+    ``predictor`` foresees them from their last 8 positions (0.4 s apart, up to t0 only)."""
+    from nodes.nav.predict import OBS_STEPS, STEP_S, positions_at
+
+    if len(ids0) == 0:
+        return np.zeros((0, len(taus_s), 2))
+    where = {int(p): j for j, p in enumerate(ids0)}
+    hist = np.full((len(ids0), OBS_STEPS, 2), np.nan)
+    hist[:, -1] = xy0
+    for k in range(1, OBS_STEPS):
+        ids, pos, _ = tracks.state_at(t0 - k * STEP_S)
+        for p, q in zip(ids, pos):
+            if int(p) in where:
+                hist[where[int(p)], OBS_STEPS - 1 - k] = q
+    return positions_at(xy0, predictor.predict(hist), taus_s)
 
 
 def _futures(tracks: Tracks, ids: np.ndarray, t_s: float, taus_s: np.ndarray,

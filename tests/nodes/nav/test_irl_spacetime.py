@@ -193,3 +193,46 @@ def test_constant_velocity_others_see_a_crossing_that_never_happened():
     assert on_path(predicted[0])[0] > 0                         # the prediction puts it on the path
     with pytest.raises(ValueError, match="others"):
         spacetime_demos(tracks, 5, others="guess")
+
+
+def test_predicted_others_see_only_what_was_observable_at_t0():
+    from nodes.nav.predict import OBS_STEPS, PRED_STEPS, STEP_S, BaselinePredictor
+    from sim.irl_demos import spacetime_demos
+
+    t = np.arange(0, 12.01, 0.4)
+    walker = np.column_stack([1.2 * t, np.zeros_like(t)])                 # at x = 6 m at t = 5 s
+    t2 = np.arange(0, 5.21, 0.4)                                           # too short to be a demo itself
+    other = np.column_stack([np.full_like(t2, 6.0), 3.0 - 0.6 * np.minimum(t2, 2.0)])  # heads for it, stops
+    tracks = Tracks("toy", np.array([1, 2]), (t, t2), (walker, other), 0.4, 1.0)
+    seen = []
+
+    class KeepsHeading:
+        """Records what it was shown; predicts the other walker keeps heading for the path at 0.6 m/s."""
+
+        def predict(self, hist):
+            seen.append(hist.copy())
+            return hist[:, -1][:, None] + np.arange(1, PRED_STEPS + 1)[None, :, None] * STEP_S * np.array([0.0, -0.6])
+
+    kw = {"every_s": 20.0, "radii_m": (0.5, 1.0)}
+    def on_path(d):
+        return d.features[np.arange(1, len(d.path)), d.path[1:, 0], d.path[1:, 1]].sum(axis=0)
+
+    heading, _ = spacetime_demos(tracks, 5, others="predicted", predictor=KeepsHeading(), **kw)
+    still, _ = spacetime_demos(tracks, 5, others="predicted", predictor=BaselinePredictor(), **kw)
+    recorded, _ = spacetime_demos(tracks, 5, **kw)
+    assert len(seen) == 1 and seen[0].shape == (2, OBS_STEPS, 2)
+    assert np.isnan(seen[0][:, :-1]).all()                     # t0 = 0: nothing before it, and never the future
+    assert np.allclose(seen[0][:, -1], [[0.0, 0.0], [6.0, 3.0]])
+    assert on_path(heading[0])[0] > 0                          # the predicted crossing is on the walker's path
+    assert on_path(still[0]).sum() == 0 == on_path(recorded[0]).sum()     # seen once: predicted standing
+    with pytest.raises(ValueError, match="predictor"):
+        spacetime_demos(tracks, 5, others="predicted", **kw)
+
+
+@pytest.mark.parametrize("scene", ["biwi_eth", "biwi_hotel", "uni_examples", "students003", "crowds_zara03"])
+def test_shipped_fold_predictors_never_saw_their_scene(scene):
+    from nodes.nav.predict import load_loso
+
+    model = load_loso(scene)
+    assert scene in model.meta["held_out"] and scene not in model.meta["trained_on"]
+    assert len(model.meta["trained_on"]) == 4
