@@ -114,7 +114,7 @@ class IrlStack:
         self.plan = Harness(DijkstraPlanner, params={**PLANNER_PARAMS, "weights_path": weights, **params.get("planner", {})},
                             roundtrip=False, node_id="planner")
         self.guard = Harness(CollisionGuard, params=params.get("guard", {}), roundtrip=False, node_id="guard")
-        self.guard_old = old_rule_guard(params)
+        self.guard_other = other_rule_guard(params)
         goal, grid = _static(world)
         self.pipe.set_goal((goal.x_m, goal.y_m), 0.0)
         self.plan.feed([(0.0, "goal", goal), (0.0, "map", grid)])
@@ -139,7 +139,7 @@ class IrlStack:
         cmd = cmds[-1] if cmds else Twist2D()
         planner_paced(self, self.plan.node.planner, cmd)
         sensed = [(t, "odom", odom), (t, "rgbd", frame)] + ([(t, "points", flow)] if flow is not None else [])
-        shadow_guarded(self, self.guard_old.feed(sensed + [(t, "cmd", cmd)]), cmd)
+        shadow_guarded(self, self.guard_other.feed(sensed + [(t, "cmd", cmd)]), cmd)
         return guarded(self, self.guard.feed(sensed + [(t, "cmd", cmd)]), cmd)
 
 
@@ -176,21 +176,22 @@ def guarded(stack, outputs, cmd: Twist2D) -> tuple[float, float]:
     return v, w
 
 
-def old_rule_guard(params: dict[str, dict]):
-    """A second guard with the old stop rule (``stop_along_path`` false: the straight distance now to any point the
-    commanded arc touches), fed what the real one is, its commands unused: ``guard_frac_old_rule`` is how often it
-    would have braked the same planner on the same run. The old rule's own closed loop is not this run."""
-    return Harness(CollisionGuard, params={**params.get("guard", {}), "stop_along_path": False}, roundtrip=False,
-                   node_id="guard_old")
+def other_rule_guard(params: dict[str, dict]):
+    """A second guard with the other stop rule (``stop_along_path`` flipped: measured along the commanded arc, not as
+    the straight distance now), fed what the real one is, its commands unused: ``guard_frac_other_rule`` is how often
+    it would have braked the same planner on the same run (not its own closed loop), ``guard_other_rule`` names it."""
+    flip = not params.get("guard", {}).get("stop_along_path", CollisionGuard.Config().stop_along_path)
+    return Harness(CollisionGuard, params={**params.get("guard", {}), "stop_along_path": flip}, roundtrip=False,
+                   node_id="guard_other")
 
 
 def shadow_guarded(stack, outputs, cmd: Twist2D) -> None:
-    """Counts the ticks the old-rule guard (:func:`old_rule_guard`) would have braked ``cmd`` (``guard_ticks_old``)."""
+    """Counts the ticks the other-rule guard (:func:`other_rule_guard`) would have braked ``cmd`` (``guard_ticks_other``)."""
     safe = [o.msg for o in outputs if o.output == "cmd"]
     if safe:
-        stack.safe_old = (safe[-1].vx_mps, safe[-1].wz_radps)
-    v = getattr(stack, "safe_old", (0.0, 0.0))[0]
-    stack.guard_ticks_old = getattr(stack, "guard_ticks_old", 0) + int(cmd.vx_mps > 0 and v < cmd.vx_mps - 1e-6)
+        stack.safe_other = (safe[-1].vx_mps, safe[-1].wz_radps)
+    v = getattr(stack, "safe_other", (0.0, 0.0))[0]
+    stack.guard_ticks_other = getattr(stack, "guard_ticks_other", 0) + int(cmd.vx_mps > 0 and v < cmd.vx_mps - 1e-6)
 
 
 def planner_paced(stack, planner, cmd: Twist2D) -> None:
@@ -217,7 +218,7 @@ class DwaStack:
         dwa_params = ({"predict_s": DWA_PREDICT_S} if DWA_PREDICTS else {}) | params.get("dwa", {})
         self.dwa = Harness(Dwa, params=dwa_params, roundtrip=False, node_id="dwa")
         self.guard = Harness(CollisionGuard, params=params.get("guard", {}), roundtrip=False, node_id="guard")
-        self.guard_old = old_rule_guard(params)
+        self.guard_other = other_rule_guard(params)
         goal, grid = _static(world)
         self.dwa.feed([(0.0, "goal", goal), (0.0, "map", grid)])
 
@@ -234,7 +235,7 @@ class DwaStack:
         cmds = [o.msg for o in out if o.output == "cmd"]
         cmd = cmds[-1] if cmds else Twist2D()
         sensed = [(t, "odom", odom), (t, "rgbd", frame)] + flow + [(t, "cmd", cmd)]
-        shadow_guarded(self, self.guard_old.feed(sensed), cmd)
+        shadow_guarded(self, self.guard_other.feed(sensed), cmd)
         return guarded(self, self.guard.feed(sensed), cmd)
 
 
@@ -301,7 +302,7 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
                  guard_why=dict(getattr(stack, "guard_why", {})),
                  ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s)
     ep.planner_why = dict(getattr(stack, "planner_why", {})) if stack.name == "irl" else None
-    ep.guard_ticks_old = getattr(stack, "guard_ticks_old", None)
+    ep.guard_ticks_other = getattr(stack, "guard_ticks_other", None)
     return ep
 
 
@@ -310,9 +311,9 @@ def metrics(ep: Episode) -> dict:
     profile waited or slowed for predicted people: ``planner_wait_frac`` (either, share of control ticks) and
     ``planner_why`` ('wait': speed 0 where steering would drive, 'slow')."""
     m = episode_metrics(ep)
-    old = getattr(ep, "guard_ticks_old", None)
+    old = getattr(ep, "guard_ticks_other", None)
     if old is not None and ep.ticks:
-        m["guard_frac_old_rule"] = round(old / ep.ticks, 4)
+        m["guard_frac_other_rule"] = round(old / ep.ticks, 4)
     why = getattr(ep, "planner_why", None)
     if why is not None and ep.ticks:
         m["planner_wait_frac"] = round(sum(why.values()) / ep.ticks, 4)
@@ -504,7 +505,7 @@ def _save(fig, filename: str) -> Path:
 
 HEADLINE = ("person_cost", "robot_contacts", "robot_contacts_strict", "closest_ge_dwa_count",
             "closest_ge_dwa_or_walk_in_count", "time_ok_count",
-            "scenario_count", "guard_frac", "dwa_predicts", "weights_from", "weights")
+            "scenario_count", "guard_frac", "guard_frac_other_rule", "planner_wait_frac", "dwa_predicts", "weights_from", "weights")
 
 
 def headline(report: dict, goals: dict, args: argparse.Namespace) -> dict:
@@ -525,6 +526,12 @@ def headline(report: dict, goals: dict, args: argparse.Namespace) -> dict:
            "guard_frac": round(float(np.max(ticks["irl"])), 4) if ticks["irl"] else None,
            "guard_frac_median": round(float(np.median(ticks["irl"])), 4) if ticks["irl"] else None,
            "guard_why_worst": _worst_why(report),
+           # the other stop rule (see other_rule_guard) on the same runs, and the planner's own waiting (planner_paced)
+           "guard_other_rule": "stop_along_path=" + str(not node_params(args.param).get("guard", {}).get(
+               "stop_along_path", CollisionGuard.Config().stop_along_path)).lower(),
+           "guard_frac_other_rule": _worst([r.get("guard_frac_other_rule") for r in irl]),
+           "planner_wait_frac": _worst([r.get("planner_wait_frac") for r in irl]),
+           "planner_wait_frac_median": _median([r.get("planner_wait_frac") for r in irl]),
            "dwa_predicts": DWA_PREDICTS,
            "params_chosen_on": PARAMS_CHOSEN_ON,
            "weights_from": list((w.extra or {}).get("trained_on", [])),
@@ -533,6 +540,7 @@ def headline(report: dict, goals: dict, args: argparse.Namespace) -> dict:
                    "robot_contacts_strict": sum(r["robot_contacts_strict"] for r in dwa),
                    "contacts_strict_moving": sum(r["contacts_strict_moving"] for r in dwa),
                    "guard_frac": round(float(np.max(ticks["dwa"])), 4) if ticks["dwa"] else None,
+                   "guard_frac_other_rule": _worst([r.get("guard_frac_other_rule") for r in dwa]),
                    "time_ok_count": sum(r["dwa"]["time_s"] is not None and r["human"]["time_s"] is not None
                                         and r["dwa"]["time_s"] <= 1.15 * r["human"]["time_s"] for r in report.values()),
                    "closest_median_m": _median([r["closest_m"] for r in dwa])},
@@ -550,6 +558,11 @@ def _worst_why(report: dict) -> dict:
         return {}
     name = max(rows)[1]
     return {"scenario": name, **report[name]["irl"]["guard_why"]}
+
+
+def _worst(values: list) -> float | None:
+    v = [x for x in values if x is not None]
+    return round(float(np.max(v)), 4) if v else None
 
 
 def _median(values: list) -> float | None:

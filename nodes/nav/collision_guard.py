@@ -6,9 +6,10 @@ Obstacles are the depth image's points (and/or 3D points) between ``z_min_m`` an
 centre would take with that (v, w) (:mod:`nodes.nav.clearance`) and finds the first place
 where the robot's disc plus ``margin_m`` would close in on a point:
 
-- an obstacle on that path nearer than ``stop_distance_m`` to the robot centre (the paper's
-  1 m rule, applied to what the robot is driving toward, so it may pass beside a wall or a
-  standing person) zeroes forward motion; turning in place stays allowed unless
+- an obstacle on that path nearer than ``stop_distance_m`` (the paper's 1 m rule, applied to
+  what the robot is driving toward, so it may pass beside a wall or a standing person; measured
+  as the straight distance now; ``stop_along_path``, not safe: along the arc)
+  zeroes forward motion; turning in place stays allowed unless
   ``allow_turn_in_place`` is false. It releases only after ``release_s`` of continuous
   clearance on the commanded path;
 - otherwise the forward speed is capped so the robot can still brake (``decel_mps2``) to a
@@ -90,16 +91,15 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
                                       # phantoms held it 0.5 s at a time (hallway: 1-3 ticks of a predicted obstacle,
                                       # then 8 of 'waiting'); a walker's body moves many points, and its prediction
                                       # may flicker at the path's edge, so it holds (0 = every stop holds)
-    stop_along_path: bool = True      # 'nearer than stop_distance_m on the path' is measured along the commanded arc:
-                                      # the travel until the robot's disc (plus margin) would touch a point, plus its
-                                      # radius (straight ahead: the distance itself), not the straight distance now to
-                                      # any point the arc touches anywhere within check_m. A tight turn's arc (|w| 1.2
-                                      # rad/s at 0.6 m/s: a 0.5 m circle) loops round through walkers 0.9 m to the
-                                      # side that the robot would reach only after ~1-2 m of a turn it never finishes,
-                                      # and an arc bending toward someone beside the path touched them only after
-                                      # most of a metre (hallway: 60 of 302 braked ticks at |w| >= 0.9). The braking
-                                      # cap (stop before touching) is the same. False: the old rule (bench/social_nav.py
-                                      # reports the guard's share of ticks under both)
+    stop_along_path: bool = False     # True: 'nearer than stop_distance_m on the path' is measured along the commanded
+                                      # arc (the travel until the disc would touch a point, plus the radius) instead of
+                                      # as the straight distance now to any point the arc touches within check_m. It
+                                      # spares walkers 0.9 m to the side that a tight turn's arc (a 0.5 m circle at 0.6
+                                      # m/s, -1.2 rad/s) or an arc bending toward them touches only after most of a
+                                      # metre (hallway, IRL: 39 -> 10 % of ticks braked), but it is not safe: a walker
+                                      # drifting into the path from 1 m to the side was stopped for 0.3 s later, and
+                                      # DWA touched one (group: closest 0.54 -> 0.30 m, 1 strict robot contact).
+                                      # Off; bench/social_nav.py reports what it would brake (guard_frac_along_path)
     stride_px: int = 4
     z_min_m: float = 0.1
     z_max_m: float = 2.0

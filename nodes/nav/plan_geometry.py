@@ -256,7 +256,9 @@ def speed_profile(path_xy: np.ndarray, people_xy: np.ndarray, people_v: np.ndarr
     ``path_xy`` (robot frame, (n, 2), starting at the robot), needs the path from s(t) to
     s(t) + ``headway_s`` x v(t) clear within ``clear_m`` of every person (``people_xy`` (M, 2) now, moving at
     ``people_v`` (M, 2), see :func:`people_motion`): its personal space, stretched ahead by the time it
-    keeps to whoever it follows or meets. A step where it is not is a step in conflict. The cost of a
+    keeps to whoever it follows or meets. A step where it is not, with a person nearer to that stretch of
+    path than to where the robot stands now (the robot's own motion brought it closer; a walker coming up
+    to a robot that waits is not the robot's conflict), is a step in conflict. The cost of a
     candidate, in the learnt cost's units: every second in conflict costs ``conflict_price`` (the
     learnt price of a conflict cell) per cell of ``cell_m`` the robot would cross in it at ``v_max_mps``, and
     the progress it gives up against the fastest candidate costs ``progress_price`` (the typical cell
@@ -288,8 +290,9 @@ def speed_profile(path_xy: np.ndarray, people_xy: np.ndarray, people_v: np.ndarr
     if len(xy) and len(pts) >= 1:
         for k, tau in enumerate(taus):
             q = xy + vel * tau
-            d = np.hypot(pts[:, None, 0] - q[None, :, 0], pts[:, None, 1] - q[None, :, 1]).min(axis=1)   # (S,)
-            blocked = d < clear_m
+            d = np.hypot(pts[:, None, 0] - q[None, :, 0], pts[:, None, 1] - q[None, :, 1])    # (S, M)
+            stay = np.hypot(pts[0, 0] - q[:, 0], pts[0, 1] - q[:, 1])                         # (M,) had it waited
+            blocked = ((d < clear_m) & (d < stay[None, :] - 1e-6)).any(axis=1)
             if not blocked.any():
                 continue
             b = along[blocked]

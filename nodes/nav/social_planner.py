@@ -23,8 +23,8 @@ import numpy as np
 from nodes.nav.dijkstra import GridGraph, backtrack, cost_from, smooth_path
 from nodes.nav.grid_frame import GridFrame, densify, extract_waypoint, inflate, plan_on_map, steer, to_robot, to_world
 from nodes.nav.plan_geometry import (SpeedChoice, footprint_cost, on_rim, passes_people, people_motion,
-                                     person_floor_cost, polyline_cost, remaining_m, rest_of_path, speed_profile,
-                                     unseen_by_camera, waypoint_reach)
+                                     person_floor_cost, polyline_cost, remaining_m, rest_of_path,
+                                     speed_profile, unseen_by_camera, waypoint_reach)
 
 
 @dataclass(frozen=True)
@@ -95,8 +95,8 @@ class SocialPlanner:
         self._path: np.ndarray | None = None           # local path being followed (world, m)
         self._memory: list[tuple] = []
         self._walls: np.ndarray | None = None           # map cells on or next to static obstacles (not inflated)
-        self._people: tuple[float, np.ndarray, np.ndarray] | None = None   # (t_s, world xy, world velocity)
-        self._typical = 0.0                            # the planning grid's typical cell cost (last update)
+        self._people: tuple | None = None               # (t_s, world xy, world velocity, when each was last seen)
+        self._floor: tuple[float, float] | None = None  # typical planning-grid cell cost and cell size (m), last update
         self.speed: SpeedChoice | None = None          # the last command's speed choice (None: not asked)
         self.speed_steer_mps = 0.0                     # ... and the speed steering alone asked for
 
@@ -121,7 +121,11 @@ class SocialPlanner:
                    t_s: float) -> None:
         """The flow's points (robot frame at ``pose``, (N, 3) m and m/s, taken at ``t_s``): what the speed
         profile predicts people from (:func:`nodes.nav.plan_geometry.people_motion`). Points on or within
-        0.15 m of the map's static obstacles are not people."""
+        0.15 m of the map's static obstacles are not people. People the camera cannot see now (outside its
+        view, or nearer than it measures) are kept ``memory_s``, moving on at their velocity: a walker who
+        stalls right in front of the robot turns into depth holes, and planning as if they had gone had the
+        robot drive at them (the guard then stopped it; the cost grid has the same memory, :meth:`_remember`).
+        """
         xy, v = people_motion(points_m, velocity_mps)
         world = to_world(pose, xy)
         c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -132,7 +136,21 @@ class SocialPlanner:
             cells = self.map_frame.clamp(cells)
             keep = ~(inside & self._walls[cells[:, 0], cells[:, 1]])
             world, v_world = world[keep], v_world[keep]
-        self._people = (float(t_s), world, v_world)
+        seen_world = world
+        if self._people is not None and self.p.memory_s > 0:
+            t0, old_xy, old_v, old_t = self._people
+            age = t_s - old_t
+            moved = old_xy + old_v * (t_s - t0)
+            rel = to_robot(pose, moved)
+            keep = ((age <= self.p.memory_s) & (np.hypot(rel[:, 0], rel[:, 1]) <= 2.0)
+                    & unseen_by_camera(rel, camera_x_m=self.p.camera_x_m, fov_deg=self.p.fov_deg,
+                                       min_range_m=self.p.min_range_m))
+            world = np.vstack([world, moved[keep]])
+            v_world = np.vstack([v_world, old_v[keep]])
+            seen_t = np.concatenate([np.full(len(seen_world), float(t_s)), old_t[keep]])
+        else:
+            seen_t = np.full(len(world), float(t_s))
+        self._people = (float(t_s), world, v_world, seen_t)
 
     def _graph(self, shape: tuple[int, int]) -> GridGraph:
         if shape not in self._graphs:
@@ -188,9 +206,9 @@ class SocialPlanner:
             high_density = high_density | (predicted & ~static)
         cost = person_floor_cost(cost, high_density, self.p.person_cost)
         finite = np.isfinite(cost)
-        if finite.any():
+        if finite.any():            # the speed profile prices progress as the local plan prices a detour (_local)
             dilated = footprint_cost(cost, (self.p.robot_radius_m + self.p.crowd_margin_m) / frame.resolution_m)
-            self._typical, self._cell_m = float(np.median(dilated[np.isfinite(dilated)])), frame.resolution_m
+            self._floor = (float(np.median(dilated[np.isfinite(dilated)])), frame.resolution_m)
         event = self._replan_event(pose, frame, high_density, t_s)
         if not event:
             return Decision(self.mode, "", self.waypoint)
@@ -421,9 +439,12 @@ class SocialPlanner:
                 v = min(v, choice.v_mps)
         return v, w
 
-    def _ahead(self, pose: tuple[float, float, float], target: np.ndarray) -> np.ndarray:
-        """The path the robot will drive (world, (n, 2)): to ``target``, then on along the local path being
-        followed (or the global path) beyond it."""
+    def _ahead(self, pose: tuple[float, float, float], target: np.ndarray, *, length_m: float = 4.0,
+               dt_s: float = 0.1) -> np.ndarray:
+        """The path the robot will drive (world, (n, 2)): steering's own track toward ``target`` (the unicycle
+        rolled out with :func:`nodes.nav.grid_frame.steer`, so a turn is the arc it really drives, not the
+        straight line to the waypoint), then on along the local path being followed (or the global path)
+        beyond it; ``length_m`` of it at most."""
         if self.mode == "local" and self._path is not None and len(self._path) >= 2 and self.waypoint is not None:
             beyond = rest_of_path(self._path, target)[1:]
         elif self.global_path is not None:
@@ -431,23 +452,34 @@ class SocialPlanner:
             beyond = self.global_path[i + 1:]
         else:
             beyond = np.zeros((0, 2))
-        return np.vstack([np.asarray(pose[:2], float)[None], np.asarray(target, float)[None], beyond])
+        x, y, yaw = (float(a) for a in pose)
+        track, travelled = [(x, y)], 0.0
+        while travelled < length_m and np.hypot(target[0] - x, target[1] - y) > self.p.safe_zone_m:
+            v, w = steer((x, y, yaw), target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps)
+            v = max(v, 0.2 * self.p.v_max_mps)          # turning on the spot: the track starts where it stands
+            x, y, yaw = x + v * np.cos(yaw) * dt_s, y + v * np.sin(yaw) * dt_s, yaw + w * dt_s
+            track.append((x, y))
+            travelled += v * dt_s
+        return np.vstack([np.asarray(track), np.asarray(target, float)[None], beyond])
 
     def _speed(self, pose: tuple[float, float, float], target: np.ndarray, t_s: float,
                v_now_mps: float) -> SpeedChoice | None:
         """The speed profile's choice along the path ahead (None: off, or no fresh prediction of people)."""
         if self.p.conflict_price <= 0 or self.p.speed_horizon_s <= 0 or self._people is None:
             return None
-        t0, xy, vel = self._people
+        t0, xy, vel, _ = self._people
         if not 0 <= t_s - t0 <= self.p.people_timeout_s:
             return None
         now = xy + vel * (t_s - t0)
         c, s = np.cos(pose[2]), np.sin(pose[2])
         rel_v = np.column_stack([c * vel[:, 0] + s * vel[:, 1], -s * vel[:, 0] + c * vel[:, 1]])
-        path = to_robot(pose, self._ahead(pose, target))
-        cell = getattr(self, "_cell_m", 0.25)
-        return speed_profile(path, to_robot(pose, now), rel_v, v_now_mps=v_now_mps, v_max_mps=self.p.v_max_mps,
-                             conflict_price=self.p.conflict_price, progress_price=self._typical or 2.0, cell_m=cell,
+        ahead = self._ahead(pose, target)
+        if self._floor is None:
+            return None
+        price, cell = self._floor
+        return speed_profile(to_robot(pose, ahead), to_robot(pose, now), rel_v, v_now_mps=v_now_mps,
+                             v_max_mps=self.p.v_max_mps, conflict_price=self.p.conflict_price, progress_price=price,
+                             cell_m=cell,
                              clear_m=self._clear_full_m, headway_s=self.p.headway_s,
                              horizon_s=self.p.speed_horizon_s, accel_mps2=self.p.accel_mps2)
 

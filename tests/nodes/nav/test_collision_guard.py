@@ -65,9 +65,7 @@ def test_points_in_robot_frame_floor_and_ceiling_ignored():
     assert nearest_obstacle_m(np.zeros((0, 3))) == float("inf")
     with Harness(CollisionGuard) as h:
         outs = h.feed([(0.0, "points", FlowPoints(points_m=pts.astype(np.float32))), (0.01, "cmd", GO)])
-    # the floor point 0.5 m and the ceiling point 0.6 m straight ahead would stop it; the one 0.86 m to the left,
-    # which the arc bending left touches after 0.55 m (1.0 m along the path, room to brake), leaves it as it is
-    assert cmds(outs)[-1] == (0.8, 0.3)
+    assert cmds(outs)[-1] == (0.0, 0.3)
 
 
 def post(depth_m: float, hole: bool = False, t: float = 0.0) -> RgbdFrame:
@@ -202,14 +200,14 @@ def _stop_with(points_xy, cmd: Twist2D, **params) -> tuple[float, float]:
         return cmds(h.feed([(0.0, "points", FlowPoints(points_m=pts)), (0.01, "cmd", cmd)]))[-1]
 
 
-def test_a_tight_turn_does_not_stop_for_someone_its_full_circle_would_reach_only_later():
+def test_along_the_path_a_tight_turn_does_not_stop_for_someone_its_full_circle_would_reach_only_later():
     """A 0.6 m/s, -1.2 rad/s command's arc is a 0.5 m circle; a walker 0.9 m to the right lies on its far side,
-    ~1.3 m of turning away. The old rule (straight distance now, 0.92 m < 1 m) stopped; along the path it is
-    beyond 1 m, so the robot turns on, no faster than it can still stop before them."""
+    ~1.3 m of turning away. The shipped rule (straight distance now, 0.92 m < 1 m) stops; the along-path rule
+    (``stop_along_path``, off: not safe for DWA, see Config) turns on, no faster than it can still stop."""
     side = [[0.2, -0.9], [0.25, -0.9], [0.2, -0.95]]
     turn = Twist2D(vx_mps=0.6, wz_radps=-1.2)
-    assert _stop_with(side, turn, stop_along_path=False)[0] == 0.0
-    v, w = _stop_with(side, turn)
+    assert _stop_with(side, turn)[0] == 0.0
+    v, w = _stop_with(side, turn, stop_along_path=True)
     assert 0.0 < v <= 0.6 and w == -1.2
 
 

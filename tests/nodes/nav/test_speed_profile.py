@@ -184,3 +184,19 @@ def test_a_walled_off_goal_is_unreachable_and_the_robot_stays():
     rows, planner = _drive(_crossing, (3.5, 0.0), seconds=2.0, occupancy=(occ, frame))
     assert planner.mode == "unreachable"
     assert all(r[1] == 0.0 for r in rows)
+
+
+@pytest.mark.parametrize("memory_s, waits", [(1.5, True), (0.0, False)])
+def test_someone_who_stepped_into_the_cameras_blind_zone_is_still_there(memory_s, waits):
+    """Seen standing 0.65 m ahead, then nearer than the depth camera measures (0.4 m from it, 0.3 m ahead of the
+    centre): the flow has no points of them any more; the planner remembers them and does not drive on."""
+    rng = np.random.default_rng(5)
+    planner = SocialPlanner(PlannerParams(memory_s=memory_s, conflict_price=PRICE))
+    planner.set_goal((6.0, 0.0))
+    pose = (0.0, 0.0, 0.0)
+    body = np.column_stack([_body(rng, np.array([0.65, 0.0])), rng.uniform(0.3, 1.7, 60)])
+    planner.set_people(pose, body, np.zeros_like(body), 0.0)
+    planner.set_people(pose, np.zeros((0, 3)), np.zeros((0, 3)), 0.2)
+    planner.update(pose, np.full(FRAME.shape, 2.0), FRAME, np.zeros(FRAME.shape, bool), 0.2)
+    v, _ = planner.command(pose, 0.2, 0.0)
+    assert (v == 0.0) == waits
