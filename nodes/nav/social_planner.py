@@ -9,7 +9,11 @@ runs Dijkstra over the learnt cost grid from its cell to a sub-goal (the farthes
 path point within reach) and extracts the next waypoint ``waypoint_m`` along that path.
 Outside the safe zone it keeps its waypoint, except on re-plan events: the waypoint's cell
 turned high-density (a pedestrian stepped onto it), the waypoint fell behind the robot,
-or it has been held longer than ``waypoint_timeout_s``. Layer 3, the collision guard, is a
+or it has been held longer than ``waypoint_timeout_s``. When to go along the path is the planner's
+too (path-velocity decomposition, Kant & Zucker 1986): :meth:`SocialPlanner.command` drives no
+faster than :func:`nodes.nav.plan_geometry.speed_profile` chooses against the people it predicts
+(:meth:`SocialPlanner.set_people`), a second in conflict priced at the learnt cost's conflict weight
+(``conflict_price``) against the progress given up, priced as the local plan prices a detour. Layer 3, the collision guard, is a
 separate node (:mod:`nodes.nav.collision_guard`). The node is :mod:`nodes.nav.dijkstra_planner`;
 the stateless geometry and cost helpers are :mod:`nodes.nav.plan_geometry`.
 """

@@ -200,3 +200,24 @@ def test_someone_who_stepped_into_the_cameras_blind_zone_is_still_there(memory_s
     planner.update(pose, np.full(FRAME.shape, 2.0), FRAME, np.zeros(FRAME.shape, bool), 0.2)
     v, _ = planner.command(pose, 0.2, 0.0)
     assert (v == 0.0) == waits
+
+
+def test_the_planner_node_prices_conflicts_with_the_weights_files_conflict_weight(tmp_path):
+    import json
+
+    from nodes.nav.dijkstra_planner import DijkstraPlanner
+    from nodes.nav.irl_cost import load_weights
+    from tether.testing import Harness
+
+    w = load_weights("")
+    shipped = float(w.weights[list(w.names).index("conflict")])
+    with Harness(DijkstraPlanner) as h:
+        assert h.node.planner.p.conflict_price == shipped
+    other = json.loads(w.to_json())
+    other["weights"][other["names"].index("conflict")] = 1.5
+    path = tmp_path / "w.json"
+    path.write_text(json.dumps(other))
+    with Harness(DijkstraPlanner, params={"weights_path": str(path)}) as h:
+        assert h.node.planner.p.conflict_price == 1.5
+    with Harness(DijkstraPlanner, params={"conflict_price": 0.0}) as h:     # the speed profile off
+        assert h.node.planner.p.conflict_price == 0.0
