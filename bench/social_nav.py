@@ -31,7 +31,11 @@ share of control ticks where it braked or slowed the planner's command is ``guar
 (the largest over the scenarios; ``guard_frac_median`` beside it), split by the rule that braked in
 ``guard_why`` (see :func:`guarded`; ``guard_why_worst``: the scenario where it braked most), and by who was ahead
 (``ahead_*``, ground truth: the nearest person in front within 1.8 m walking toward the robot, the same way,
-across, standing, or nobody; :func:`social_nav_episode.ahead_kind`). ``out/social_nav_tradeoff.png``
+across, standing, or nobody; :func:`social_nav_episode.ahead_kind`). The IRL planner decides when to go itself (its
+speed profile, :func:`nodes.nav.plan_geometry.speed_profile`): ``planner_wait_frac`` is its share of control ticks
+where it waited or slowed for predicted people (``planner_why``: 'wait', 'slow'; headline: the worst scenario and
+the median). A second guard with the other stop rule (``guard_other_rule``) is fed the same inputs and never
+drives: ``guard_frac_other_rule`` is how often it would have braked on the same runs. ``out/social_nav_tradeoff.png``
 plots speed against error: time / human time against closest approach, per planner.
 Writes ``out/social_nav.png`` (trajectories) and prints a table; ``--json`` prints one
 object with the metrics per scenario and method, ``pipeline_hz`` and ``plan_ms_100x100``.
