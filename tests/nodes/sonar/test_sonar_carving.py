@@ -141,7 +141,7 @@ def test_the_evidence_filter_keeps_a_one_sided_block_on_its_faces() -> None:
     scene = load_scene("block")
     surface, _ = sample_structures(scene, 0.03)
     kept = _run(scene, np.arange(0.0, 6.0, 0.15), keep="evidence").cloud(flush=True)
-    assert cloud_metrics(kept.points_m, surface)["acc_frac_0p2"] >= 0.9        # 0.923 (pinned: 0.938)
+    assert cloud_metrics(kept.points_m, surface)["acc_frac_0p2"] >= 0.9        # 0.926 (pinned: 0.938)
     assert len(kept.points_m) >= 300 and np.all(kept.points_m[:, 1] < 5.2)     # nothing behind the unseen back face
 
 
@@ -201,8 +201,8 @@ def test_the_evidence_filter_keeps_more_of_a_pile_and_says_what_the_views_left_o
     pinned = grids["sigma"].cloud(flush=True, max_sigma_m=0.3)              # the default rule at the node's sigma
     kept = grids["evidence"].cloud(flush=True)
     before, after = cloud_metrics(pinned.points_m, surface, visible), cloud_metrics(kept.points_m, surface, visible)
-    assert after["acc_frac_0p2"] >= 0.9, after                                 # 0.943 (pinned: 0.955)
-    assert after["completeness_0p2"] >= before["completeness_0p2"] + 0.1      # 0.872 against 0.645
+    assert after["acc_frac_0p2"] >= 0.9, after                                 # 0.987 (pinned: 0.955)
+    assert after["completeness_0p2"] >= before["completeness_0p2"] + 0.1      # 0.764 against 0.645
     # honest: a point the views did not pin keeps its arcs' spread as sigma, and the sigma covers the error
     assert np.mean(kept.sigma_m > 0.3) > 0.1 and kept.surface_p is not None and np.all(kept.surface_p >= 0.5)
     error = surface_distances(kept.points_m, surface)
