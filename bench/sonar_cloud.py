@@ -27,8 +27,8 @@ unrefuted arc keeps on the structure).
 
 Beside the default carving, the same pass with the evidence filter (``CarvingParams.keep="evidence"``: a classifier
 over each voted voxel's carving evidence keeps it at any sigma, ``nodes.sonar.carving_filter``; trained by
-``bench/sonar_carving_filter.py`` on other passes over these scenes and the tripod, never on the demo pass; its knob
-is the probability threshold), with gaps (``CarvingParams.gap_weight``: a ping that had a voxel in
+``bench/sonar_carving_filter.py`` on other passes over these scenes, the tripod and a few other shapes, never on the
+demo pass; its knob is the probability threshold), with gaps (``CarvingParams.gap_weight``: a ping that had a voxel in
 its fan but no return arc through it counts against it) and with occlusion (``CarvingParams.occlusion``: arcs behind
 their beam's front end do not vote for what front surfaces shadow). Each method is also summed up by
 its completeness at >= 90 % of points within 0.2 m (the best over the sigma sweep: the trade, not one
