@@ -8,10 +8,14 @@ held out in turn: the MLP (:mod:`nodes.nav.predict`, trained by
 decay; grid search on ADE at 4.8 s) are fitted on the other four, then every walker of the
 held-out scene seen for 8 steps (3.2 s) with its next 12 known (4.8 s) is predicted. Training
 uses every walker seen now with 12 known future steps (a shorter history is filled as
-standing still) and the scenes mirrored (y -> -y). Reports ADE / FDE at 1.2 / 2.4 / 4.8 s
+standing still), the scenes mirrored (y -> -y) and scaled by 0.8 and 1.25 (slower and faster
+walkers); the model is the mean of 5 MLPs trained from 5 seeds (``--members``). Reports ADE / FDE at 1.2 / 2.4 / 4.8 s
 (m) for the MLP, constant velocity (the runtime conflict feature's assumption) and the hand
 baseline, per fold and averaged over folds, and the time to predict a frame of 20 walkers
-(median over repetitions, encode + forward, numpy).
+(median over repetitions, encode + forward, numpy). ``near_0.5_recall`` / ``_precision``: the
+space-time IRL feature's question (is a walker's recorded path within 0.5 m of another's
+predicted place at the same step, up to 4.8 s) against the same asked of the recorded place,
+per pair-step pooled over the folds, companions left out (:func:`near_events`).
 
 A second model, ``three_scene``, is trained on biwi_eth, biwi_hotel, uni_examples only (the
 crowd cost's training scenes) and scored on students003 and crowds_zara03 (the social_nav
@@ -32,8 +36,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from nodes.nav.predict import (HORIZONS_S, MlpPredictor, errors, predict_cv, predict_damped,  # noqa: E402
-                               resample_scene, scene_samples)
+from nodes.nav.predict import (HORIZONS_S, PRED_STEPS, STEP_S, BaselinePredictor, MlpPredictor,  # noqa: E402
+                               errors, predict_cv, predict_damped, resample_scene, scene_samples)
 from nodes.nav.predict_train import targets, train_mlp  # noqa: E402
 from sim.pedestrian_data import load_tracks  # noqa: E402
 
@@ -44,16 +48,23 @@ WINDOWS = (1, 2, 3, 4)
 DECAYS = (0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 1.0)
 
 
-def load_scenes() -> dict[str, dict]:
-    """Per scene: training samples (original + mirrored, any history) and test samples (8 seen steps)."""
+def load_scenes(speed_scales: tuple[float, ...] = (0.8, 1.25)) -> dict[str, dict]:
+    """Per scene: training samples (original, mirrored, and both scaled by ``speed_scales``: faster and
+    slower walkers; any history) and test samples (8 seen steps, as recorded)."""
     out = {}
     for name in SCENES:
         xy = resample_scene(load_tracks(name))
-        mirror = xy * np.array([1.0, -1.0])
-        train = [scene_samples(a, full_history=False) for a in (xy, mirror)]
+        train = [scene_samples(xy * np.array([s, f * s]), full_history=False)
+                 for s in (1.0,) + tuple(speed_scales) for f in (1.0, -1.0)]
         out[name] = {"train": tuple(np.concatenate(parts) for parts in zip(*train)),
                      "test": scene_samples(xy), "xy": xy}
     return out
+
+
+def fit(x: np.ndarray, y: np.ndarray, args: argparse.Namespace, meta: dict) -> MlpPredictor:
+    """An ensemble of ``args.members`` MLPs (seeds 0 ..) on the same samples."""
+    return MlpPredictor.ensemble([train_mlp(x, y, hidden=tuple(args.hidden), steps=args.steps, seed=k, meta=meta)
+                                  for k in range(args.members)])
 
 
 def fit_hand(hist: np.ndarray, fut: np.ndarray) -> tuple[int, float]:
@@ -82,6 +93,44 @@ def score(model: MlpPredictor, hand: tuple[int, float], test: tuple[np.ndarray, 
             "cv": errors(predict_cv(hist), fut),
             "hand": errors(predict_damped(hist, window=hand[0], decay=hand[1]), fut),
             "hand_window_decay": [hand[0], hand[1]]}
+
+
+def near_events(predictors: dict, scene: np.ndarray, *, near_m: float = 0.5, companion_m: float = 1.5,
+                companion_mps: float = 0.5) -> dict[str, dict[str, float]]:
+    """The IRL feature's question asked of each predictor: is walker i (its recorded path) within ``near_m``
+    of walker j's *predicted* place at the same step (0.4 .. 4.8 s), against the same of j's recorded place.
+
+    Pairs of walkers seen 8 steps with 12 known ahead in the same frame; companions at t0 (within
+    ``companion_m`` and ``companion_mps``, a group: left out of the IRL demos too) left out. Returns per
+    predictor the recall (recorded near events also predicted, per pair-step) and precision.
+    """
+    hits = {name: np.zeros(3) for name in predictors}                         # both, predicted only, recorded only
+    for j in range(7, len(scene) - PRED_STEPS):
+        here = np.flatnonzero(np.isfinite(scene[j]).all(axis=1))
+        if len(here) < 2:
+            continue
+        hist = scene[j - 7:j + 1, here].transpose(1, 0, 2)
+        fut = scene[j + 1:j + 1 + PRED_STEPS, here].transpose(1, 0, 2)
+        full = np.isfinite(fut).all(axis=(1, 2)) & np.isfinite(hist).all(axis=(1, 2))
+        if full.sum() < 2:
+            continue
+        v0 = (hist[:, -1] - hist[:, -2]) / STEP_S
+        pair = full[:, None] & full[None, :] & ~np.eye(len(here), dtype=bool)
+        pair &= ~((np.linalg.norm(hist[:, None, -1] - hist[None, :, -1], axis=-1) < companion_m)
+                  & (np.linalg.norm(v0[:, None] - v0[None, :], axis=-1) < companion_mps))
+        true_near = np.linalg.norm(fut[:, None] - fut[None, :], axis=-1) < near_m          # (P, P, 12)
+        for name, pred in predictors.items():
+            q = pred.predict(hist)
+            pred_near = np.linalg.norm(fut[:, None] - q[None, :], axis=-1) < near_m         # i recorded, j predicted
+            m = pair[..., None]
+            hits[name] += [np.sum(true_near & pred_near & m), np.sum(pred_near & ~true_near & m),
+                           np.sum(true_near & ~pred_near & m)]
+    out = {}
+    for name, (both, pred_only, true_only) in hits.items():
+        out[name] = {"recall": round(both / max(both + true_only, 1), 4),
+                     "precision": round(both / max(both + pred_only, 1), 4), "both": int(both),
+                     "recorded_events": int(both + true_only), "predicted_events": int(both + pred_only)}
+    return out
 
 
 def time_frame(model: MlpPredictor, scene: np.ndarray, *, people: int = 20, reps: int = 200) -> dict[str, float]:
@@ -144,14 +193,18 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--steps", type=int, default=1000, help="training minibatches per model")
     ap.add_argument("--hidden", type=int, nargs="*", default=[64, 64])
+    ap.add_argument("--members", type=int, default=5, help="MLPs averaged (seeds 0 ..)")
+    ap.add_argument("--speed-scales", type=float, nargs="*", default=[0.8, 1.25],
+                    help="training copies of every scene with positions scaled by these (faster / slower walkers)")
     ap.add_argument("--save", action="store_true", help="write the models to nodes/nav/weights/predictor/")
     ap.add_argument("--png", default="out/pedestrian_predict.png", help="held-out predictions picture ('' for none)")
     ap.add_argument("--png-scene", default="students003")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s", stream=sys.stderr)
     t0 = time.perf_counter()
-    scenes = load_scenes()
-    report: dict = {"scenes": list(SCENES), "steps": args.steps, "hidden": args.hidden, "folds": {},
+    scenes = load_scenes(tuple(args.speed_scales))
+    report: dict = {"scenes": list(SCENES), "steps": args.steps, "hidden": args.hidden, "members": args.members,
+                    "speed_scales": args.speed_scales, "folds": {},
                     "load_s": round(time.perf_counter() - t0, 1)}
     models = {}
     for held in SCENES:
@@ -159,18 +212,21 @@ def main() -> None:
         x, rot, hist, fut = _stack(scenes, train_names, "train")
         logging.info("fold %s: %d training samples", held, len(x))
         meta = {"trained_on": list(train_names), "held_out": [held], "data": "ETH/UCY eth_ucy_sgan_format, 0.4 s "
-                "resampled, mirrored y", "bench": "bench/pedestrian_predict.py"}
-        model = train_mlp(x, targets(rot, hist, fut), hidden=tuple(args.hidden), steps=args.steps, meta=meta)
+                f"resampled; copies mirrored in y and scaled by {args.speed_scales}", "bench": "bench/pedestrian_predict.py"}
+        model = fit(x, targets(rot, hist, fut), args, meta)
         hand = fit_hand(*_stack(scenes, train_names, "test")[2:])
         models[held] = (model, hand)
         report["folds"][held] = score(model, hand, scenes[held]["test"]) | {"train_s": model.meta["train_s"]}
+        report["folds"][held]["near_0.5_events"] = near_events(
+            {"mlp": model, "cv": BaselinePredictor(), "hand": BaselinePredictor(*hand)}, scenes[held]["xy"])
         if args.save:
             WEIGHTS_DIR.mkdir(parents=True, exist_ok=True)
             model.save(WEIGHTS_DIR / f"loso_{held}.npz")
     x, rot, hist, fut = _stack(scenes, SHIPPED_TRAIN, "train")
     meta = {"trained_on": list(SHIPPED_TRAIN), "held_out": ["students003", "crowds_zara03"],
-            "data": "ETH/UCY eth_ucy_sgan_format, 0.4 s resampled, mirrored y", "bench": "bench/pedestrian_predict.py"}
-    three = train_mlp(x, targets(rot, hist, fut), hidden=tuple(args.hidden), steps=args.steps, meta=meta)
+            "data": f"ETH/UCY eth_ucy_sgan_format, 0.4 s resampled; copies mirrored in y and scaled by {args.speed_scales}",
+            "bench": "bench/pedestrian_predict.py"}
+    three = fit(x, targets(rot, hist, fut), args, meta)
     hand = fit_hand(*_stack(scenes, SHIPPED_TRAIN, "test")[2:])
     report["three_scene"] = {held: score(three, hand, scenes[held]["test"]) for held in ("students003", "crowds_zara03")}
     for kind in ("mlp", "cv", "hand"):
@@ -184,6 +240,11 @@ def main() -> None:
     report["fde_cv_m"] = report["fde_cv_by_horizon_m"]["4.8"]
     report["ade_hand_m"] = report["ade_hand_by_horizon_m"]["4.8"]
     report["fde_hand_m"] = report["fde_hand_by_horizon_m"]["4.8"]
+    for kind in ("mlp", "cv", "hand"):          # pooled over the folds' pair-steps (students003 has most)
+        ev = [report["folds"][s]["near_0.5_events"][kind] for s in SCENES]
+        both = sum(e["both"] for e in ev)
+        report.setdefault("near_0.5_recall", {})[kind] = round(both / max(sum(e["recorded_events"] for e in ev), 1), 4)
+        report.setdefault("near_0.5_precision", {})[kind] = round(both / max(sum(e["predicted_events"] for e in ev), 1), 4)
     report["mlp_beats_cv_folds"] = sum(report["folds"][s]["mlp"]["ade_4.8s"] < report["folds"][s]["cv"]["ade_4.8s"]
                                        for s in SCENES)
     report["mlp_beats_hand_folds"] = sum(report["folds"][s]["mlp"]["ade_4.8s"] < report["folds"][s]["hand"]["ade_4.8s"]
@@ -203,6 +264,8 @@ def main() -> None:
         f = report["folds"][s]
         cells = "  ".join(f"{f[k]['ade_4.8s']:.3f}/{f[k]['fde_4.8s']:.3f}" for k in ("mlp", "cv", "hand"))
         print(f"{s:14s} {f['samples']:7d}  {cells}")
+    print(f"near 0.5 m events (walker's path vs another's prediction), recall {report['near_0.5_recall']}, "
+          f"precision {report['near_0.5_precision']}")
     print(f"mean ADE/FDE 4.8 s: mlp {report['ade_m']}/{report['fde_m']}  cv {report['ade_cv_m']}/{report['fde_cv_m']}"
           f"  hand {report['ade_hand_m']}/{report['fde_hand_m']};  {report['ms_per_frame_mlp']} ms per frame of 20")
 

@@ -136,31 +136,45 @@ def predict_damped(hist: np.ndarray, *, window: int = 2, decay: float = 0.97, st
 
 @dataclass(frozen=True)
 class MlpPredictor:
-    """The learnt predictor: a ReLU MLP on :func:`encode`'s inputs (standardised), out = a correction
-    (walker frame, m) to constant velocity at each of the 12 steps.
+    """The learnt predictor: ReLU MLPs on :func:`encode`'s inputs (standardised), out = a correction
+    (walker frame, m) to constant velocity at each of the 12 steps, averaged over the members
+    (an ensemble of MLPs trained on the same data from different seeds).
 
-    layers : ((W (n_in, n_out), b (n_out,)), ...); x_mean, x_std : (N_INPUTS,); meta : provenance
-    (data it was trained on, held-out scenes, steps, ...).
+    members : (((W (n_in, n_out), b (n_out,)), ...), ...) one tuple of layers per member;
+    x_mean, x_std : (N_INPUTS,); meta : provenance (data it was trained on, held-out scenes, ...).
     """
 
-    layers: tuple[tuple[np.ndarray, np.ndarray], ...]
+    members: tuple[tuple[tuple[np.ndarray, np.ndarray], ...], ...]
     x_mean: np.ndarray
     x_std: np.ndarray
     meta: dict
 
     def __post_init__(self) -> None:
-        if not self.layers or self.layers[0][0].shape[0] != N_INPUTS or self.layers[-1][0].shape[1] != 2 * PRED_STEPS:
-            raise ValueError(f"the MLP must map {N_INPUTS} inputs to {2 * PRED_STEPS} outputs; retrain it "
-                             "(nodes.nav.predict_train) after changing the encoding")
+        for layers in self.members or ((),):
+            if not layers or layers[0][0].shape[0] != N_INPUTS or layers[-1][0].shape[1] != 2 * PRED_STEPS:
+                raise ValueError(f"each MLP must map {N_INPUTS} inputs to {2 * PRED_STEPS} outputs; retrain it "
+                                 "(nodes.nav.predict_train) after changing the encoding")
+
+    @classmethod
+    def ensemble(cls, models: list["MlpPredictor"], meta: dict | None = None) -> "MlpPredictor":
+        """One predictor averaging ``models`` (trained on the same samples: the same standardisation)."""
+        if not models or any(not np.allclose(m.x_mean, models[0].x_mean) for m in models):
+            raise ValueError("give at least one model, all trained on the same samples")
+        return cls(tuple(layers for m in models for layers in m.members), models[0].x_mean, models[0].x_std,
+                   dict(meta if meta is not None else models[0].meta) | {"members": sum(len(m.members) for m in models)})
 
     def forward(self, x: np.ndarray) -> np.ndarray:
-        """(P, N_INPUTS) raw inputs -> (P, PRED_STEPS, 2) corrections in the walker frame (m)."""
-        a = (np.asarray(x, np.float64) - self.x_mean) / self.x_std
-        for i, (w, b) in enumerate(self.layers):
-            a = a @ w + b
-            if i < len(self.layers) - 1:
-                a = np.maximum(a, 0.0)
-        return a.reshape(len(a), PRED_STEPS, 2)
+        """(P, N_INPUTS) raw inputs -> (P, PRED_STEPS, 2) corrections in the walker frame (m), member mean."""
+        a0 = (np.asarray(x, np.float64) - self.x_mean) / self.x_std
+        total = 0.0
+        for layers in self.members:
+            a = a0
+            for i, (w, b) in enumerate(layers):
+                a = a @ w + b
+                if i < len(layers) - 1:
+                    a = np.maximum(a, 0.0)
+            total = total + a
+        return (total / len(self.members)).reshape(len(a0), PRED_STEPS, 2)
 
     def predict(self, hist: np.ndarray) -> np.ndarray:
         """(P, 8, 2) observed -> (P, 12, 2) m predicted positions at 0.4 .. 4.8 s (NaN for a walker not seen now)."""
@@ -178,9 +192,11 @@ class MlpPredictor:
         return h[:, -1][:, None] + cv_offsets(h) + world
 
     def save(self, path: str | Path) -> None:
-        """npz (no pickle): W0, b0, W1, ..., x_mean, x_std, meta (JSON text)."""
-        arrays = {f"W{i}": w.astype(np.float32) for i, (w, _) in enumerate(self.layers)}
-        arrays |= {f"b{i}": b.astype(np.float32) for i, (_, b) in enumerate(self.layers)}
+        """npz (no pickle): W<member>_<layer>, b<member>_<layer>, x_mean, x_std, meta (JSON text)."""
+        arrays = {}
+        for m, layers in enumerate(self.members):
+            for i, (w, b) in enumerate(layers):
+                arrays[f"W{m}_{i}"], arrays[f"b{m}_{i}"] = w.astype(np.float32), b.astype(np.float32)
         np.savez_compressed(path, x_mean=self.x_mean.astype(np.float32), x_std=self.x_std.astype(np.float32),
                             meta=np.array(json.dumps(self.meta)), **arrays)
 
@@ -188,9 +204,11 @@ class MlpPredictor:
     def load(cls, path: str | Path) -> "MlpPredictor":
         """Read :meth:`save`'s npz (``allow_pickle`` stays off)."""
         with np.load(path, allow_pickle=False) as z:
-            n = sum(1 for k in z.files if k.startswith("W"))
-            layers = tuple((z[f"W{i}"].astype(np.float64), z[f"b{i}"].astype(np.float64)) for i in range(n))
-            return cls(layers, z["x_mean"].astype(np.float64), z["x_std"].astype(np.float64),
+            keys = [k[1:].split("_") for k in z.files if k.startswith("W")]
+            n_m, n_l = 1 + max(int(m) for m, _ in keys), 1 + max(int(i) for _, i in keys)
+            members = tuple(tuple((z[f"W{m}_{i}"].astype(np.float64), z[f"b{m}_{i}"].astype(np.float64))
+                                  for i in range(n_l)) for m in range(n_m))
+            return cls(members, z["x_mean"].astype(np.float64), z["x_std"].astype(np.float64),
                        json.loads(str(z["meta"])))
 
 

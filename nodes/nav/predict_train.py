@@ -90,4 +90,4 @@ def train_mlp(x: np.ndarray, y: np.ndarray, *, hidden: tuple[int, ...] = (64, 64
     info = dict(meta or {}) | {"hidden": list(hidden), "steps": steps, "batch": batch, "lr": lr,
                                "weight_decay": weight_decay, "seed": seed, "samples": int(len(x)),
                                "train_s": round(time.perf_counter() - t0, 1)}
-    return MlpPredictor(layers, mean.astype(np.float64), std.astype(np.float64), info)
+    return MlpPredictor((layers,), mean.astype(np.float64), std.astype(np.float64), info)

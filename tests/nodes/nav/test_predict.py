@@ -22,7 +22,7 @@ def _turning_scene(rng, walkers=40, steps=60):
 def _random_mlp(rng, hidden=8):
     layers = ((rng.normal(0, 0.1, (N_INPUTS, hidden)), np.zeros(hidden)),
               (rng.normal(0, 0.1, (hidden, 2 * PRED_STEPS)), np.zeros(2 * PRED_STEPS)))
-    return MlpPredictor(layers, np.zeros(N_INPUTS), np.ones(N_INPUTS), {"trained_on": []})
+    return MlpPredictor((layers,), np.zeros(N_INPUTS), np.ones(N_INPUTS), {"trained_on": []})
 
 
 def test_mlp_learns_a_turning_walker_better_than_constant_velocity():
@@ -92,7 +92,14 @@ def test_save_load_round_trip(tmp_path):
     assert np.allclose(back.predict(hist), model.predict(hist), atol=1e-4)
     assert back.meta == {"trained_on": []}
     with pytest.raises(ValueError, match="retrain"):
-        MlpPredictor(((np.zeros((3, 4)), np.zeros(4)),), np.zeros(3), np.ones(3), {})
+        MlpPredictor((((np.zeros((3, 4)), np.zeros(4)),),), np.zeros(3), np.ones(3), {})
+    other = _random_mlp(np.random.default_rng(6))
+    both = MlpPredictor.ensemble([model, other])
+    assert both.meta["members"] == 2
+    assert np.allclose(both.forward(np.ones((2, N_INPUTS))),
+                       0.5 * (model.forward(np.ones((2, N_INPUTS))) + other.forward(np.ones((2, N_INPUTS)))))
+    both.save(tmp_path / "e.npz")
+    assert np.allclose(MlpPredictor.load(tmp_path / "e.npz").predict(hist), both.predict(hist), atol=1e-4)
 
 
 def test_positions_at_interpolates_then_extrapolates():
