@@ -127,7 +127,13 @@ def social_nav(d: dict) -> list[Row]:
                                             if walk_in is not None else "") + ")" if len(closer) < n else "")
              + f", median {d['closest_median_m']:.2f} m; on time (<= 1.15x the human) {len(timely)} of {n}"
              + (f" (late: {late})" if late else "") + f"; the guard brakes in {100 * d['guard_frac']:.0f} % of ticks at "
-             f"worst (median {100 * d['guard_frac_median']:.0f} %)" + _guard_why(d.get("guard_why_worst")),
+             f"worst (median {100 * d['guard_frac_median']:.0f} %)" + _guard_why(d.get("guard_why_worst"))
+             + (f"; the planner itself waits or slows (its speed along the path, against predicted people, at the "
+                f"conflict price {d['weights']['conflict']:g}) in {100 * d['planner_wait_frac']:.0f} % of ticks at worst "
+                f"(median {100 * d['planner_wait_frac_median']:.1f} %)" if d.get("planner_wait_frac") is not None else "")
+             + (f"; a guard measuring its 1 m rule along the commanded arc ({d['guard_other_rule']}, off: it let DWA "
+                f"touch a walker in group) would brake {100 * d['guard_frac_other_rule']:.0f} % at worst on the same runs"
+                if d.get("guard_frac_other_rule") is not None else ""),
              f"DWA, predicting people too: robot contacts {dwa['robot_contacts']} (strict {dwa['robot_contacts_strict']}), "
              f"median closest {dwa['closest_median_m']:.2f} m, on time {dwa['time_ok_count']} of {n}, guard "
              f"{100 * dwa['guard_frac']:.0f} %",
