@@ -1,6 +1,7 @@
 """Space-time IRL on recorded ETH/UCY walkers: held-out likelihood of learnt vs fixed crowd prices.
 
     python bench/irl_spacetime.py [--json] [--demos 60] [--horizons 6] [--paces 0.75] [--loso]
+        [--others recorded|constant_velocity|predicted] [--predictor mlp|cv]
 
 Model and demos: :mod:`nodes.nav.irl_spacetime` (cells x time steps, 8 moves + wait, MaxEnt)
 and :func:`sim.irl_demos.spacetime_demos` (each walker's next ``horizon`` seconds, others'
@@ -28,8 +29,13 @@ path 1.009 / 0.983, spatial_birl 1.056 / 0.976, hand_conflict 1.503 / 1.052. Wal
 within 0.5 m of someone 1.5-21x less often than the shortest-path model, yet a small price
 explains it: a one-step change of timing avoids most such moments. With ``--others
 constant_velocity`` (the runtime feature's prediction) walkers are near predicted positions
-about as often as the shortest path and the learnt ratio is 0.007. Details and the bench
-comparison: nodes/nav/weights/default.json ``conflict_weight.spacetime_experiment``.
+about as often as the shortest path and the learnt ratio is 0.007. With ``--others predicted``
+(a learnt predictor's view, from the others' last 3.2 s only; ``--predictor mlp``: the
+ETH/UCY-trained MLP ensemble of :mod:`nodes.nav.predict` held out on the demo's scene) the
+ratio is 0.020 (LOSO -0.004 to 0.038; constant velocity from the same observed history,
+``--predictor cv``: 0.012): a better predictor does not bring the price back toward the 0.10 of
+the recorded positions. Details and the bench comparison: nodes/nav/weights/default.json
+``conflict_weight.spacetime_experiment`` and ``conflict_weight.predicted_experiment``.
 """
 from __future__ import annotations
 
