@@ -184,9 +184,12 @@ def spacetime_demos(dataset: str | Tracks, n_demos: int, *, horizon_s: float = 6
     (within ``companion_m`` and ``companion_mps`` of its velocity: a group, not people to
     avoid); ``"keep"`` keeps everybody. ``others="constant_velocity"`` asks the features of the
     others' positions at t0 moved on at their t0 velocity instead (the runtime conflict
-    feature's prediction; people who appear after t0 are not seen). ``others="predicted"`` asks
-    them of ``predictor.predict(hist)`` (e.g. :class:`nodes.nav.predict.MlpPredictor`, or
-    :func:`nodes.nav.predict.predict_cv` wrapped): each walker seen at t0 with its positions at
+    feature's prediction; people who appear after t0 are not seen; that velocity is
+    :meth:`Tracks.state_at`'s, the recorded segment from t0 on, so one row of the future when t0
+    falls on a sample: ``others="predicted"`` with ``BaselinePredictor()`` is constant velocity
+    from the observed steps only). ``others="predicted"`` asks
+    them of ``predictor.predict(hist)`` (:class:`nodes.nav.predict.MlpPredictor`, or
+    :class:`nodes.nav.predict.BaselinePredictor`): each walker seen at t0 with its positions at
     t0 - 2.8 .. t0 s (8 steps of 0.4 s, NaN where unseen; what was observable at t0, never later),
     everybody seen at t0 its neighbours; its 12 predicted steps (4.8 s) are interpolated at the
     demo's steps and continued at the last predicted step's velocity beyond them.
