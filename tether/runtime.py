@@ -432,10 +432,15 @@ class NodeRuntime(Context):
             self._read_retiring(order, timeout_ms)
             return
         if self._poller is None:
-            self._poller = zmq.Poller()
-            for sock in self.subs:
-                self._poller.register(sock, zmq.POLLIN)
+            self._poller = self._poller_over(self.subs)
         self._wait_and_drain(timeout_ms, self._poller, order)
+
+    @staticmethod
+    def _poller_over(socks: list[zmq.Socket]) -> zmq.Poller:
+        poller = zmq.Poller()
+        for sock in socks:
+            poller.register(sock, zmq.POLLIN)
+        return poller
 
     def _wait_and_drain(self, timeout_ms: int, poller: zmq.Poller, order: itertools.count) -> None:
         if len(self.subs) == 1:
@@ -534,12 +539,11 @@ class NodeRuntime(Context):
             self._retiring = []
             self._poller = None
             return
+        socks = [*self._retiring, *self.subs]
         if self._poller is None:
-            self._poller = zmq.Poller()
-            for sock in [*self._retiring, *self.subs]:
-                self._poller.register(sock, zmq.POLLIN)
+            self._poller = self._poller_over(socks)
         ready = dict(self._poller.poll(timeout_ms))
-        for sock in [*self._retiring, *self.subs]:     # the poller's answer is unordered
+        for sock in socks:                             # the poller's answer is unordered
             if sock in ready:
                 self._drain(sock, order)
 
