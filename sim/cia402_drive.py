@@ -18,11 +18,11 @@ import can
 import msgspec
 
 from drivers.can_bus import open_bus
+from drivers.cia402 import COMM_CYCLE_PERIOD
 from drivers.cia402_config import DEFAULT_DRIVES, DriveConfig
 from msgs.control import WheelCommand
 from nodes.control.can_axles import AxleDrive, command_from_actuals
 from sim.cia402_bank import LockstepDriveBank, SimDriveBank, SyncCanBus, SyncCanHub
-from drivers.cia402 import COMM_CYCLE_PERIOD
 from sim.cia402_device import SYNC_LOSS_CYCLES, Frame, SimDrive
 from sim.cia402_od import DriveFaults
 from tether import Node, Tick
