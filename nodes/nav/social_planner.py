@@ -209,10 +209,9 @@ class SocialPlanner:
         if predicted is not None and predicted.shape == cost.shape and predicted.any():
             high_density = high_density | (predicted & ~static)
         cost = person_floor_cost(cost, high_density, self.p.person_cost)
-        finite = np.isfinite(cost)
-        if finite.any():            # the speed profile prices progress as the local plan prices a detour (_local)
-            dilated = footprint_cost(cost, (self.p.robot_radius_m + self.p.crowd_margin_m) / frame.resolution_m)
-            self._floor = (float(np.median(dilated[np.isfinite(dilated)])), frame.resolution_m)
+        footprint = footprint_cost(cost, self._clear_full_m / frame.resolution_m)
+        if np.isfinite(cost).any():  # the speed profile prices progress as the local plan prices a detour (_local)
+            self._floor = (float(np.median(footprint[np.isfinite(footprint)])), frame.resolution_m)
         event = self._replan_event(pose, frame, high_density, t_s)
         if not event:
             return Decision(self.mode, "", self.waypoint)
@@ -221,7 +220,7 @@ class SocialPlanner:
             return Decision("global", event, self.carrot(pose), self.global_path)
         t0 = time.perf_counter()
         subgoal = self._subgoal
-        grid = self._planning_cost(pose, cost, frame)
+        grid = self._planning_cost(footprint, static)
         decision = self._local(pose, grid, frame, event, high_density)
         decision.plan_ms = (time.perf_counter() - t0) * 1e3
         if event == "path_blocked" and decision.mode == "local" and not self._worth_switching(pose, grid, frame, decision):
@@ -368,13 +367,14 @@ class SocialPlanner:
                                clear_m=self._clear_m)
         return Decision("local", event, extract_waypoint(path_xy, reach), path_xy, score=plan_score)
 
-    def _planning_cost(self, pose: tuple[float, float, float], cost: np.ndarray, frame: GridFrame) -> np.ndarray:
-        """The grid the local plan searches: the robot's footprint cost, static obstacles impassable."""
-        cost = footprint_cost(cost, (self.p.robot_radius_m + self.p.crowd_margin_m) / frame.resolution_m)
+    @staticmethod
+    def _planning_cost(footprint: np.ndarray, static: np.ndarray) -> np.ndarray:
+        """The grid the local plan searches: the robot's footprint cost (:func:`footprint_cost` of the cell
+        costs), the map's static obstacles (``static``, :meth:`_static_mask`) impassable."""
         # the map's obstacles come already grown by the robot's radius (set_map): growing them again
         # with the footprint left a 4 m hallway 1.8 m of room for the robot centre instead of 3.1 m,
         # and held the robot in the middle lane, head-on with the oncoming walkers
-        return np.where(self._static_mask(pose, frame), np.inf, cost)
+        return np.where(static, np.inf, footprint)
 
     def _worth_switching(self, pose: tuple[float, float, float], grid: np.ndarray, frame: GridFrame,
                          new: Decision) -> bool:
