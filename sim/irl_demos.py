@@ -273,14 +273,7 @@ def _predicted(tracks: Tracks, t0: float, ids0: np.ndarray, xy0: np.ndarray, pre
 
     if len(ids0) == 0:
         return np.zeros((0, len(taus_s), 2))
-    where = {int(p): j for j, p in enumerate(ids0)}
-    hist = np.full((len(ids0), OBS_STEPS, 2), np.nan)
-    hist[:, -1] = xy0
-    for k in range(1, OBS_STEPS):
-        ids, pos, _ = tracks.state_at(t0 - k * STEP_S)
-        for p, q in zip(ids, pos):
-            if int(p) in where:
-                hist[where[int(p)], OBS_STEPS - 1 - k] = q
+    hist = _futures(tracks, ids0, t0, -STEP_S * np.arange(OBS_STEPS - 1, -1, -1), (0.0, 0.0, 0.0))   # world frame
     return positions_at(xy0, predictor.predict(hist), taus_s)
 
 
