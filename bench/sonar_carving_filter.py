@@ -94,34 +94,6 @@ TRAIN = {"tripod_seed1": ("tripod", 0.05, 20.0, 1), "tripod_back": ("tripod", 40
 HELD_OUT = {"tripod_demo": ("tripod", 0.0, 20.0, 0)}
 
 
-def _leg(name: str, foot: list[float], top: list[float]) -> dict:
-    return {"type": "cylinder", "name": name, "from_m": foot, "to_m": top, "radius_m": 0.35, "reflectivity": 0.9}
-
-
-# a four-legged jacket (legs leaning in, X braces on two faces, a deck stub): no scene has this shape
-JACKET = {"name": "jacket", "seafloor": {"type": "plane", "z_m": -6.0, "reflectivity": 0.3},
-          "structures": [_leg("leg_ne", [3.5, 3.5, -6.0], [2.0, 2.0, -2.0]), _leg("leg_nw", [-3.5, 3.5, -6.0], [-2.0, 2.0, -2.0]),
-                         _leg("leg_sw", [-3.5, -3.5, -6.0], [-2.0, -2.0, -2.0]),
-                         _leg("leg_se", [3.5, -3.5, -6.0], [2.0, -2.0, -2.0]),
-                         {"type": "cylinder", "name": "x_s1", "from_m": [-3.3, -3.3, -5.5], "to_m": [2.2, -2.2, -2.5],
-                          "radius_m": 0.2, "reflectivity": 0.85},
-                         {"type": "cylinder", "name": "x_s2", "from_m": [3.3, -3.3, -5.5], "to_m": [-2.2, -2.2, -2.5],
-                          "radius_m": 0.2, "reflectivity": 0.85},
-                         {"type": "cylinder", "name": "x_w1", "from_m": [-3.3, -3.3, -5.5], "to_m": [-2.2, 2.2, -2.5],
-                          "radius_m": 0.2, "reflectivity": 0.85},
-                         {"type": "cylinder", "name": "x_w2", "from_m": [-3.3, 3.3, -5.5], "to_m": [-2.2, -2.2, -2.5],
-                          "radius_m": 0.2, "reflectivity": 0.85},
-                         {"type": "box", "name": "deck", "center_m": [0.0, 0.0, -1.8], "size_m": [4.6, 4.6, 0.4],
-                          "yaw_deg": 0, "reflectivity": 0.8}],
-          "sonar": {"tilt_deg": 15, "frequency": "low"},
-          "platform": {"start_m": [0.0, -30.0], "end_m": [0.0, 30.0], "depth_m": 1.0, "speed_mps": 1.5}}
-# name: (scene, first s, last s, noise seed); 1.5 m/s tracks, 20 s = 30 m
-FRESH = {"tripod_diagonal": (track("tripod", [-16.0, -18.0], [14.0, 12.0], 1.2), 0.0, 20.0, 21),
-         "tripod_westward": (track("tripod", [16.0, 1.0], [-24.0, 1.0], 1.0), 0.0, 20.0, 22),
-         "pier4_southward": (track("pier4", [1.5, 22.0], [1.5, -30.0], 1.2), 0.0, 20.0, 23),
-         "piles2_diagonal": (track("piles2", [15.0, -17.0], [-15.0, 13.0], 1.0), 0.0, 20.0, 24),
-         "jacket": (track(JACKET, [-1.0, -20.0], [-1.0, 30.0], 1.0), 0.0, 20.0, 25),
-         "jacket_eastward": (track(JACKET, [-20.0, 0.5], [30.0, 0.5], 1.5), 0.0, 20.0, 26)}
 def _scene(name: str, structures: list[dict]) -> dict:
     """A scene on the 6 m flat seafloor with the demo's sonar (its platform set by :func:`heading_track`)."""
     return {"name": name, "seafloor": {"type": "plane", "z_m": -6.0, "reflectivity": 0.3}, "structures": structures,
@@ -135,6 +107,23 @@ def _cyl(name: str, a: list[float], b: list[float], radius_m: float, refl: float
 
 def _box(name: str, centre: list[float], size: list[float], refl: float = 0.8, **angles_deg: float) -> dict:
     return {"type": "box", "name": name, "center_m": centre, "size_m": size, "reflectivity": refl, **angles_deg}
+
+
+# a four-legged jacket (legs leaning in, X braces on two faces, a deck stub): no scene has this shape
+JACKET = _scene("jacket", [_cyl(f"leg_{c}", [3.5 * sx, 3.5 * sy, -6.0], [2.0 * sx, 2.0 * sy, -2.0], 0.35, 0.9)
+                           for c, sx, sy in (("ne", 1, 1), ("nw", -1, 1), ("sw", -1, -1), ("se", 1, -1))]
+                + [_cyl("x_s1", [-3.3, -3.3, -5.5], [2.2, -2.2, -2.5], 0.2),
+                   _cyl("x_s2", [3.3, -3.3, -5.5], [-2.2, -2.2, -2.5], 0.2),
+                   _cyl("x_w1", [-3.3, -3.3, -5.5], [-2.2, 2.2, -2.5], 0.2),
+                   _cyl("x_w2", [-3.3, 3.3, -5.5], [-2.2, -2.2, -2.5], 0.2),
+                   _box("deck", [0.0, 0.0, -1.8], [4.6, 4.6, 0.4], yaw_deg=0)])
+# name: (scene, first s, last s, noise seed); 1.5 m/s tracks, 20 s = 30 m
+FRESH = {"tripod_diagonal": (track("tripod", [-16.0, -18.0], [14.0, 12.0], 1.2), 0.0, 20.0, 21),
+         "tripod_westward": (track("tripod", [16.0, 1.0], [-24.0, 1.0], 1.0), 0.0, 20.0, 22),
+         "pier4_southward": (track("pier4", [1.5, 22.0], [1.5, -30.0], 1.2), 0.0, 20.0, 23),
+         "piles2_diagonal": (track("piles2", [15.0, -17.0], [-15.0, 13.0], 1.0), 0.0, 20.0, 24),
+         "jacket": (track(JACKET, [-1.0, -20.0], [-1.0, 30.0], 1.0), 0.0, 20.0, 25),
+         "jacket_eastward": (track(JACKET, [-20.0, 0.5], [30.0, 0.5], 1.5), 0.0, 20.0, 26)}
 
 
 def heading_track(scene: str | dict, heading_deg: float, through_m: tuple[float, float], depth_m: float) -> dict:
