@@ -237,15 +237,14 @@ def sonar_polar(d: dict) -> list[Row]:
 def sonar_carving_filter(d: dict) -> list[Row]:
     """``--fresh --fresh2``: the shipped evidence filter beside the default cloud on passes nothing was trained on."""
     rows = []
-    sets = d.get("sets") or {"fresh": d}
     what = {"fresh": "--fresh: {n} never-seen passes (tracks heading west, south and diagonally; a four-legged jacket "
                      "no scene has; they informed the current filter's design)",
             "fresh2": "--fresh2: {n} never-seen passes, written down before their first run (an overhanging platform, a "
                       "sloped plate, a pipe rack; the tripod and pier at new headings and depths)"}
-    for name, sd in sets.items():
+    for name, sd in d["sets"].items():
         p, e, dflt = sd["passes"], sd["evidence"], sd["default"]
         worst = min(p, key=lambda n: p[n]["evidence"]["acc_frac_0p2"] - p[n]["default"]["acc_frac_0p2"])
-        below = [n for n in p if p[n]["evidence"]["acc_frac_0p2"] < p[n]["default"]["acc_frac_0p2"] - 0.02]
+        below = e["passes_acc_below_default_by_2"]
         rows.append((f"`sonar_carving_filter.py` " + what.get(name, name + ": {n} passes").format(n=len(p)),
                      f"`keep: evidence` (p >= {d['threshold_p']:g}): median {100 * e['acc_frac_0p2_median']:.1f} % within "
                      f"0.2 m, completeness {100 * e['completeness_0p2_median']:.1f} %, >= 90 % within 0.2 m on "
