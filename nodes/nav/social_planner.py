@@ -132,8 +132,7 @@ class SocialPlanner:
         """
         xy, v = people_motion(points_m, velocity_mps)
         world = to_world(pose, xy)
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        v_world = np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
+        v_world = to_world((0.0, 0.0, pose[2]), v)          # velocities turn with the robot, do not move with it
         if self._walls is not None and self.map_frame is not None and len(world):
             cells = self.map_frame.cell_of(world)
             inside = self.map_frame.inside(cells)
@@ -472,16 +471,12 @@ class SocialPlanner:
         if self.p.conflict_price <= 0 or self.p.speed_horizon_s <= 0 or self._people is None:
             return None
         t0, xy, vel, _ = self._people
-        if not 0 <= t_s - t0 <= self.p.people_timeout_s:
+        if not 0 <= t_s - t0 <= self.p.people_timeout_s or self._floor is None:
             return None
         now = xy + vel * (t_s - t0)
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        rel_v = np.column_stack([c * vel[:, 0] + s * vel[:, 1], -s * vel[:, 0] + c * vel[:, 1]])
-        ahead = self._ahead(pose, target)
-        if self._floor is None:
-            return None
         price, cell = self._floor
-        return speed_profile(to_robot(pose, ahead), to_robot(pose, now), rel_v, v_now_mps=v_now_mps,
+        return speed_profile(to_robot(pose, self._ahead(pose, target)), to_robot(pose, now),
+                             to_robot((0.0, 0.0, pose[2]), vel), v_now_mps=v_now_mps,
                              v_max_mps=self.p.v_max_mps, conflict_price=self.p.conflict_price, progress_price=price,
                              cell_m=cell,
                              clear_m=self._clear_full_m, headway_s=self.p.headway_s,
