@@ -126,6 +126,11 @@ def _action_terms(demo: SpaceTimeDemo, k: int, a: int, r: int, c: int) -> np.nda
     return g
 
 
+def _path_terms(demo: SpaceTimeDemo) -> np.ndarray:
+    """d cost / d theta of the demonstrated path: its summed step lengths, waits and exposure to each feature."""
+    return sum(_action_terms(demo, k, a, r, c) for k, (a, (r, c)) in enumerate(zip(demo.actions, demo.path[:-1])))
+
+
 def demo_nll(demo: SpaceTimeDemo, theta: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """Negative log-likelihood of the demo's path, its gradient in theta, and the log policy.
 
@@ -135,8 +140,7 @@ def demo_nll(demo: SpaceTimeDemo, theta: np.ndarray) -> tuple[float, np.ndarray,
     r0, c0 = demo.path[0]
     if not np.isfinite(log_z[0, r0, c0]):
         raise ValueError("the goal cannot be reached from the start within the horizon; give more time steps")
-    acts = demo.actions
-    emp = sum(_action_terms(demo, k, a, r, c) for k, (a, (r, c)) in enumerate(zip(acts, demo.path[:-1])))
+    emp = _path_terms(demo)
     nll = float(np.asarray(theta, float) @ emp + log_z[0, r0, c0])
     f = demo.features
     steps, rows, cols, nf = f.shape
@@ -345,7 +349,7 @@ def feature_counts(demos: list[SpaceTimeDemo], theta: np.ndarray) -> tuple[np.nd
     exp = emp.copy()
     for d in demos:
         _, g, _ = demo_nll(d, theta)
-        e = sum(_action_terms(d, k, a, r, c) for k, (a, (r, c)) in enumerate(zip(d.actions, d.path[:-1])))
+        e = _path_terms(d)
         emp, exp = emp + e, exp + e - g
     return emp, exp
 
