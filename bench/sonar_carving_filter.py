@@ -191,56 +191,58 @@ WORSE_BY = 0.02         # the threshold rule: a pass left out of training may lo
 MAY_LOSE = 0.10         # ... on at most this share of the training passes
 
 
-def carve_pass(scene_spec, t0: float, t1: float, seed: int, params: dict[str, CarvingParams]):
-    """Render one pass (10 pings/s, 512 beams, 20 m, true poses) and carve it into a grid per ``params``.
-    Returns the grids, the structure's surface (3 cm samples) and the part of it the pass saw."""
+def carve_pass(scene_spec, t0: float, t1: float, seed: int):
+    """Render one pass (10 pings/s, 512 beams, 20 m, true poses) and carve it with ``keep="evidence"`` (which counts
+    what the features need; the counts it adds change neither the votes nor the scores the default cloud reads).
+    Returns the flushed grid, the structure's surface (3 cm samples) and the part of it the pass saw."""
     from sim.fls import PingSettings, load_scene, render_ping, sample_structures
 
     scene = load_scene(scene_spec)
-    grids = {k: CarvingGrid(BOUNDS, p, seafloor_z_m=scene.seafloor.z_m) for k, p in params.items()}
+    grid = CarvingGrid(BOUNDS, CarvingParams(keep="evidence"), seafloor_z_m=scene.seafloor.z_m)
     rng, hits = np.random.default_rng(seed), []
     for t in np.arange(t0, t1, 0.1):
         pose = scene.sonar_pose(float(t))
         r = render_ping(scene, pose, PingSettings(n_beams=512, range_m=20.0), rng=rng)
         hits.append(r.hits_m[r.hit_labels > 0])
-        for grid in grids.values():
-            grid.integrate(r.intensities, r.bearings_rad, r.range_resolution_m, pose, r.vertical_aperture_rad)
+        grid.integrate(r.intensities, r.bearings_rad, r.range_resolution_m, pose, r.vertical_aperture_rad)
+    grid.flush()
     surface, _ = sample_structures(scene, 0.03)
     model, _ = sample_structures(scene, 0.1)
-    return grids, surface, visible_surface(model, np.concatenate(hits), 0.1)
+    return grid, surface, visible_surface(model, np.concatenate(hits), 0.1)
 
 
-def run_pass(scene_spec, t0: float, t1: float, seed: int) -> dict:
-    """Carve one pass (keep="evidence" counts what the features need); every voted voxel off the seafloor with
-    its features (every name of carving_filter.FEATURES), its distance to the surface, whether the default cloud
-    keeps it (the same votes and scores: the counts keep="evidence" adds change neither), and the surface the pass
-    saw."""
-    grids, surface, visible = carve_pass(scene_spec, t0, t1, seed, {"evidence": CarvingParams(keep="evidence")})
-    grid = grids["evidence"]
-    grid.flush()
-    rows = grid.off_floor(grid.voted_rows())               # what CarvingGrid.cloud scores
-    pts = grid.candidate_points()[rows]
+def voted(grid: CarvingGrid) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """The grid's voted voxels off the seafloor (what CarvingGrid.cloud scores): rows, points, evidence (every name
+    of carving_filter.FEATURES), and whether the default cloud (``keep="sigma"``, ``max_sigma_m`` DEFAULT_SIGMA_M)
+    keeps each."""
+    rows = grid.off_floor(grid.voted_rows())
     ev = carving_filter.evidence(grid, rows, carving_filter.plausible_rows(grid))
     p, voxels = grid.params, grid._cand[rows]
     default = ((grid._votes[rows] >= p.min_votes) & (grid._score(voxels) >= p.min_support * grid.hits[voxels])
                & (ev["sigma_m"] <= DEFAULT_SIGMA_M))
+    return rows, grid.candidate_points()[rows], ev, default
+
+
+def run_pass(scene_spec, t0: float, t1: float, seed: int) -> dict:
+    """Carve one pass; every voted voxel off the seafloor with its features, its distance to the surface, whether
+    the default cloud keeps it, and the surface the pass saw."""
+    grid, surface, visible = carve_pass(scene_spec, t0, t1, seed)
+    _, pts, ev, default = voted(grid)
     on = surface_distances(pts, surface) <= 0.2
     return dict(x=carving_filter.feature_matrix(ev), points=pts, on=on, default=default,
                 default_acc=float(np.mean(on[default])) if default.any() else 1.0, surface=surface, visible=visible)
 
 
 def fresh_pass(scene_spec, t0: float, t1: float, seed: int, models: dict[str, dict]) -> dict:
-    """One never-seen pass carved twice from the same pings: the default cloud, and each evidence model's."""
-    grids, surface, visible = carve_pass(scene_spec, t0, t1, seed,
-                                         {"default": CarvingParams(), "evidence": CarvingParams(keep="evidence")})
-    out = {"default": cloud_metrics(grids["default"].cloud(flush=True, max_sigma_m=DEFAULT_SIGMA_M).points_m,
-                                    surface, visible)}
-    grid = grids["evidence"]
-    grid.flush()
-    rows = grid.off_floor(grid.voted_rows())
-    for name, model in models.items():        # as CarvingGrid.cloud keeps them, with this model
-        keep = carving_filter.candidate_probability(grid, rows, model) >= model["threshold_p"]
-        out[name] = cloud_metrics(grid.candidate_points()[rows[keep]], surface, visible)
+    """One never-seen pass carved once: the default cloud's points and each evidence model's (as CarvingGrid.cloud
+    keeps them with that model), from the same grid."""
+    grid, surface, visible = carve_pass(scene_spec, t0, t1, seed)
+    _, pts, ev, default = voted(grid)
+    x = carving_filter.feature_matrix(ev)
+    out = {"default": cloud_metrics(pts[default], surface, visible)}
+    for name, model in models.items():
+        out[name] = cloud_metrics(pts[carving_filter.surface_probability(x, model) >= model["threshold_p"]],
+                                  surface, visible)
     return out
 
 
