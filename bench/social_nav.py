@@ -70,8 +70,7 @@ from nodes.nav.demos import PLANNER_PARAMS, FeaturePipeline  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
 from sim.crowd import CrowdWorld  # noqa: E402
 from sim.crowd_scenes import PedestrianSpec, load_scene  # noqa: E402
-from social_nav_episode import Episode, ahead_kind, contact_onsets  # noqa: E402
-from social_nav_episode import metrics as episode_metrics  # noqa: E402
+from social_nav_episode import Episode, ahead_kind, contact_onsets, metrics  # noqa: E402
 from tether.testing import Harness  # noqa: E402
 
 DT = 1.0 / 15.0
@@ -301,28 +300,12 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
             kind = "ahead_" + ahead_kind(world.pose, p.xy_m, p.vel_mps)
             stack.guard_why[kind] = stack.guard_why.get(kind, 0) + 1
         world.step(v, w, DT)
-    ep = Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms,
-                 by_robot=world.collisions_by_robot, guard_ticks=getattr(stack, "guard_ticks", 0),
-                 guard_why=dict(getattr(stack, "guard_why", {})),
-                 ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s)
-    ep.planner_why = dict(getattr(stack, "planner_why", {})) if stack.name == "irl" else None
-    ep.guard_ticks_other = getattr(stack, "guard_ticks_other", None)
-    return ep
-
-
-def metrics(ep: Episode) -> dict:
-    """The episode's metrics (:func:`social_nav_episode.metrics`), and for the IRL planner how often its own speed
-    profile waited or slowed for predicted people: ``planner_wait_frac`` (either, share of control ticks) and
-    ``planner_why`` ('wait': speed 0 where steering would drive, 'slow')."""
-    m = episode_metrics(ep)
-    old = getattr(ep, "guard_ticks_other", None)
-    if old is not None and ep.ticks:
-        m["guard_frac_other_rule"] = round(old / ep.ticks, 4)
-    why = getattr(ep, "planner_why", None)
-    if why is not None and ep.ticks:
-        m["planner_wait_frac"] = round(sum(why.values()) / ep.ticks, 4)
-        m["planner_why"] = {k: round(n / ep.ticks, 4) for k, n in sorted(why.items())}
-    return m
+    return Episode(np.array(ts), np.array(poses), np.array(rates), peds, goal_t, world.collisions, ms,
+                   by_robot=world.collisions_by_robot, guard_ticks=getattr(stack, "guard_ticks", 0),
+                   guard_why=dict(getattr(stack, "guard_why", {})),
+                   ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s,
+                   guard_ticks_other=getattr(stack, "guard_ticks_other", None),
+                   planner_why=dict(getattr(stack, "planner_why", {})) if stack.name == "irl" else None)
 
 
 # -- human references -------------------------------------------------------------------------------

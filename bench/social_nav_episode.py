@@ -28,6 +28,8 @@ class Episode:
     ticks: int = 0                       # control ticks
     start_shift_s: float = 0.0           # the crowd walked this long before the robot appeared (clear start)
     guard_why: dict[str, int] = dataclasses.field(default_factory=dict)   # braked ticks by guard rule (social_nav.guarded)
+    guard_ticks_other: int | None = None     # ticks the other-rule shadow guard would have braked (social_nav.shadow_guarded)
+    planner_why: dict[str, int] | None = None   # IRL planner: ticks its speed profile waited / slowed (planner_paced)
 
 
 #: who was ahead when the guard braked (``guard_why`` keys ``ahead_*``): the nearest pedestrian centre in front of the
@@ -57,7 +59,10 @@ def ahead_kind(pose: tuple[float, float, float], xy_m: np.ndarray, vel_mps: np.n
 
 
 def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
-    """The paper's metrics (centre distances, m; times, s) from an episode."""
+    """The paper's metrics (centre distances, m; times, s) from an episode; when recorded, how often the
+    other-rule guard would have braked (``guard_frac_other_rule``) and how often the IRL planner's own speed
+    profile waited or slowed for predicted people (``planner_wait_frac``, and by ``planner_why``: 'wait',
+    speed 0 where steering would drive, or 'slow'), as shares of control ticks."""
     d = np.full(len(ep.t), np.inf)
     for k, (_, xy) in enumerate(ep.peds):
         if len(xy):
@@ -71,7 +76,7 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
         k = int(np.argmin(d[:end]))
         speed = np.hypot(*np.gradient(ep.pose[:, :2], ep.t, axis=0).T)
         stopped_at_closest = bool(speed[k] < STOPPED_MPS)
-    return {"closest_m": None if closest is None else round(closest, 3),
+    m = {"closest_m": None if closest is None else round(closest, 3),
             "avoidance_m": round(float(d[turning[0]]), 3) if len(turning) else None,
             "time_s": None if ep.goal_t is None else round(ep.goal_t, 2), "path_m": round(length, 2),
             "collisions": int(ep.collisions),
@@ -83,6 +88,12 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
             "guard_why": {k: round(n / ep.ticks, 4) for k, n in sorted(ep.guard_why.items())} if ep.ticks else {},
             "stopped_at_closest": stopped_at_closest,
             "start_shift_s": round(ep.start_shift_s, 2)}
+    if ep.guard_ticks_other is not None and ep.ticks:
+        m["guard_frac_other_rule"] = round(ep.guard_ticks_other / ep.ticks, 4)
+    if ep.planner_why is not None and ep.ticks:
+        m["planner_wait_frac"] = round(sum(ep.planner_why.values()) / ep.ticks, 4)
+        m["planner_why"] = {k: round(n / ep.ticks, 4) for k, n in sorted(ep.planner_why.items())}
+    return m
 
 
 #: the robot counts as stopped below this speed (m/s): a closest approach then is a person walking up to it
