@@ -167,6 +167,12 @@ def _watch_priority() -> int:
     return min(99, os.sched_getparam(0).sched_priority + 10)
 
 
+def next_tick(tick: float, now: float, rate_hz: float) -> float:
+    """The first tick after ``now`` on the ``rate_hz`` grid through ``tick`` (<= ``now``): ticks a stall
+    made us miss are skipped, not run back to back."""
+    return tick + (math.floor((now - tick) * rate_hz) + 1) / rate_hz
+
+
 @contextlib.contextmanager
 def realtime(priority: int) -> Iterator[int]:
     """SCHED_FIFO for this process's real-time loop (and the bus threads it starts) while inside, as
@@ -216,7 +222,7 @@ def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: s
         while not master.enabled():        # on the master's grid, which the run below keeps: no SYNC gap between
             now = time.monotonic()
             if now >= next_master:
-                next_master += (math.floor((now - next_master) * master_hz) + 1) / master_hz
+                next_master = next_tick(next_master, now, master_hz)
                 held = Wheels(*command_from_actuals(bank.actuals(), axles))
                 master.step(now, setpoints_from_command(0.0, held.delta_front, 0.0, held.delta_rear, axles)
                             if master.ready() else None)
@@ -252,7 +258,7 @@ def can_run(*, rate_hz: float, master_hz: float, duration_s: float, interface: s
                 log.append((t, *model.pose, *map(float, r.p), cmd.v_rear, cmd.delta_rear))
             if now >= next_master:      # ticks missed in a stall are skipped, not run back to back
                 now = time.monotonic()  # not the reading at the loop's top: a stall may have come between
-                next_master += (math.floor((now - next_master) * master_hz) + 1) / master_hz
+                next_master = next_tick(next_master, now, master_hz)
                 c0 = time.perf_counter()
                 master.step(now, setpoints)
                 master_us.append((time.perf_counter() - c0) * 1e6)
