@@ -23,7 +23,7 @@ import zmq
 
 from tether import shm
 from tether.codec import Codec
-from tether.errors import DecodeError
+from tether.errors import ConfigError, DecodeError
 from tether.inputs import InputState, SeqStore, saturate
 from tether.link import LinkModel
 from tether.message import Message
@@ -121,7 +121,12 @@ class NodeRuntime(Context):
         self._topics = {name: f"{spec.node_id}/{name}".encode() for name in self.node.ports.outputs}
         self._stats_topic = f"{spec.node_id}/_stats".encode()
         self._shm_topics = {t: shm.shm_topic(t) for t in [*self._topics.values(), self._stats_topic]}
-        self.pub = make_pub(self.ctx, spec.binds, self.curve if secure_pub else None) if spec.binds else None
+        try:
+            self.pub = make_pub(self.ctx, spec.binds, self.curve if secure_pub else None) if spec.binds else None
+        except ConfigError:
+            if self._auth is not None:
+                self._auth.stop()           # its thread would keep the process from exiting
+            raise
         self._build_inputs()
         self._open_seq_store()
 
@@ -149,6 +154,7 @@ class NodeRuntime(Context):
             self.routes[shm.shm_topic(src.topic.encode())] = states
         self.subs: list[zmq.Socket] = []
         self._links: LinkWatch | None = None
+        self._link_logged: dict[str, tuple[int, int]] = {}   # endpoint -> (last logged ns, drops not logged since)
         self._resubscribe_due = False
         self._largest_in: dict[str, int] = {}
         self._retiring: list[zmq.Socket] = []     # replaced SUB sockets, still read until their successors overlap
@@ -165,12 +171,16 @@ class NodeRuntime(Context):
             src = self.spec.inputs.get(name)
             if src is not None and src.topic and name not in self.timers:
                 wants = self._wants_shm(src)
+                # every subscription to one publisher rides the same socket: a publisher that also
+                # serves another machine is a Curve server on its ipc endpoint too, and a plain
+                # socket's handshake with it fails at every redial (a dslam monitor logged ~300)
+                via = {"secure": src.secure, "server_key": src.server_key}
                 if wants:
-                    sock = subs.add(shm.shm_topic(src.topic.encode()).decode(), src.endpoint)
+                    sock = subs.add(shm.shm_topic(src.topic.encode()).decode(), src.endpoint, **via)
                 if not wants or src.topic.encode() not in self._shm_dupes:
                     if wants:   # also plain, for publishers that are not Tether nodes; the marker says why
-                        subs.add((shm.DUAL_PREFIX + src.topic.encode()).decode(), src.endpoint)
-                    sock = subs.add(src.topic, src.endpoint, secure=src.secure, server_key=src.server_key)
+                        subs.add((shm.DUAL_PREFIX + src.topic.encode()).decode(), src.endpoint, **via)
+                    sock = subs.add(src.topic, src.endpoint, **via)
                 self._socket_of[name] = sock
         old = self.subs
         if self._links is not None:
@@ -653,14 +663,25 @@ class NodeRuntime(Context):
                     pass
 
     def _check_links(self) -> None:
-        """Redial publishers whose connection ZeroMQ dropped (an oversize frame, a dead publisher)."""
-        for endpoint in self._links.poll():
+        """Redial publishers whose connection ZeroMQ dropped (an oversize frame, a dead publisher, a
+        failed security handshake); each endpoint is logged at most once per :data:`ERROR_LOG_PERIOD_NS`."""
+        now = time.monotonic_ns()
+        for endpoint, refused in self._links.poll():
             hit = [st for name, st in self.inputs.items()
                    if (src := self.spec.inputs.get(name)) is not None and src.endpoint == endpoint]
             for st in hit:
                 st.stats["link_resets"] += 1
-            self.node.log.warning("connection to %s (%s) dropped: a frame over the receive limit or the publisher "
-                                  "went away; redialled", endpoint, ", ".join(st.topic for st in hit) or "?")
+            logged_ns, suppressed = self._link_logged.get(endpoint, (-ERROR_LOG_PERIOD_NS, 0))
+            if now - logged_ns < ERROR_LOG_PERIOD_NS:
+                self._link_logged[endpoint] = (logged_ns, suppressed + 1)
+                continue
+            self._link_logged[endpoint] = (now, 0)
+            why = ("failed its security handshake (a plain subscriber dialling a CurveZMQ publisher, or keys "
+                   "from another keystore)" if refused else
+                   "dropped: a frame over the receive limit or the publisher went away")
+            extra = f" (+{suppressed} more since the last report)" if suppressed else ""
+            self.node.log.warning("connection to %s (%s) %s; redialled%s", endpoint,
+                                  ", ".join(st.topic for st in hit) or "?", why, extra)
 
     def _read_subscriptions(self) -> None:
         """Take in (un)subscriptions (``XPUB_VERBOSER``: one event per subscriber) and count subscribers.

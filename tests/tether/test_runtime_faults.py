@@ -329,6 +329,30 @@ def test_an_oversize_frame_is_counted_and_the_input_keeps_receiving(runtime_env:
     assert "dropped" in out and "redialled" in out and "Traceback" not in out
 
 
+def test_a_failing_security_handshake_is_named_and_logged_once_per_period(runtime_env: dict,
+                                                                          caplog: pytest.LogCaptureFixture) -> None:
+    """A plain subscriber dialling a CurveZMQ publisher: ZeroMQ retries every ~100 ms and each retry
+    fails its handshake; the node says why, once per log period, and counts every redial."""
+    rt = _runtime()
+    pub = zmq.Context.instance().socket(zmq.XPUB)
+    pub.curve_publickey, pub.curve_secretkey = zmq.curve_keypair()
+    pub.curve_server = True
+    pub.bind(rt.spec.inputs["value"].endpoint)
+    try:
+        deadline = time.monotonic() + 1.5
+        with caplog.at_level("WARNING"):
+            while time.monotonic() < deadline:
+                _pump(rt, lambda: False, timeout_s=0.1)
+                rt._check_links()
+        refused = [r.getMessage() for r in caplog.records if "security handshake" in r.getMessage()]
+        assert len(refused) == 1 and "a/value" in refused[0], refused
+        assert rt.inputs["value"].stats["link_resets"] >= 3       # every redial counted, not every one logged
+        assert not rt.node.seen
+    finally:
+        pub.close(linger=0)
+        rt.close()
+
+
 def _all_message_types() -> dict[str, type[Message]]:
     import msgs
 

@@ -164,6 +164,27 @@ def test_a_subscriber_on_another_machine_gets_frames(tmp_path: Path) -> None:
     assert _values(keeper) == [1, 2, 3] and cam.shm_counters()["placed"] == 0
 
 
+def test_a_curve_publisher_serves_its_same_host_subscribers_through_shared_memory(tmp_path: Path) -> None:
+    """A node that also publishes to another machine is a CurveZMQ server on its ipc endpoint too:
+    a same-host subscriber asks for slot tables over the secured socket, not a plain one whose
+    handshake fails at every redial (a dslam monitor logged ~300 such redials in 9 s)."""
+    from tether.transport import CurveKeys
+
+    keys = CurveKeys.generate(("here",))
+    ipc, tcp = f"ipc://{tmp_path}/cam", f"tcp://127.0.0.1:{free_port()}"
+    cam = NodeRuntime(RunSpec(graph="g", node_id="cam", node="test:Cam", binds=[ipc, tcp], params={"count": 3},
+                              expect_subscribers={"cam/image": 1}, wait_subscribers_s=30, curve=keys.to_json()), Cam)
+    keeper = NodeRuntime(RunSpec(graph="g", node_id="keep", node="test:Keeper", curve=keys.to_json(),
+                                 inputs={"image": Source(topic="cam/image", endpoint=ipc, secure=True,
+                                                         server_key=keys.public.decode())}), Keeper)
+    with _running(keeper, cam):
+        _until(lambda: len(keeper.node.kept) == 3, "three images from a Curve publisher over ipc")
+        time.sleep(0.6)                             # a few link checks: a failing handshake would have shown
+    assert _values(keeper) == [1, 2, 3]
+    assert cam.shm_counters()["placed"] == 3, "the images went as frames: the slot-table subscription never arrived"
+    assert keeper.stats().inputs[0].link_resets == 0
+
+
 def test_two_graphs_with_the_same_topic_names_stay_apart(tmp_path: Path) -> None:
     a, b = f"ipc://{tmp_path}/a", f"ipc://{tmp_path}/b"
     cams = [_cam(a, 1, graph="one", count=3, first=10), _cam(b, 1, graph="two", count=3, first=100)]
