@@ -6,6 +6,7 @@ prefix, so receivers compare frame 0 for equality (``cam/image`` never delivers
 """
 from __future__ import annotations
 
+import errno
 import os
 import socket
 import stat
@@ -97,6 +98,42 @@ def private_subdir(name: str) -> Path:
     return folder
 
 
+def free_port_base(count: int = 1, host: str = "127.0.0.1", *, seed: int | None = None) -> int:
+    """A port ``p`` such that ``p .. p + count - 1`` can be bound on ``host`` now: a machine's
+    ``port_base`` for tests and tools that launch graphs side by side.
+
+    Chosen below the kernel's ephemeral range (``ip_local_port_range``): a port the kernel
+    handed out (``bind(0)``) sits in that range, where any outgoing connection -- one launcher
+    dialling another -- may take the next ports before the graph binds them (CI: a node failed
+    with "address already in use" on its port_base + 1).
+    """
+    import random
+
+    try:
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        low = 32768                                  # Linux's default
+    top = low - count
+    if top <= 20000:
+        raise RuntimeError(f"no room for {count} ports below the ephemeral range (starts at {low})")
+    rng = random.Random(os.getpid() if seed is None else seed)   # two test processes start apart
+    for _ in range(200):
+        base = rng.randrange(20000, top)
+        held = []
+        try:
+            for port in range(base, base + count):
+                sock = socket.socket()
+                held.append(sock)
+                sock.bind((host, port))
+            return base
+        except OSError:
+            continue
+        finally:
+            for sock in held:
+                sock.close()
+    raise RuntimeError(f"no {count} free consecutive ports found on {host} in 200 tries")
+
+
 def ipc_endpoint(graph: str, node_id: str, token: str) -> str:
     """A same-host endpoint for ``node_id`` (unix socket paths must stay short: ~100 bytes)."""
     folder = private_subdir("s")
@@ -167,7 +204,15 @@ def make_pub(ctx: zmq.Context, binds: list[str], curve: CurveKeys | None) -> zmq
         sock.curve_secretkey = curve.secret
         sock.curve_publickey = curve.public
     for endpoint in binds:
-        sock.bind(endpoint)
+        try:
+            sock.bind(endpoint)
+        except zmq.ZMQError as exc:
+            sock.close(linger=0)
+            if exc.errno == errno.EADDRINUSE:
+                raise ConfigError(f"cannot bind {endpoint}: the address is in use by another process (another "
+                                  "launch of this graph, or a port the system handed out); stop it, or give "
+                                  "this machine another port_base") from None
+            raise ConfigError(f"cannot bind {endpoint}: {exc.strerror}") from None
     return sock
 
 
@@ -240,35 +285,46 @@ class Subscriptions:
 
 
 class LinkWatch:
-    """Redials a publisher whose connection ZeroMQ dropped, and says which.
+    """Redials a publisher whose connection ZeroMQ dropped, and says which and why.
 
     libzmq (4.3) closes a connection that carries a frame over ``MAXMSGSIZE`` and, that
     being a protocol error, never dials it again: one oversize frame would cut the input
     for good. Disconnecting and connecting the endpoint again restores it (measured: the
     frames sent after the oversize one arrive again within one check period). A publisher
     that simply went away is redialled the same way, which ZeroMQ would have done anyway.
+    A connection that fails its security handshake (a plain socket dialling a CurveZMQ
+    publisher, or keys from another keystore) is reported as such: redialling cannot mend it.
     """
 
-    def __init__(self, sockets: list[zmq.Socket], endpoints: dict[zmq.Socket, set[str]]) -> None:
-        self._watch = [(sock, sock.get_monitor_socket(zmq.EVENT_DISCONNECTED), endpoints.get(sock, set()))
-                       for sock in sockets]
+    HANDSHAKE_FAILED = (zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+                        | zmq.EVENT_HANDSHAKE_FAILED_AUTH)
 
-    def poll(self) -> list[str]:
-        """Redial every endpoint dropped since the last call; return them (one entry per drop)."""
+    def __init__(self, sockets: list[zmq.Socket], endpoints: dict[zmq.Socket, set[str]]) -> None:
+        events = zmq.EVENT_DISCONNECTED | self.HANDSHAKE_FAILED
+        self._watch = [(sock, sock.get_monitor_socket(events), endpoints.get(sock, set())) for sock in sockets]
+
+    def poll(self) -> list[tuple[str, bool]]:
+        """Redial every endpoint dropped since the last call; return them, one ``(endpoint,
+        handshake_failed)`` per drop."""
         from zmq.utils.monitor import recv_monitor_message
 
         dropped = []
         for sock, monitor, known in self._watch:
+            refused: set[str] = set()
             while monitor.poll(0):
-                endpoint = recv_monitor_message(monitor)["endpoint"].decode(errors="replace")
+                event = recv_monitor_message(monitor)
+                endpoint = event["endpoint"].decode(errors="replace")
                 if endpoint not in known:
                     continue       # not one we dialled (a bind-side peer): nothing to redial
+                if event["event"] & self.HANDSHAKE_FAILED:
+                    refused.add(endpoint)      # its DISCONNECTED follows
+                    continue
                 try:
                     sock.disconnect(endpoint)
                 except zmq.ZMQError:
                     pass           # already forgotten by ZeroMQ: connecting again is still right
                 sock.connect(endpoint)
-                dropped.append(endpoint)
+                dropped.append((endpoint, endpoint in refused))
         return dropped
 
     def close(self) -> None:

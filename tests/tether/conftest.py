@@ -57,12 +57,11 @@ def wait_for_topic(topic: str, env: dict[str, str], *, timeout_s: float = 30.0,
         assert alive is None or alive.poll() is None, "the process publishing it exited"
 
 
-def free_port() -> int:
-    import socket
+def free_port(count: int = 1) -> int:
+    """A free port (the first of ``count``), below the ephemeral range (see ``free_port_base``)."""
+    from tether.transport import free_port_base
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port_base(count)
 
 
 def two_machines(tmp_path: Path, name: str, more_nodes: str = "") -> Path:
@@ -70,7 +69,7 @@ def two_machines(tmp_path: Path, name: str, more_nodes: str = "") -> Path:
     plus ``more_nodes`` (YAML list items, indented like the others)."""
     import textwrap
 
-    base = free_port()
+    base = free_port(20)
     path = tmp_path / "two.yaml"
     path.write_text(textwrap.dedent(f"""
         name: {name}

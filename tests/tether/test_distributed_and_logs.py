@@ -35,6 +35,23 @@ def test_two_machines_talk_over_curve_tcp(tmp_path: Path, runtime_env: dict) -> 
         assert key["public"] == peers[machine] and oct(os.stat(store / f"{machine}.key").st_mode & 0o777) == "0o600"
 
 
+def test_a_port_held_by_another_process_is_one_clear_line(tmp_path: Path, runtime_env: dict) -> None:
+    import re
+    import socket
+
+    path = two_machines(tmp_path, "heldport")
+    base = int(re.search(r"boat:\s+\{host: 127.0.0.1, port_base: (\d+)\}", path.read_text()).group(1))
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", base))                       # the counter's port
+        holder.listen()
+        boat = subprocess.run([sys.executable, "-m", "tether.cli", "launch", str(path), "--duration", "3",
+                               "--machine", "boat"], cwd=REPO, env=runtime_env, capture_output=True, text=True,
+                              timeout=60)
+    out = boat.stdout + boat.stderr
+    assert boat.returncode != 0 and "Traceback" not in out, out
+    assert f"cannot bind tcp://127.0.0.1:{base}: the address is in use by another process" in out, out
+
+
 def test_curve_rejects_a_subscriber_without_the_graph_keys(runtime_env: dict) -> None:
     import threading
 
