@@ -156,7 +156,13 @@ class FakeOculus:
             self.drop()
 
     def broadcast_status(self) -> None:
-        conn = self.client.getpeername()[0] if self.client else "0.0.0.0"
+        conn = "0.0.0.0"
+        if self.client is not None:
+            try:
+                conn = self.client.getpeername()[0]
+            except OSError as exc:      # the client hung up between two polls: it is gone, not an error
+                self.log.info("client gone (%s)", exc)
+                self.drop()
         try:
             self.udp.sendto(encode_status(replace(self.status, connected_ip=conn)), self.status_target)
         except OSError as exc:

@@ -148,3 +148,19 @@ def test_config_rejects_bad_values():
         FlsSonar.make_config({"row_gain_encoding": "bcd"})
     with pytest.raises(ConfigError):
         FlsSonar.make_config({"no_such_param": 1})
+
+
+def test_a_client_gone_between_two_polls_is_dropped_when_status_is_broadcast() -> None:
+    """getpeername on a socket whose peer hung up raises ENOTCONN: the status sender drops the
+    client and broadcasts 'not connected' instead of ending the simulator's thread (seen in a suite run)."""
+    import logging
+
+    from sim.fls import Config, FakeOculus
+
+    fake = FakeOculus(Config(port=0, status_port=9, status_address="127.0.0.1"), logging.getLogger("fls"))
+    try:
+        fake.client = socket.socket()                  # never connected: getpeername fails as for a hung-up peer
+        fake.broadcast_status()
+        assert fake.client is None
+    finally:
+        fake.close()
