@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import importlib
 import itertools
-import json
 import pkgutil
 import subprocess
 import sys
