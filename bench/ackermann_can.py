@@ -77,6 +77,7 @@ from nodes.control.trajectory import make_trajectory  # noqa: E402
 from sim.cia402_drive import SimDrive, SimDriveBank  # noqa: E402
 from sim.vehicle4ws import VehicleParams, Vehicle4WSModel, simulate_tracking  # noqa: E402
 from tether.runner import apply_rt_priority  # noqa: E402
+from tether.runtime import fifo_priority  # noqa: E402
 
 TAU_S = 0.02           # simulated drives' first-order motor lag
 PHYSICS_HZ = 500.0
@@ -162,9 +163,8 @@ def _can_fifo() -> bool:
 
 def _watch_priority() -> int:
     """Ten above this process's SCHED_FIFO priority (0 when it runs normal scheduling)."""
-    if os.sched_getscheduler(0) != os.SCHED_FIFO:
-        return 0
-    return min(99, os.sched_getparam(0).sched_priority + 10)
+    own = fifo_priority()
+    return min(99, own + 10) if own else 0
 
 
 def next_tick(tick: float, now: float, rate_hz: float) -> float:

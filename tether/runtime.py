@@ -76,7 +76,7 @@ class RunSpec:
     rt_priority: int = 0          # SCHED_FIFO priority asked for the node's process (0: normal scheduling)
 
 
-def _fifo_priority() -> int:
+def fifo_priority() -> int:
     """The SCHED_FIFO priority this thread runs at (0: another policy, or no POSIX scheduling here)."""
     if not hasattr(os, "sched_getscheduler"):
         return 0
@@ -634,7 +634,7 @@ class NodeRuntime(Context):
                          stats_errors=saturate(self._stats_errors),
                          published_bytes={k: saturate(v) for k, v in self._published_bytes.items()},
                          **{f"shm_{k}": saturate(v) for k, v in self.shm_counters().items()},
-                         rt_priority=_fifo_priority(), stamp_ns=time.time_ns())
+                         rt_priority=fifo_priority(), stamp_ns=time.time_ns())
 
     def _publish_stats(self) -> None:
         """Publish :meth:`stats`; a failure here is counted and logged (rate-limited), never fatal."""

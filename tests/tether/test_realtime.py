@@ -21,12 +21,12 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="n
 _PROBE = """
 import os, threading
 from tether.runner import apply_rt_priority
-from tether.runtime import _fifo_priority
+from tether.runtime import fifo_priority
 got = apply_rt_priority({priority}, "probe")
 seen = []
 t = threading.Thread(target=lambda: seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)))
 t.start(); t.join()
-print(got, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority, *seen[0], _fifo_priority())
+print(got, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority, *seen[0], fifo_priority())
 """
 
 
