@@ -45,7 +45,7 @@ from nodes.nav.clearance import (braking_speed_mps, cleared_by_depth, conflictin
                                  unseen_mask)
 from nodes.nav.grid_frame import to_robot, to_world
 from nodes.nav.dwa_core import depth_to_robot, thin_points
-from nodes.nav.features import cell_velocity
+from nodes.nav.features import point_velocity
 from tether import Node
 
 
@@ -240,8 +240,7 @@ class CollisionGuard(Node):
         # 0.41 -> 0.15 m); a safety layer may brake for a phantom but must not miss a person.
         xy, v = pts[ok, :2], vel[ok, :2]
         if c.cell_m > 0:
-            cell_v, _, of_point = cell_velocity(xy, v, c.cell_m)
-            v = cell_v[of_point]
+            v, _ = point_velocity(xy, v, c.cell_m)
         moving = np.hypot(v[:, 0], v[:, 1]) >= c.moving_mps
         taus = np.arange(0.1, horizon + 1e-9, 0.1)
         ahead = (xy[moving, None, :] + v[moving, None, :] * taus[None, :, None]).reshape(-1, 2)

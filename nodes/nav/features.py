@@ -210,8 +210,7 @@ def conflict_cells(points_m: np.ndarray, velocity_mps: np.ndarray, grid: GridSpe
     if not ok.any():
         return np.zeros((rows, cols), bool)
     p = pts[ok, :2]
-    cell_v, _, of_point = cell_velocity(p, vel[ok, :2], grid.resolution_m, (grid.x_min_m, grid.y_min_m))
-    v = cell_v[of_point]                               # each point moves with its cell's median velocity
+    v, _ = point_velocity(p, vel[ok, :2], grid.resolution_m, (grid.x_min_m, grid.y_min_m))
     still = np.hypot(v[:, 0], v[:, 1]) < moving_mps
     index = np.arange(len(p))
     pairs = [(index[still], *_cell_rc(grid, p[still]))]
@@ -289,6 +288,14 @@ def cell_velocity(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
     (vx, vy), n, of_point = _cell_medians(p, np.asarray(velocity_xy, dtype=np.float64).reshape(-1, 2),
                                           cell_m, corner_xy_m, with_points=False)
     return np.column_stack([vx, vy]), n, of_point
+
+
+def point_velocity(points_xy: np.ndarray, velocity_xy: np.ndarray, cell_m: float,
+                   corner_xy_m: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's predicted velocity, the median velocity (N, 2) m/s of the cell it stands in
+    (:func:`cell_velocity`), and that cell's point count (N,): a few wrong flow vectors do not move a cell."""
+    cell_v, n, of_point = cell_velocity(points_xy, velocity_xy, cell_m, corner_xy_m)
+    return cell_v[of_point], n[of_point]
 
 
 def _cell_medians(p: np.ndarray, v: np.ndarray, cell_m: float, corner_xy_m: tuple[float, float], *,

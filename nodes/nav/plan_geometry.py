@@ -13,7 +13,7 @@ import numpy as np
 from scipy.ndimage import grey_dilation
 
 from nodes.nav.dijkstra import line_cells, path_cost
-from nodes.nav.features import cell_velocity
+from nodes.nav.features import point_velocity
 from nodes.nav.grid_frame import GridFrame, extract_waypoint, inflate, to_robot
 
 
@@ -154,9 +154,8 @@ def predict_conflicts(points_m: np.ndarray, velocity_mps: np.ndarray, frame: Gri
         return mask
     corner = (frame.origin_x_m - 0.5 * frame.resolution_m, frame.origin_y_m - 0.5 * frame.resolution_m)
     p = p[ok]
-    cell_v, n, of_point = cell_velocity(p, v[ok], frame.resolution_m, corner)
-    v = cell_v[of_point]                             # each point moves with its cell's median velocity
-    keep = (n[of_point] >= min_points) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
+    v, n = point_velocity(p, v[ok], frame.resolution_m, corner)     # each point moves with its cell's median
+    keep = (n >= min_points) & (np.hypot(v[:, 0], v[:, 1]) >= moving_mps)
     p, v = p[keep], v[keep]
     if len(p) == 0:
         return mask
@@ -209,9 +208,8 @@ def people_motion(points_m: np.ndarray, velocity_mps: np.ndarray, *, cell_m: flo
     if not ok.any():
         return np.zeros((0, 2)), np.zeros((0, 2))
     xy = p[ok, :2]
-    cell_v, n, of_point = cell_velocity(xy, v[ok, :2], cell_m)
-    vel = cell_v[of_point]
-    still = (n[of_point] < min_points) | (np.hypot(vel[:, 0], vel[:, 1]) < moving_mps)
+    vel, n = point_velocity(xy, v[ok, :2], cell_m)
+    still = (n < min_points) | (np.hypot(vel[:, 0], vel[:, 1]) < moving_mps)
     vel[still] = 0.0
     xy, keep = thin_points(xy, thin_m, return_index=True)
     return xy, vel[keep]
