@@ -217,10 +217,7 @@ def voted(grid: CarvingGrid) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarr
     keeps each."""
     rows = grid.off_floor(grid.voted_rows())
     ev = carving_filter.evidence(grid, rows, carving_filter.plausible_rows(grid))
-    p, voxels = grid.params, grid._cand[rows]
-    default = ((grid._votes[rows] >= p.min_votes) & (grid._score(voxels) >= p.min_support * grid.hits[voxels])
-               & (ev["sigma_m"] <= DEFAULT_SIGMA_M))
-    return rows, grid.candidate_points()[rows], ev, default
+    return rows, grid.candidate_points()[rows], ev, grid.default_keep(rows, max_sigma_m=DEFAULT_SIGMA_M)
 
 
 def run_pass(scene_spec, t0: float, t1: float, seed: int) -> dict:

@@ -454,16 +454,30 @@ class CarvingGrid:
             keep = surface_p >= next(t for t in (min_surface_p, p.min_surface_p, self._model["threshold_p"])
                                      if t is not None)
         else:
-            voxels = self._cand[rows]
-            keep = self._score(voxels) >= p.min_support * self.hits[voxels]
+            keep = self.default_keep(rows)
         rows, pts = rows[keep], pts[keep]
         surface_p = None if surface_p is None else surface_p[keep].astype(np.float32)
         votes = self._votes[rows]
-        sigma = np.maximum(np.sqrt(self._extent2[rows] / votes / 12.0), p.voxel_m / np.sqrt(12.0)).astype(np.float32)
+        sigma = self.sigma_m(rows)
         keep = sigma <= max_sigma_m
         return VotedCloud(points_m=pts[keep].copy(), sigma_m=sigma[keep], votes=votes[keep].astype(np.int32),
                            hits=self.hits[self._cand[rows[keep]]].astype(np.int32),
                            surface_p=None if surface_p is None else surface_p[keep])
+
+    def sigma_m(self, rows: np.ndarray) -> np.ndarray:
+        """Elevation 1-sigma (m) of candidate ``rows``: the spread of the extents their voting arcs chose (a
+        uniform spread over the extent), at least a voxel's own (``voxel_m`` / sqrt 12); rows need >= 1 vote."""
+        spread = np.sqrt(self._extent2[rows] / self._votes[rows] / 12.0)
+        return np.maximum(spread, self.params.voxel_m / np.sqrt(12.0)).astype(np.float32)
+
+    def default_keep(self, rows: np.ndarray, *, max_sigma_m: float = np.inf) -> np.ndarray:
+        """Which candidate ``rows`` the default rule (``keep="sigma"``) keeps: >= ``min_votes`` votes, a score
+        still >= ``min_support`` x hits (later views did not empty the voxel), elevation sigma <= ``max_sigma_m``."""
+        p, voxels = self.params, self._cand[rows]
+        keep = (self._votes[rows] >= p.min_votes) & (self._score(voxels) >= p.min_support * self.hits[voxels])
+        if np.isfinite(max_sigma_m):
+            keep[keep] = self.sigma_m(rows[keep]) <= max_sigma_m
+        return keep
 
     def flush(self) -> None:
         """Let every arc still settling vote with the evidence there is (the end of a run)."""
