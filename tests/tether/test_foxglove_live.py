@@ -342,6 +342,16 @@ def test_malformed_messages_are_counted_and_the_topic_keeps_serving(runtime_env:
             except socket.timeout:
                 pass
         client.subscribe(list(client.channels))
+        # The server takes the subscription on its own thread, and a topic nobody watches is not
+        # decoded (nor its bad messages counted): send the bad ones once it is watched. Subscribed
+        # again after 2 s, for the SDK's refusal of a subscription right after the advertisement.
+        retry = time.monotonic() + 2.0
+        while not view.sink.watched("peer/value"):
+            assert time.monotonic() < deadline
+            if time.monotonic() > retry:
+                retry = time.monotonic() + 2.0
+                client.subscribe(list(client.channels))
+            time.sleep(0.01)
         for frames in bad:
             pub.send_multipart(frames)
         got: list[bytes] = []
