@@ -7,7 +7,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import pytest
 
@@ -81,3 +81,40 @@ def two_machines(tmp_path: Path, name: str, more_nodes: str = "") -> Path:
           - {{id: scale, node: nodes.std.demo:Scale, inputs: {{value: counter/value}}, machine: shore}}
     """) + textwrap.indent(textwrap.dedent(more_nodes).strip("\n") + "\n", "  "))
     return path
+
+
+def launch_until(args: list[str], env: dict[str, str], until: Callable[[str, str], bool], *,
+                 timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+    """``tether launch *args`` (no ``--duration``), stopped with Ctrl-C once ``until(stdout, stderr)``
+    holds (or after ``timeout_s``, or when it exits by itself).
+
+    For tests that need something to have happened before the graph stops: a fixed duration
+    counts the start-up too, which a loaded 2-core machine stretches past it (a recorder process
+    still importing when a 2 s launch ended: no messages, or no log at all).
+    """
+    import signal
+    import threading
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", *args], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out: list[str] = []
+    err: list[str] = []
+    readers = [threading.Thread(target=lambda s=s, into=into: into.extend(s), daemon=True)
+               for s, into in ((proc.stdout, out), (proc.stderr, err))]
+    for reader in readers:
+        reader.start()
+    deadline = time.monotonic() + timeout_s
+    try:
+        while proc.poll() is None and time.monotonic() < deadline and not until("".join(out), "".join(err)):
+            time.sleep(0.02)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)                                # a hang guard, not a measurement
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for reader in readers:
+            reader.join(timeout=10)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(err))

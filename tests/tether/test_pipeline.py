@@ -1,18 +1,24 @@
 """End to end with real processes: a 3-node pipeline, restart, recording, replay, lockstep."""
 from __future__ import annotations
 
+import re
 import textwrap
 from pathlib import Path
 
 import numpy as np
 
-from conftest import tether
+from conftest import launch_until, tether
 from tether.log import LogReader
 
 
 def _values(path: Path, topic: str) -> list[tuple[int, float]]:
     reader = LogReader(path)
     return [(m.seq, m.data) for m in (reader.decode(r) for r in reader.messages([topic]))]
+
+
+def _printed_max(stdout: str) -> float:
+    """The largest value the printer logged so far (-1 before any)."""
+    return max((float(v) for v in re.findall(r"\[printer\] .* value (-?[0-9.]+) \(seq", stdout)), default=-1.0)
 
 
 def test_three_node_pipeline_end_to_end(tmp_path: Path, runtime_env: dict) -> None:
@@ -33,9 +39,10 @@ def test_three_node_pipeline_end_to_end(tmp_path: Path, runtime_env: dict) -> No
 
 def test_handler_failure_is_counted_and_node_keeps_running(tmp_path: Path, runtime_env: dict) -> None:
     log = tmp_path / "run.mcap"
-    res = tether("launch", "launch/counter.yaml", "--duration", "2", "--param", "counter.rate_hz=20",
-                 "--param", "scale.fail_on=3.0", "--record", str(log), env=runtime_env)
-    assert res.returncode == 0, res.stdout
+    res = launch_until(["launch/counter.yaml", "--param", "counter.rate_hz=20", "--param", "scale.fail_on=3.0",
+                        "--record", str(log)], runtime_env,
+                       lambda out, err: "injected failure on 3.0" in out and _printed_max(out) >= 12.0)
+    assert res.returncode == 0, res.stdout + res.stderr
     scaled = [v for _, v in _values(log, "scale/value")]
     assert 6.0 not in scaled and 4.0 in scaled and 8.0 in scaled             # 3.0 dropped, neighbours fine
     assert res.stdout.count("injected failure on 3.0") == 1                   # one clear line
@@ -44,8 +51,9 @@ def test_handler_failure_is_counted_and_node_keeps_running(tmp_path: Path, runti
 
 def test_crashed_node_is_restarted_per_policy(tmp_path: Path, runtime_env: dict) -> None:
     log = tmp_path / "run.mcap"
-    res = tether("launch", "launch/counter.yaml", "--duration", "4", "--param", "counter.rate_hz=20",
-                 "--param", "scale.exit_on=5.0", "--record", str(log), env=runtime_env)
+    res = launch_until(["launch/counter.yaml", "--param", "counter.rate_hz=20", "--param", "scale.exit_on=5.0",
+                        "--record", str(log)], runtime_env,
+                       lambda out, err: "restarting scale (1/3)" in err and _printed_max(out) > 20.0)
     assert "scale exited with code 3; restart in 0.5 s" in res.stderr
     assert "restarting scale (1/3)" in res.stderr
     scaled = [v for _, v in _values(log, "scale/value")]
