@@ -23,6 +23,9 @@ from tether.runner import LOG_FORMAT, read_spec_arg, watch_parent
 
 log = logging.getLogger("tether.record")
 
+#: the line the launcher's recorder process logs once it records (its stop handlers are set by then)
+READY_TEXT = "recording started:"
+
 
 class Recorder:
     """Record ``topics`` ({topic: endpoint}) into ``path`` until :meth:`stop`."""
@@ -182,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     rec = Recorder(spec["path"], spec["topics"], curve=curve, secure=spec.get("secure") or {},
                    metadata=spec.get("metadata"), max_bytes=int(spec.get("max_bytes") or 0),
                    max_duration_s=float(spec.get("max_duration_s") or 0.0)).start()
+    log.info("%s %d topics into %s", READY_TEXT, len(rec.topics), rec.path)
     rec.run_until(stop)
     log.info("recorded %d messages (%.1f MB) on %d topics to %s%s", rec.count, rec.bytes / 1e6, len(rec.topics),
              rec.path, f"; {rec.errors} malformed dropped" if rec.errors else "")

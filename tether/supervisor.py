@@ -20,6 +20,7 @@ import msgspec
 
 from tether import forked, keystore, registry
 from tether.launch import LaunchFile, plan
+from tether.record import READY_TEXT
 from tether.errors import ConfigError
 from tether.runtime import RunSpec
 from tether.transport import sweep_stale_sockets
@@ -148,6 +149,7 @@ class Supervisor:
             child.spec.expect_subscribers = {t: n + (t in self.record_topics)
                                              for t, n in child.spec.expect_subscribers.items()}
         self.recorder: subprocess.Popen | None = None
+        self._recorder_ready = threading.Event()
         self.recorder_segments: list[str] = []
         self.recorder_failures = 0
         self._registry_path: Path | None = None
@@ -174,8 +176,10 @@ class Supervisor:
                 "metadata": {"launch": str(self.launch.path), "graph": self.launch.name, "segment": n}}
         # Its own process: recording a camera stream costs CPU (the mcap writer copies every byte a
         # few times), which must not slow the supervisor's log pumping or restarts.
+        self._recorder_ready = threading.Event()
         self.recorder = spawn("tether.record", json.dumps(spec).encode())
-        threading.Thread(target=self._pump, args=("record", self.recorder.stdout), daemon=True).start()
+        threading.Thread(target=self._pump, args=("record", self.recorder.stdout, self._recorder_ready),
+                         daemon=True).start()
 
     def _watch_recorder(self) -> None:
         """A dead recorder is an error: say so and record on into a new segment (never run on without a log)."""
@@ -205,8 +209,11 @@ class Supervisor:
         self._pumps.append(pump)
         self._register()
 
-    def _pump(self, node_id: str, stream: IO[str]) -> None:
+    def _pump(self, node_id: str, stream: IO[str], ready: threading.Event | None = None) -> None:
+        """Copy a child's output lines, prefixed with its id; ``ready`` is set at the recorder's :data:`READY_TEXT`."""
         for line in stream:
+            if ready is not None and READY_TEXT in line:
+                ready.set()
             with self._write_lock:
                 self.out.write(f"[{node_id}] {line}" if line.endswith("\n") else f"[{node_id}] {line}\n")
                 self.out.flush()
@@ -303,6 +310,13 @@ class Supervisor:
             self.recorder_failures += 1
             log.error("the recorder died (exit %d) writing %s", self.recorder.returncode, self.recorder_segments[-1])
             return
+        # A recorder still starting (a short run on a loaded or small machine: it imports for about
+        # 0.3 s of CPU) would die of the SIGTERM before setting its handlers, leaving no log at all:
+        # it finishes starting first (within the stop timeout), then stops with a complete file.
+        deadline = time.monotonic() + self.stop_timeout_s
+        while (not self._recorder_ready.wait(0.02) and self.recorder.poll() is None
+               and time.monotonic() < deadline):
+            pass
         self.recorder.send_signal(signal.SIGTERM)
         try:
             code = self.recorder.wait(self.stop_timeout_s)

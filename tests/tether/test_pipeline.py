@@ -1,6 +1,7 @@
 """End to end with real processes: a 3-node pipeline, restart, recording, replay, lockstep."""
 from __future__ import annotations
 
+import os
 import re
 import textwrap
 from pathlib import Path
@@ -187,3 +188,20 @@ def test_launch_records_only_the_selected_topics(tmp_path: Path, runtime_env: di
     bad = tether("launch", "launch/counter.yaml", "--duration", "1", "--record", str(log),
                  "--record-topics", "nothing/*", env=runtime_env)
     assert bad.returncode == 2 and "no topic matches" in bad.stderr
+
+
+def test_a_launch_stopped_while_its_recorder_starts_leaves_a_complete_log(tmp_path: Path, runtime_env: dict) -> None:
+    """A short run on a loaded (or small) machine can end before the recorder process has finished
+    importing: the launcher lets it start, then stops it; a complete log, and no failure."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text("import sys, time\n"
+                                           "if 'tether.record' in sys.orig_argv:\n"
+                                           "    time.sleep(2.0)              # a recorder slow to start\n")
+    env = {**runtime_env, "PYTHONPATH": os.pathsep.join(p for p in (str(site), runtime_env.get("PYTHONPATH")) if p)}
+    log = tmp_path / "run.mcap"
+    res = tether("launch", "launch/counter.yaml", "--duration", "0.5", "--record", str(log), env=env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "recorder" not in res.stderr, res.stderr            # no 'the recorder exited with code -15'
+    reader = LogReader(log)
+    assert not reader.recovered                                 # closed properly: footer and summary
