@@ -118,3 +118,18 @@ def launch_until(args: list[str], env: dict[str, str], until: Callable[[str, str
         for reader in readers:
             reader.join(timeout=10)
     return subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(err))
+
+
+def recording_for(seconds: float) -> Callable[[str, str], bool]:
+    """A :func:`launch_until` condition: true ``seconds`` after the launch's recorder said it records
+    (sources wait for it to subscribe: the run is that long for the log, whatever the start-up took)."""
+    import time
+
+    started: list[float] = []
+
+    def until(out: str, err: str) -> bool:
+        if not started and "recording started:" in out:
+            started.append(time.monotonic())
+        return bool(started) and time.monotonic() - started[0] >= seconds
+
+    return until

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from conftest import REPO, tether
+from conftest import REPO, launch_until, recording_for, tether
 from msgs.std import Float64
 from tether.log import LogWriter
 
@@ -44,8 +44,8 @@ def test_replaying_nothing_is_not_success(tmp_path: Path, runtime_env: dict) -> 
 
 def test_record_topics_take_commas_and_leave_the_file_alone(tmp_path: Path, runtime_env: dict) -> None:
     log = tmp_path / "sel.mcap"
-    res = tether("launch", "--record", str(log), "--record-topics", "counter/*,scale/value", "launch/counter.yaml",
-                 "--duration", "2", "--param", "counter.rate_hz=20", env=runtime_env)
+    res = launch_until(["--record", str(log), "--record-topics", "counter/*,scale/value", "launch/counter.yaml",
+                        "--param", "counter.rate_hz=20"], runtime_env, recording_for(1.0))
     assert res.returncode == 0, res.stderr
     from tether.log import LogReader
 
@@ -243,8 +243,9 @@ def test_launch_record_splits_by_duration(tmp_path: Path, runtime_env: dict) -> 
     from tether.log import LogReader
 
     log = tmp_path / "run.mcap"
-    res = tether("launch", "launch/counter.yaml", "--duration", "3.5", "--param", "counter.rate_hz=20",
-                 "--record", str(log), "--record-max-duration", "1", env=runtime_env)
+    res = launch_until(["launch/counter.yaml", "--param", "counter.rate_hz=20", "--record", str(log),
+                        "--record-max-duration", "1"], runtime_env,
+                       lambda out, err: out.count("recording on into") >= 2)      # two segments complete
     assert res.returncode == 0, res.stderr
     parts = sorted(tmp_path.glob("run*.mcap"))
     assert len(parts) >= 3 and (tmp_path / "run_1.mcap") in parts

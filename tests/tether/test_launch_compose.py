@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import launch_until, recording_for
 from tether.errors import ConfigError
 from tether.launch import load_launch, parse_launch_args, parse_overrides, plan, to_text
 
@@ -339,8 +340,7 @@ def test_an_included_pipeline_runs_under_its_namespace(tmp_path, runtime_env):
       - {file: pipe.yaml, namespace: right, args: {rate: 20, gain: 3}}
     """)
     log = tmp_path / "run.mcap"
-    res = subprocess.run([sys.executable, "-m", "tether.cli", "launch", str(path), "--duration", "2", "--record",
-                          str(log)], cwd=REPO, env=runtime_env, capture_output=True, text=True, timeout=120)
+    res = launch_until([str(path), "--record", str(log)], runtime_env, recording_for(1.0))
     assert res.returncode == 0, res.stderr
     from tether.log import LogReader
 
