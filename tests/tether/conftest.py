@@ -117,6 +117,8 @@ def launch_until(args: list[str], env: dict[str, str], until: Callable[[str, str
             proc.wait()
         for reader in readers:
             reader.join(timeout=10)
+        proc.stdout.close()
+        proc.stderr.close()
     return subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(err))
 
 
