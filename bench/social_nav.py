@@ -37,6 +37,15 @@ where it waited or slowed for predicted people (``planner_why``: 'wait', 'slow';
 the median). A second guard with the other stop rule (``guard_other_rule``) is fed the same inputs and never
 drives: ``guard_frac_other_rule`` is how often it would have braked on the same runs. ``out/social_nav_tradeoff.png``
 plots speed against error: time / human time against closest approach, per planner.
+The guard's rule asked of people (bench/guard_on_walkers.py, open loop, no rendering): ``guard_frac_human`` (per
+scenario in ``scenarios.<name>.human``; headline: the worst and ``guard_frac_human_median``) is the share of the
+human reference's moving ticks (> 0.3 m/s) that a guard with the bench's guard parameters would brake or slow, fed at
+each tick the reference's own (speed, yaw rate) as its command and every other person of the episode (ground truth,
+all around: no field of view, blind zone, memory or walls) as 0.3 m disc outlines, one point per 5 cm, with their
+velocities (central differences) in the reference's frame, as ``points``; ``guard_frac_walkers`` (per recorded set
+replayed by a real-crowd scenario) the same for every recorded walker of that set among the others; the
+``*_without_companions`` keys leave out, at each tick, the people walking with the walker (within 2 m, velocity
+within 0.5 m/s: a robot walks with nobody).
 Writes ``out/social_nav.png`` (trajectories) and prints a table; ``--json`` prints one
 object with the metrics per scenario and method, ``pipeline_hz`` and ``plan_ms_100x100``.
 """
@@ -635,6 +644,36 @@ def start_spread(cases: dict, shifts: dict, runs: dict, args: argparse.Namespace
     return out
 
 
+def guard_on_people(cases: dict, runs: dict, report: dict, guard: dict) -> dict:
+    """The guard's rule asked of people (bench/guard_on_walkers.py; see the module docstring): adds
+    ``guard_frac_human`` and ``guard_why_human`` to each scenario's human metrics in ``report``; returns the headline
+    keys ``guard_frac_human`` (worst), ``guard_frac_human_median`` and ``guard_frac_walkers`` (recorded set -> share
+    of every walker's moving ticks braked; the sets the real-crowd scenarios replay, skipped without the data)."""
+    from guard_on_walkers import dataset_guard, episode_guard
+    fracs = []
+    for name, r in runs.items():
+        g = episode_guard(r["human"], params=guard)
+        report[name]["human"]["guard_frac_human"] = g["guard_frac"]
+        report[name]["human"]["guard_why_human"] = g["guard_why"]
+        report[name]["human"]["guard_frac_human_without_companions"] = g["without_companions"]["guard_frac"]
+        fracs.append(g["guard_frac"])
+    walkers = {}
+    for scene in cases.values():
+        if scene.replay is not None and scene.replay.dataset not in walkers:
+            try:
+                walkers[scene.replay.dataset] = dataset_guard(scene.replay.dataset, params=guard)
+            except FileNotFoundError:
+                continue
+    return {"guard_frac_human": _worst(fracs), "guard_frac_human_median": _median4(fracs),
+            "guard_frac_walkers": {n: w["guard_frac"] for n, w in walkers.items()},
+            "guard_frac_walkers_without_companions": {n: w["without_companions"]["guard_frac"] for n, w in walkers.items()}}
+
+
+def _median4(values: list) -> float | None:
+    v = [x for x in values if x is not None]
+    return round(float(np.median(v)), 4) if v else None
+
+
 def goal_checks(report: dict) -> dict:
     goals = {}
     for name, r in report.items():
@@ -707,8 +746,9 @@ def main() -> None:
     med = {k: float(np.median(v)) for k, v in stage_ms.items()}
     pipeline_ms = med.get("flow+features", np.nan) + med.get("cost", np.nan) + med.get("plan", np.nan)
     goals = goal_checks(report)
+    out_human = guard_on_people(cases, runs, report, node_params(args.param).get("guard", {}))
     png = plot(cases, runs)
-    out = {**headline(report, goals, args), "scenarios": report, "goals": goals, "pipeline_hz": round(1000.0 / pipeline_ms, 1),
+    out = {**headline(report, goals, args), **out_human, "scenarios": report, "goals": goals, "pipeline_hz": round(1000.0 / pipeline_ms, 1),
            "stage_ms_median": {k: round(v, 2) for k, v in med.items()}, "plan_ms_100x100": round(plan_ms_100x100(), 3),
            "resolution": "640x480", "plot": str(png.relative_to(ROOT))}
     if args.starts > 1:
@@ -719,6 +759,8 @@ def main() -> None:
     print_table(report, goals)
     print("headline: " + ", ".join(f"{k} {out[k]}" for k in HEADLINE))
     print(f"speed against error: {out['tradeoff_plot']}")
+    print(f"guard's rule on people: human reference braked {out['guard_frac_human']} at worst (median "
+          f"{out['guard_frac_human_median']}); recorded walkers {out['guard_frac_walkers']}")
     print(f"pipeline (flow+features+cost+plan, 640x480): {out['pipeline_hz']} Hz; stages (median ms) {out['stage_ms_median']}")
     print(f"local plan 100x100: {out['plan_ms_100x100']} ms (median); plot {png}")
     if "start_spread" in out:

@@ -102,3 +102,25 @@ def test_a_person_about_to_cross_is_braked_for_where_they_will_be():
         g = gw.WalkerGuard({})
         assert g.tick(0.0, pose, 1.0, 0.0, at, vel) == braked
         assert g.ticks == 1 and g.gt == 0
+
+
+def test_social_nav_reports_the_human_references_share_beside_the_robots():
+    """bench/social_nav.py's new keys: per scenario in the human metrics, worst and median in the headline."""
+    import social_nav
+    from types import SimpleNamespace
+
+    dt = 1.0 / 15.0
+    t = np.arange(0.0, 8.0, dt)
+    me = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
+    runs, report = {}, {}
+    for name, other_y in (("near", 0.6), ("far", 1.2)):
+        toward = np.column_stack([8.0 - t, np.full_like(t, other_y)])
+        ep = Episode(t, me, np.zeros(len(t)), [(np.array([7]), toward[k:k + 1]) for k in range(len(t))], None, 0)
+        runs[name], report[name] = {"human": ep}, {"human": {"time_s": 8.0}}
+    cases = {n: SimpleNamespace(replay=None) for n in runs}
+    out = social_nav.guard_on_people(cases, runs, report, {})
+    assert report["near"]["human"]["guard_frac_human"] > 0 and report["far"]["human"]["guard_frac_human"] == 0
+    assert report["near"]["human"]["time_s"] == 8.0
+    assert out["guard_frac_human"] == report["near"]["human"]["guard_frac_human"]
+    assert out["guard_frac_human_median"] == pytest.approx(out["guard_frac_human"] / 2, abs=1e-4)
+    assert out["guard_frac_walkers"] == {}
