@@ -328,6 +328,30 @@ def robot_guard_frac(path: Path = ROOT / "out" / "bench" / "social_nav.json") ->
     return {n: r["irl"]["guard_frac"] for n, r in json.loads(path.read_text())["scenarios"].items()}
 
 
+def readme_row(d: dict) -> tuple[str, str, str, str]:
+    """The README table row (bench, result, baseline, goal) from this bench's JSON (for bench/readme.py)."""
+    pct = (lambda x: "-" if x is None else f"{100 * x:.0f}")
+    w, h = d["walkers"], d["human"]
+    alone = [v["without_companions"]["guard_frac"] for v in w.values()]
+    gt = [v["gt_rule_frac"] for v in w.values()]
+    span = (lambda v: f"{pct(min(v))}-{pct(max(v))} %" if v else "-")
+    return (f"`guard_on_walkers.py` the guard's 1 m rule asked of people, open loop: every ETH/UCY walker "
+            f"({len(w)} sets) and the social_nav human references, each fed as the robot's guard is (its own (v, w) as the "
+            f"command, the others as disc outlines with velocities, all around: no field of view)",
+            "recorded walkers braked or slowed in " + span([v["guard_frac"] for v in w.values()]) + " of moving ticks ("
+            + ", ".join(f"{n} {pct(v['guard_frac'])}" for n, v in w.items()) + " %); leaving out companions (within "
+            f"{COMPANION_M:g} m, velocity within {COMPANION_MPS:g} m/s) {span(alone)}; a person's centre within "
+            f"{GT_STOP_M:g} m on the path (no prediction) {span(gt)}",
+            "human references in the bench's scenarios: " + ", ".join(
+                f"{n} {pct(v['guard_frac'])} %" + (f" ({pct(v['without_companions']['guard_frac'])} % without companions)"
+                                                   if v["without_companions"]["guard_frac"] != v["guard_frac"] else "")
+                for n, v in h.items()) + "; the robot (social_nav.json): " + ", ".join(
+                f"{n} {pct(v['robot_guard_frac'])} %" for n, v in h.items()),
+            "no goal (calibrates issue 18's guard < 5 %: "
+            + ("no recorded set and no human reference is below it)" if min(alone + [v["guard_frac"] for v in h.values()],
+                                                                          default=1) >= 0.05 else "some people are below it)"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true")

@@ -124,3 +124,11 @@ def test_social_nav_reports_the_human_references_share_beside_the_robots():
     assert out["guard_frac_human"] == report["near"]["human"]["guard_frac_human"]
     assert out["guard_frac_human_median"] == pytest.approx(out["guard_frac_human"] / 2, abs=1e-4)
     assert out["guard_frac_walkers"] == {}
+
+
+def test_readme_row_reads_the_json():
+    w = gw.dataset_guard("constructed", tracks=_tracks(HEAD_ON), params={})
+    d = {"walkers": {"constructed": w}, "human": {"toward": {**w, "robot_guard_frac": 0.02}}}
+    bench, result, baseline, goal = gw.readme_row(d)
+    assert f"constructed {100 * w['guard_frac']:.0f} %" in result and "toward 2 %" in baseline
+    assert "below it" in goal
