@@ -219,6 +219,8 @@ class Crasher(Node):
 
     def on_tick(self, tick: Tick) -> None:
         if time.monotonic() - self.started >= self.config.after_s:
+            if self.config.hang:
+                self.log.info("hanging in on_tick from now on")
             while self.config.hang:            # a stop request sets an event nobody looks at again
                 time.sleep(3600)
             os._exit(3)

@@ -12,7 +12,7 @@ import textwrap
 
 import pytest
 
-from conftest import REPO, tether
+from conftest import REPO, launch_until, tether
 from tether import forked
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
@@ -100,7 +100,7 @@ def test_a_node_that_cannot_stop_is_killed_after_the_stop_timeout_with_its_stack
           - {id: hang, node: "nodes.std.chaos:Crasher", params: {after_s: 0.2, hang: true}}
     """))
     env = {**runtime_env, "TETHER_STOP_TIMEOUT_S": "1", "TETHER_SPAWN": spawn}
-    out = tether("launch", str(path), "--duration", "2", env=env, timeout=60)
+    out = launch_until([str(path)], env, lambda out, err: "[hang] INFO tether.hang: hanging in on_tick" in out)
     assert out.returncode == 1, out.stderr[-2000:]
     assert "node hang did not stop within 1 s: its stacks follow, then it is killed" in out.stderr
     assert "failed: hang" in out.stderr and "counter" not in out.stderr.split("failed:")[-1]

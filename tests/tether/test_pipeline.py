@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from conftest import launch_until, tether
+from conftest import launch_until, recording_for, tether
 from tether.log import LogReader
 
 
@@ -24,12 +24,12 @@ def _printed_max(stdout: str) -> float:
 
 def test_three_node_pipeline_end_to_end(tmp_path: Path, runtime_env: dict) -> None:
     log = tmp_path / "run.mcap"
-    res = tether("launch", "launch/counter.yaml", "--duration", "4", "--param", "counter.rate_hz=20",
-                 "--param", "scale.gain=3", "--record", str(log), env=runtime_env)
+    res = launch_until(["launch/counter.yaml", "--param", "counter.rate_hz=20", "--param", "scale.gain=3",
+                        "--record", str(log)], runtime_env, lambda out, err: _printed_max(out) >= 60.0)
     assert res.returncode == 0, res.stderr + res.stdout
     counter = _values(log, "counter/value")
     scaled = _values(log, "scale/value")
-    assert len(counter) >= 20          # 80 on an idle machine; duration runs from launch, start-up included
+    assert len(counter) >= 21          # the printer saw 3 * 20: counter values 0 .. 20 were recorded
     assert [s for s, _ in counter] == list(range(1, len(counter) + 1))      # nothing lost from the first message
     assert [v for _, v in counter] == [float(i) for i in range(len(counter))]
     assert [v for _, v in scaled] == [3.0 * v for _, v in counter[:len(scaled)]]
@@ -180,8 +180,8 @@ def test_malformed_frames_into_a_live_node_are_counted_not_fatal(runtime_env: di
 
 def test_launch_records_only_the_selected_topics(tmp_path: Path, runtime_env: dict) -> None:
     log = tmp_path / "sel.mcap"
-    res = tether("launch", "launch/counter.yaml", "--duration", "2", "--param", "counter.rate_hz=20",
-                 "--record", str(log), "--record-exclude", "scale/*", env=runtime_env)
+    res = launch_until(["launch/counter.yaml", "--param", "counter.rate_hz=20", "--record", str(log),
+                        "--record-exclude", "scale/*"], runtime_env, recording_for(1.0))
     assert res.returncode == 0, res.stderr
     assert set(LogReader(log).info().topics) == {"counter/value"}
     assert "[record]" in res.stdout and "recorded" in res.stdout        # the recorder is its own process
