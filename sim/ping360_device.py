@@ -74,6 +74,8 @@ class Ping360Device:
         self.port = os.ttyname(slave)
         self._slave = slave                       # kept open so the pty lives while drivers come and go
         self._stop = threading.Event()
+        self._hold = threading.Event()            # asked to fall silent (hold())
+        self._held = threading.Event()            # ... and it has: nothing more is written
         self._auto: tuple[pp.Settings, int, int, int] | None = None
         self._auto_angle, self._auto_dir = 0, 1
         self.beams_sent = 0
@@ -85,6 +87,14 @@ class Ping360Device:
     def start(self) -> "Ping360Device":
         self._thread.start()
         return self
+
+    def hold(self, timeout_s: float = 5.0) -> None:
+        """Fall silent: no more beams nor replies (requests are left unread). Returns once the device
+        thread has stopped writing, so :attr:`beams_sent` is final: a test can then wait for a driver
+        to read what is on the line instead of guessing how much was in flight."""
+        self._hold.set()
+        if not self._held.wait(timeout_s):
+            raise TimeoutError(f"the simulated Ping360 did not fall silent within {timeout_s} s")
 
     def close(self) -> None:
         self._stop.set()
@@ -118,6 +128,10 @@ class Ping360Device:
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            if self._hold.is_set():
+                self._held.set()
+                self._stop.wait(0.05)
+                continue
             timeout = 0.0 if self._auto else 0.05
             try:
                 ready, _, _ = select.select([self.master], [], [], timeout)
