@@ -731,6 +731,14 @@ def sonar_refiner(d: dict) -> list[Row]:
 
 
 #: bench name -> (arguments for --run, formatter)
+def guard_on_walkers(d: dict) -> list[Row]:
+    """The bench builds its own row (``guard_on_walkers.readme_row``); imported here only when it is formatted."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from guard_on_walkers import readme_row
+
+    return [readme_row(d)]
+
+
 FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "rl_env": ([], rl_env),
     "rl_car": ([], rl_car),
@@ -745,6 +753,7 @@ FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "social_nav": ([], social_nav),
     "irl_spacetime": (["--demos", "60", "--horizons", "6", "--loso"], irl_spacetime),
     "pedestrian_predict": ([], pedestrian_predict),
+    "guard_on_walkers": ([], guard_on_walkers),
     "nav_plan": ([], nav_plan),
     "sonar_polar": ([], sonar_polar),
     "sonar_cloud": ([], sonar_cloud),
