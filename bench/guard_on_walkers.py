@@ -362,7 +362,7 @@ def main() -> None:
                     help="guard parameter KEY=VALUE over the bench's (a sensitivity check, e.g. robot_radius_m=0.2)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
-    from social_nav import SCENES, clear_start_s, human_reference
+    from social_nav_humans import SCENES, clear_start_s, human_reference
     from sim.crowd_scenes import load_scene
     from sim.pedestrian_data import default_root
     import yaml

@@ -150,7 +150,7 @@ def test_contact_attribution_rule_and_no_respawn_inside_the_robot():
 
 
 def test_the_crowd_can_walk_before_the_robot_appears_and_nobody_meets_the_absent_robot():
-    """A clear start (bench/social_nav.py clear_start_s): a walker crossing the start passes before the robot is there."""
+    """A clear start (bench/social_nav_humans.py clear_start_s): a walker crossing the start passes before the robot is there."""
     w = CrowdWorld(room(pedestrians=[{"id": 7, "waypoints": [[3.0, 0.0], [-4.5, 0.0]], "speed_mps": 1.0}],
                         pedestrian_model="linear", pedestrians_see_robot=False), camera=SMALL)
     w.advance_crowd(5.0)
