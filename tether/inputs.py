@@ -45,7 +45,7 @@ class InputState:
     """One input of a running node: its queue, its counters and its view of the publisher's ``seq``."""
 
     __slots__ = ("name", "topic", "type", "queue", "maxlen", "max_bytes", "queued_bytes", "last_seq",
-                 "restart_seq", "stats", "handler_ns", "handler_max_ns", "last_error_log_ns", "suppressed",
+                 "restart_seq", "stats", "handler_ns", "handler_max_ns",
                  "handler", "slot", "link")
 
     def __init__(self, name: str, topic: str, tp: type[Message], maxlen: int, max_bytes: int = 1 << 62,
@@ -58,8 +58,6 @@ class InputState:
         self.stats = dict.fromkeys(COUNTERS, 0)
         self.handler_ns = 0
         self.handler_max_ns = 0
-        self.last_error_log_ns = -(1 << 62)
-        self.suppressed = 0
         self.handler: Any = None
         self.slot = slot              # index in the node's SeqStore, -1 when not persisted
         self.link: Any = None         # a tether.link.LinkModel the messages cross (launch file ``links:``)

@@ -83,6 +83,23 @@ def fifo_priority() -> int:
     return os.sched_getparam(0).sched_priority if os.sched_getscheduler(0) == os.SCHED_FIFO else 0
 
 
+class LogThrottle:
+    """At most one log line per key (an input, an endpoint, ...) per ``period_ns``; counts the lines held back."""
+
+    def __init__(self, period_ns: int = ERROR_LOG_PERIOD_NS) -> None:
+        self.period_ns = period_ns
+        self._last: dict[str, tuple[int, int]] = {}     # key -> (last logged ns, lines held back since)
+
+    def admit(self, key: str, now_ns: int) -> int | None:
+        """None: hold this line back (counted); else log it, and this many were held back since the last."""
+        logged_ns, held = self._last.get(key, (now_ns - self.period_ns, 0))
+        if now_ns - logged_ns < self.period_ns:
+            self._last[key] = (logged_ns, held + 1)
+            return None
+        self._last[key] = (now_ns, 0)
+        return held
+
+
 class NodeRuntime(Context):
     """Runs one node on real sockets until stopped; :meth:`serve` returns the exit code."""
 
@@ -103,7 +120,7 @@ class NodeRuntime(Context):
         self._started_ns = time.monotonic_ns()
         self._stats_errors = 0
         self._stats_seq = 0
-        self._stats_error_logged_ns = -ERROR_LOG_PERIOD_NS
+        self._log_throttle = LogThrottle()      # input errors, statistics, dropped links
         self._largest_sent = 0
         self._sndhwm = HWM_MAX
         self._shm = shm.Settings.from_env()
@@ -154,7 +171,6 @@ class NodeRuntime(Context):
             self.routes[shm.shm_topic(src.topic.encode())] = states
         self.subs: list[zmq.Socket] = []
         self._links: LinkWatch | None = None
-        self._link_logged: dict[str, tuple[int, int]] = {}   # endpoint -> (last logged ns, drops not logged since)
         self._resubscribe_due = False
         self._largest_in: dict[str, int] = {}
         self._retiring: list[zmq.Socket] = []     # replaced SUB sockets, still read until their successors overlap
@@ -558,17 +574,14 @@ class NodeRuntime(Context):
                 self._drain(sock, order)
 
     def _log_error(self, state: InputState, text: str) -> None:
-        now = time.monotonic_ns()
-        if now - state.last_error_log_ns >= ERROR_LOG_PERIOD_NS:
-            extra = f" (+{state.suppressed} similar since last report)" if state.suppressed else ""
-            state.last_error_log_ns = now
-            state.suppressed = 0
-            try:
-                self.node.log.error(text + extra)
-            except Exception:  # noqa: BLE001 - a failing log handler must not take the node with it
-                self._stats_errors += 1
-        else:
-            state.suppressed += 1
+        held = self._log_throttle.admit("input:" + state.name, time.monotonic_ns())
+        if held is None:
+            return
+        extra = f" (+{held} similar since last report)" if held else ""
+        try:
+            self.node.log.error(text + extra)
+        except Exception:  # noqa: BLE001 - a failing log handler must not take the node with it
+            self._stats_errors += 1
 
     # -- handling ---------------------------------------------------------------------
     def _handle_pending(self) -> bool:
@@ -653,9 +666,7 @@ class NodeRuntime(Context):
                     _send(self.pub, self._stats_topic, frames)
         except Exception as exc:  # noqa: BLE001 - statistics must never be what kills a node
             self._stats_errors += 1
-            now = time.monotonic_ns()
-            if now - self._stats_error_logged_ns >= ERROR_LOG_PERIOD_NS:
-                self._stats_error_logged_ns = now
+            if self._log_throttle.admit("stats", time.monotonic_ns()) is not None:
                 try:
                     self.node.log.error("publishing statistics failed (%d so far): %s: %s", self._stats_errors,
                                         type(exc).__name__, exc)
@@ -671,15 +682,13 @@ class NodeRuntime(Context):
                    if (src := self.spec.inputs.get(name)) is not None and src.endpoint == endpoint]
             for st in hit:
                 st.stats["link_resets"] += 1
-            logged_ns, suppressed = self._link_logged.get(endpoint, (-ERROR_LOG_PERIOD_NS, 0))
-            if now - logged_ns < ERROR_LOG_PERIOD_NS:
-                self._link_logged[endpoint] = (logged_ns, suppressed + 1)
+            held = self._log_throttle.admit("link:" + endpoint, now)
+            if held is None:
                 continue
-            self._link_logged[endpoint] = (now, 0)
             why = ("failed its security handshake (a plain subscriber dialling a CurveZMQ publisher, or keys "
                    "from another keystore)" if refused else
                    "dropped: a frame over the receive limit or the publisher went away")
-            extra = f" (+{suppressed} more since the last report)" if suppressed else ""
+            extra = f" (+{held} more since the last report)" if held else ""
             self.node.log.warning("connection to %s (%s) %s; redialled%s", endpoint,
                                   ", ".join(st.topic for st in hit) or "?", why, extra)
 

@@ -302,6 +302,7 @@ class LinkWatch:
     def __init__(self, sockets: list[zmq.Socket], endpoints: dict[zmq.Socket, set[str]]) -> None:
         events = zmq.EVENT_DISCONNECTED | self.HANDSHAKE_FAILED
         self._watch = [(sock, sock.get_monitor_socket(events), endpoints.get(sock, set())) for sock in sockets]
+        self._refused: set[tuple[int, str]] = set()   # (socket index, endpoint) whose handshake failed, until its drop
 
     def poll(self) -> list[tuple[str, bool]]:
         """Redial every endpoint dropped since the last call; return them, one ``(endpoint,
@@ -309,22 +310,22 @@ class LinkWatch:
         from zmq.utils.monitor import recv_monitor_message
 
         dropped = []
-        for sock, monitor, known in self._watch:
-            refused: set[str] = set()
+        for k, (sock, monitor, known) in enumerate(self._watch):
             while monitor.poll(0):
                 event = recv_monitor_message(monitor)
                 endpoint = event["endpoint"].decode(errors="replace")
                 if endpoint not in known:
                     continue       # not one we dialled (a bind-side peer): nothing to redial
                 if event["event"] & self.HANDSHAKE_FAILED:
-                    refused.add(endpoint)      # its DISCONNECTED follows
+                    self._refused.add((k, endpoint))      # its DISCONNECTED follows, maybe in a later call
                     continue
                 try:
                     sock.disconnect(endpoint)
                 except zmq.ZMQError:
                     pass           # already forgotten by ZeroMQ: connecting again is still right
                 sock.connect(endpoint)
-                dropped.append((endpoint, endpoint in refused))
+                dropped.append((endpoint, (k, endpoint) in self._refused))
+                self._refused.discard((k, endpoint))
         return dropped
 
     def close(self) -> None:
