@@ -65,10 +65,11 @@ from msgs.geometry import Twist2D  # noqa: E402
 from msgs.nav import FlowPoints  # noqa: E402
 from nodes.nav.clearance import free_distance_m  # noqa: E402
 from nodes.nav.collision_guard import CollisionGuard  # noqa: E402
-from social_nav_episode import Episode, ahead_kind  # noqa: E402
+from nodes.nav.grid_frame import to_robot  # noqa: E402
+from social_nav_episode import GUARD_RULES, Episode, ahead_kind  # noqa: E402
+from social_nav_humans import DT  # noqa: E402
 from tether.testing import Harness  # noqa: E402
 
-DT = 1.0 / 15.0            # the bench's control tick (bench/social_nav.py DT)
 BODY_RADIUS_M = 0.3        # a pedestrian's body (sim.crowd_scenes.PedestrianSpec.radius_m)
 OUTLINE_STEP_M = 0.05      # one outline point per 5 cm (the guard thins its points to one per 5 cm)
 POINT_Z_M = 1.0            # the outline's height (inside the guard's z band)
@@ -78,9 +79,6 @@ GT_STOP_M = 1.0            # the ground-truth rule's centre distance
 COMPANION_M = 2.0          # a companion: another walker within this centre distance ...
 COMPANION_MPS = 0.5        # ... whose velocity differs from the walker's by less than this (both moving)
 SETS = ["biwi_eth", "biwi_hotel", "crowds_zara03", "students003", "uni_examples"]
-#: the guard's status reason (first words) -> rule; the same as bench/social_nav.py GUARD_RULES
-GUARD_RULES = (("obstacle at", "stop"), ("obstacle predicted", "stop_few_predicted"),
-               ("waiting for the path", "hold"), ("slowed", "slowed"))
 
 
 def guard_params() -> dict:
@@ -98,12 +96,6 @@ def outlines(xy: np.ndarray, vel: np.ndarray, *, radius_m: float = BODY_RADIUS_M
     ring = radius_m * np.column_stack([np.cos(a), np.sin(a)])
     xy, vel = np.asarray(xy, float).reshape(-1, 2), np.asarray(vel, float).reshape(-1, 2)
     return (xy[:, None, :] + ring[None]).reshape(-1, 2), np.repeat(vel, k, axis=0)
-
-
-def _to_frame(pose: np.ndarray, xy: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    rot = np.array([[c, s], [-s, c]])                   # world -> walker frame
-    return (xy - pose[:2]) @ rot.T, vel @ rot.T
 
 
 class WalkerGuard:
@@ -132,7 +124,7 @@ class WalkerGuard:
             keep = ~companions(pose[:2], own, xy, vel)
             xy, vel = xy[keep], vel[keep]
         near = np.hypot(*(xy - pose[:2]).T) <= REACH_M if len(xy) else np.zeros(0, bool)
-        rel, rel_v = _to_frame(pose, xy[near], vel[near])
+        rel, rel_v = to_robot(pose, xy[near]), to_robot((0.0, 0.0, pose[2]), vel[near])   # the walker's frame
         pts, pv = outlines(rel, rel_v)
         stamp = int(round(ts * 1e9))
         z = np.full((len(pts), 1), POINT_Z_M)

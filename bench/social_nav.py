@@ -78,7 +78,7 @@ from nodes.nav.demos import PLANNER_PARAMS, FeaturePipeline  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
 from sim.crowd import CrowdWorld  # noqa: E402
 from sim.crowd_scenes import load_scene  # noqa: E402
-from social_nav_episode import Episode, ahead_kind, metrics  # noqa: E402
+from social_nav_episode import GUARD_RULES, Episode, ahead_kind, metrics  # noqa: E402
 from social_nav_humans import DT, SCENES, clear_start_s, human_reference  # noqa: E402
 from tether.testing import Harness  # noqa: E402
 
@@ -149,11 +149,6 @@ class IrlStack:
         sensed = [(t, "odom", odom), (t, "rgbd", frame)] + ([(t, "points", flow)] if flow is not None else [])
         shadow_guarded(self, self.guard_other.feed(sensed + [(t, "cmd", cmd)]), cmd)
         return guarded(self, self.guard.feed(sensed + [(t, "cmd", cmd)]), cmd)
-
-
-#: the guard's status reason (its first words) -> the rule that braked (``guard_why``)
-GUARD_RULES = (("obstacle at", "stop"), ("obstacle predicted", "stop_few_predicted"),
-               ("waiting for the path", "hold"), ("slowed", "slowed"))
 
 
 def guarded(stack, outputs, cmd: Twist2D) -> tuple[float, float]:

@@ -10,6 +10,9 @@ import numpy as np
 from sim.crowd import robot_drove_in
 
 TURN_RADPS = 0.3          # a yaw rate above this near people counts as the avoidance manoeuvre
+#: the collision guard's status reason (its first words) -> the rule that braked (``guard_why``)
+GUARD_RULES = (("obstacle at", "stop"), ("obstacle predicted", "stop_few_predicted"),
+               ("waiting for the path", "hold"), ("slowed", "slowed"))
 
 
 @dataclasses.dataclass

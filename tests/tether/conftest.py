@@ -127,10 +127,12 @@ def recording_for(seconds: float) -> Callable[[str, str], bool]:
     (sources wait for it to subscribe: the run is that long for the log, whatever the start-up took)."""
     import time
 
+    from tether.record import READY_TEXT
+
     started: list[float] = []
 
     def until(out: str, err: str) -> bool:
-        if not started and "recording started:" in out:
+        if not started and READY_TEXT in out:
             started.append(time.monotonic())
         return bool(started) and time.monotonic() - started[0] >= seconds
 

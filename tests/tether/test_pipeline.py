@@ -88,7 +88,7 @@ def test_record_then_replay_into_node_lockstep_is_deterministic(tmp_path: Path, 
     assert outs[0] == outs[1]                                         # byte-identical, same log times
     counter = [v for _, v in _values(log, "counter/value")]
     replayed = [v for _, v in _values(tmp_path / "out0.mcap", "scale/value")]
-    assert len(counter) >= 11 and replayed == [5.0 * v for v in counter]                     # every message handled, in order
+    assert len(counter) >= 11 and replayed == [5.0 * v for v in counter]     # every message handled, in order
 
 
 def test_replay_into_live_node_handles_every_message(tmp_path: Path, runtime_env: dict) -> None:
