@@ -796,6 +796,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("node", help="list running nodes / show one node's counters")
     p.add_argument("action", choices=("list", "info"), help="list running nodes, or one node's statistics")
     p.add_argument("id", nargs="?", help="with info: the node id")
+    p.add_argument("--wait", type=float, default=3.0, metavar="S",
+                   help="with info: how long to wait for the node's next statistics (sent once a second; default 3)")
     p.set_defaults(func=cmd_node)
 
     p = sub.add_parser("log", help="what a log holds, whether every chunk is intact; cut and merge logs")

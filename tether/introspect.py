@@ -155,9 +155,13 @@ def cmd_node(args: argparse.Namespace) -> int:
     from tether.codec import Codec
     from tether.stats import NodeStats
 
+    wait_s = float(getattr(args, "wait", 3.0))
+    if not wait_s > 0:
+        raise ConfigError(f"tether node info --wait must be > 0 s (got {wait_s}): statistics come once a second")
     _, sock = subscribe(f"{args.id}/_stats")
-    if not sock.poll(3000):
-        raise TetherError(f"node {args.id!r} published no statistics within 3 s")
+    if not sock.poll(int(wait_s * 1000)):
+        raise TetherError(f"node {args.id!r} published no statistics within {wait_s:g} s (is it running? a busy "
+                          f"machine may need a longer --wait)")
     frames = sock.recv_multipart(copy=False)
     st = Codec().decode(NodeStats, frames[1:])
     print(f"{st.node_id}  [{st.node_class}]  pid {st.pid}  up {st.uptime_s:.1f} s  errors {st.errors}  "

@@ -98,8 +98,8 @@ def test_no_secret_key_on_any_command_line_environment_or_registry(tmp_path: Pat
         registry = Path(runtime_env["TETHER_RUNTIME_DIR"]) / "graphs"
         for entry in registry.glob("*.json"):
             assert not any(s in entry.read_text() for s in secrets), f"a secret key is in {entry}"
-        info = subprocess.run([sys.executable, "-m", "tether.cli", "node", "info", "scale"], cwd=REPO,
-                              env=runtime_env, capture_output=True, text=True, timeout=30)
+        info = subprocess.run([sys.executable, "-m", "tether.cli", "node", "info", "scale", "--wait", "20"],
+                              cwd=REPO, env=runtime_env, capture_output=True, text=True, timeout=30)
         assert info.returncode == 0 and "<- value" in info.stdout   # tools still dial secured topics
     finally:
         for p in (boat, shore):

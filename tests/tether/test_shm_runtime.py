@@ -257,7 +257,8 @@ def test_node_statistics_and_node_info_carry_the_shared_memory_counters(tmp_path
             _until(lambda: len(keeper.node.kept) == 3, "three loaned images")
             sock.connect(endpoint)                  # now: the statistics it gets are sent after the images
             sock.setsockopt(zmq.SUBSCRIBE, b"cam/_stats")
-            introspect.cmd_node(argparse.Namespace(action="info", id="cam"))    # the next statistics, over the wire
+            # the next statistics, over the wire; a loaded CI machine gets longer than a user's 3 s default
+            introspect.cmd_node(argparse.Namespace(action="info", id="cam", wait=20.0))
             stats = cam.stats()
     finally:
         sock.close(linger=0)
@@ -307,3 +308,20 @@ def test_a_plain_subscriber_of_loaned_images_never_sees_a_reused_slot(tmp_path: 
         assert [(f[2][0], f[2][-1], len(f[2])) for f in got] == [(v, v, MIB) for v in range(1, 9)]
     finally:
         plain.close(linger=0)
+
+
+def test_node_info_on_a_silent_node_is_one_clear_line_after_its_wait(monkeypatch: pytest.MonkeyPatch) -> None:
+    import argparse
+
+    from tether import introspect
+    from tether.errors import ConfigError, TetherError
+
+    sock = zmq.Context.instance().socket(zmq.SUB)        # subscribed to nothing that publishes
+    monkeypatch.setattr(introspect, "subscribe", lambda topic: (None, sock))
+    try:
+        with pytest.raises(TetherError, match=r"no statistics within 0.3 s .*longer --wait"):
+            introspect.cmd_node(argparse.Namespace(action="info", id="ghost", wait=0.3))
+        with pytest.raises(ConfigError, match="--wait must be > 0"):
+            introspect.cmd_node(argparse.Namespace(action="info", id="ghost", wait=float("nan")))
+    finally:
+        sock.close(linger=0)
