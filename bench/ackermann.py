@@ -207,6 +207,7 @@ def plot(sweep, rates, bus, lats, per, mpc_h, horizons) -> str:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
     fig, ax = plt.subplots(2, 3, figsize=(16, 9.5))
     a = ax[0, 0]
     for law, d in sweep.items():
@@ -245,12 +246,7 @@ def plot(sweep, rates, bus, lats, per, mpc_h, horizons) -> str:
                     head_width=0.06, color="C3")
         a.set(aspect="equal", title=f"{kind} at 50 Hz (arrows: heading)", xlabel="x (m)", ylabel="y (m)")
         a.legend(fontsize=7)
-    fig.tight_layout()
-    os.makedirs(os.path.join(REPO, "out"), exist_ok=True)
-    path = os.path.join(REPO, "out", "ackermann.png")
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return str(save_figure(fig, os.path.join(REPO, "out", "ackermann.png"), dpi=90))
 
 
 if __name__ == "__main__":

@@ -377,6 +377,7 @@ def plot(path: str, runs: dict[str, dict], skip_s: float) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5))
     first = next(iter(runs.values()))["log"]
@@ -394,10 +395,7 @@ def plot(path: str, runs: dict[str, dict], skip_s: float) -> None:
     bx.set_ylabel("position error (mm)")
     bx.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0.0, -0.16))
     bx.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")      # the legends sit below the axes
-    plt.close(fig)
+    save_figure(fig, path, dpi=110, bbox_inches="tight")      # the legends sit below the axes
 
 
 def main() -> None:

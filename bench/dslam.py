@@ -230,6 +230,7 @@ def plot(sweep: dict, best: dict, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
     keys = [k for k in sweep if k.endswith("/R4")]
     fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.5), squeeze=False)
     for ax, key in zip(axes[0], keys):
@@ -245,9 +246,7 @@ def plot(sweep: dict, best: dict, path: Path) -> None:
         ax.set_xlabel("bytes exchanged (cumulative)")
         ax.set_ylabel("chi2 / chi2_centralised - 1")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     print(f"wrote {path}", file=sys.stderr)
 
 

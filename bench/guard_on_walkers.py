@@ -279,6 +279,7 @@ def plot(walkers: dict, human: dict, robot: dict, filename: str = "guard_on_walk
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), gridspec_kw={"width_ratios": [len(walkers) or 1, len(human) or 1]})
     ax = axes[0]
     names = list(walkers)
@@ -305,12 +306,7 @@ def plot(walkers: dict, human: dict, robot: dict, filename: str = "guard_on_walk
     ax.set_ylabel("share of control ticks braked (%)")
     ax.set_title("bench scenarios: human reference vs robot")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    out = ROOT / "out"
-    out.mkdir(exist_ok=True)
-    fig.savefig(out / filename, dpi=110)
-    plt.close(fig)
-    return out / filename
+    return save_figure(fig, ROOT / "out" / filename, dpi=110)
 
 
 def robot_guard_frac(path: Path = ROOT / "out" / "bench" / "social_nav.json") -> dict:

@@ -137,6 +137,7 @@ def _png(path: str, res: dict) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4), gridspec_kw={"width_ratios": [3, 1.2]})
     for ax, key in zip(axes, ("sim", "real")):
@@ -150,10 +151,7 @@ def _png(path: str, res: dict) -> None:
         ax.set_ylim(0, 1.02)
         ax.set_title(f"finger-count accuracy, {'held-out simulated scenes' if key == 'sim' else 'real photos (digit)'}")
         ax.legend(fontsize=8, loc="lower left")
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -112,6 +112,7 @@ def _figure(row: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     scene = row["scene"]
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -126,9 +127,7 @@ def _figure(row: dict, path: Path) -> None:
         ax.legend(fontsize=7)
     axes[2].imshow(scene.big, cmap="gray")
     axes[2].set_title("the large image (noise-free)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 if __name__ == "__main__":

@@ -270,6 +270,7 @@ def plot(table: dict[str, tuple[float, float]], ref: tuple[float, float] | None,
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5), gridspec_kw={"width_ratios": [2, 1]})
     for name, (epe, ms) in table.items():
@@ -289,9 +290,7 @@ def plot(table: dict[str, tuple[float, float]], ref: tuple[float, float] | None,
     bx.set_ylabel("ms per frame (median)")
     bx.set_title(f"perception at 640x480:\n{1e3 / stages['total']:.1f} Hz wall clock, "
                  f"{1e3 / stages['total_cpu']:.1f} Hz by CPU time")
-    fig.tight_layout()
-    path.parent.mkdir(exist_ok=True)
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
 
 
 def main() -> None:

@@ -180,6 +180,7 @@ def plot(rows: list[dict]) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     out = ROOT / "out"
     out.mkdir(exist_ok=True)
@@ -200,9 +201,7 @@ def plot(rows: list[dict]) -> None:
     ax[1].set_ylabel("path length excess over straight line (%)")
     ax[1].legend(fontsize=8)
     ax[1].set_title("geometric error (1:3 slope, empty grid)")
-    fig.tight_layout()
-    fig.savefig(out / "nav_plan.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "nav_plan.png", dpi=110)
 
 
 if __name__ == "__main__":

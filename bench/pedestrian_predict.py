@@ -171,6 +171,7 @@ def draw(model: MlpPredictor, hand: tuple[int, float], test: tuple[np.ndarray, .
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     x, rot, hist, fut = test
     pm = predict_mlp_batched(model, x, rot, hist)
@@ -193,9 +194,7 @@ def draw(model: MlpPredictor, hand: tuple[int, float], test: tuple[np.ndarray, .
         ax.set_title(f"#{i}: FDE cv {err_cv[i]:.2f} mlp {np.linalg.norm(pm[i, -1] - fut[i, -1]):.2f} m", fontsize=9)
     np.ravel(axes)[0].legend(fontsize=7)
     fig.suptitle(f"held-out {scene} (MLP trained on the other four scenes); metres from the walker's position now")
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 def main() -> None:

@@ -234,6 +234,7 @@ def _figure(points: dict[str, list], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     path.parent.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, len(FAMILIES), figsize=(4 * len(FAMILIES), 3.8), squeeze=False)
@@ -251,9 +252,7 @@ def _figure(points: dict[str, list], path: Path) -> None:
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8)
     fig.suptitle("phase correlation, 512 x 512: time against sub-pixel error (exact shifts)")
-    fig.tight_layout(rect=(0, 0.12, 1, 0.95))
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100, rect=(0, 0.12, 1, 0.95))
 
 
 if __name__ == "__main__":

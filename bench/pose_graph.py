@@ -169,6 +169,7 @@ def _figure(sweep: dict[str, list], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     path.parent.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, len(sweep), figsize=(5 * len(sweep), 4), squeeze=False)
@@ -184,9 +185,7 @@ def _figure(sweep: dict[str, list], path: Path) -> None:
         ax.legend()
     fig.suptitle("pose graphs: time against g2o-convention chi2, tolerance swept (odometry start); GTSAM "
                  "minimises its own convention (Logmap), hence its floor on intel and FR079")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _trajectories(trajectories: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], path: Path) -> None:
@@ -194,6 +193,7 @@ def _trajectories(trajectories: dict[str, tuple[np.ndarray, np.ndarray, np.ndarr
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, axes = plt.subplots(2, len(trajectories), figsize=(4.2 * len(trajectories), 8), squeeze=False)
     for col, (name, (start, mine, theirs)) in enumerate(trajectories.items()):
@@ -207,9 +207,7 @@ def _trajectories(trajectories: dict[str, tuple[np.ndarray, np.ndarray, np.ndarr
         for ax in (top, bottom):
             ax.set_aspect("equal", adjustable="datalim")
             ax.tick_params(labelsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 if __name__ == "__main__":

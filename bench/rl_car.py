@@ -164,6 +164,7 @@ def plot(reach: list[dict], reach_base: dict, mazes: dict, maze_base: dict, path
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, ax = plt.subplots(1, 3, figsize=(15, 4))
     s = np.array([c["steps"] for c in reach])
@@ -189,9 +190,7 @@ def plot(reach: list[dict], reach_base: dict, mazes: dict, maze_base: dict, path
     for a in ax:
         a.grid(alpha=0.3)
         a.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 def main() -> None:

@@ -160,6 +160,7 @@ def draw(path: str, by_motion: dict, noises, sweep) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
     for motion in MOTIONS:
@@ -183,10 +184,7 @@ def draw(path: str, by_motion: dict, noises, sweep) -> None:
     axes[2].set_title("speed against error")
     for a in axes:
         a.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 if __name__ == "__main__":

@@ -185,6 +185,7 @@ def plot(results: dict, path: Path, n_eval: int) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     colours = {"ga": "tab:green", "ppo_selfplay": "tab:orange", "ppo_baseline": "tab:blue"}
@@ -210,9 +211,7 @@ def plot(results: dict, path: Path, n_eval: int) -> None:
     axes[1].set_xlabel("training CPU minutes")
     axes[0].legend(fontsize=8, loc="lower right")
     axes[1].set_title("dotted: leaderboard (PPO 1.377, GA 0.353, PPO self-play -0.371)", fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
 
 
 def main() -> None:

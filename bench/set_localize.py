@@ -316,6 +316,7 @@ def _plot_mosaic(path, truth, boxes, poses, cov) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
     from matplotlib.patches import Ellipse, Rectangle
 
     fig, axes = plt.subplots(2, 4, figsize=(14, 7))
@@ -340,9 +341,7 @@ def _plot_mosaic(path, truth, boxes, poses, cov) -> None:
     axes[0, 0].legend(fontsize=7, loc="lower left")
     fig.suptitle("seed 08 VII: image centres as boxes (translation links +- max(1 px, 3 sigma)) against the "
                  "pose graph's 3-sigma ellipses, relative to the truth (px)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 def main() -> None:
@@ -410,6 +409,7 @@ def plot(sweep, rows, path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, ax = plt.subplots(figsize=(7, 5))
     for name, style in (("ours", "o-"), ("codac", "s--"), ("ours-numpy", "^:")):
@@ -427,10 +427,7 @@ def plot(sweep, rows, path) -> None:
     ax.set_title("set-membership localisation, seed scene: width against time (labels: eps)", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 if __name__ == "__main__":

@@ -560,6 +560,7 @@ def plot(rows, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, (ax, ax_img) = plt.subplots(1, 2, figsize=(13, 5))
     for sp in sorted({r["speckle"] for r in rows}):
@@ -577,8 +578,7 @@ def plot(rows, path: Path) -> None:
     ax_img.set_xlabel("bearing (deg)")
     ax_img.set_ylabel("range (m)")
     ax_img.set_title("a synthetic ping (speckle 1): highlights before the seafloor edge")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 if __name__ == "__main__":

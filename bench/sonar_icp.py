@@ -297,6 +297,7 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     colours = {"ours": "C0", "ours arcs": "C4", "ours+yaw": "C2", "small_gicp": "C1", "kiss_icp": "C3"}
     fig, (ax_t, ax_r) = plt.subplots(1, 2, figsize=(13, 5))
@@ -323,9 +324,7 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.legend(fontsize=8)
     ax_t.set_title("tripod, sources from simulated pings: position error vs CPU time")
     ax_r.set_title("heading error vs CPU time")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def structures(quick: bool, say) -> dict[str, dict]:

@@ -78,6 +78,7 @@ def plot(results: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, (ax, ax_img) = plt.subplots(1, 2, figsize=(13, 5))
     markers = {"numpy LUT nearest": "o", "numpy LUT bilinear": "s", "cv2.remap nearest": "^",
@@ -107,8 +108,7 @@ def plot(results: list[dict], path: Path) -> None:
     ax_img.set_title("analytic test field, 256 non-uniform beams, bilinear")
     ax_img.set_xlabel("x starboard (m)")
     ax_img.set_ylabel("y ahead (m)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 def main() -> None:

@@ -99,6 +99,7 @@ def _samples(path: Path, raw: np.ndarray, refined: np.ndarray, matched: np.ndarr
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     cols = [("simulated", raw), ("SimGAN-refined", refined), ("histogram-matched", matched)]
     fig, axes = plt.subplots(len(raw), 4, figsize=(11, 4.2 * len(raw)), squeeze=False)
@@ -112,9 +113,7 @@ def _samples(path: Path, raw: np.ndarray, refined: np.ndarray, matched: np.ndarr
         for ax in axes[r]:
             ax.set_xlabel("beam")
         axes[r, 0].set_ylabel("range row")
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 def ms_per_image(params, cfg: SimGANConfig, reps: int = 20) -> float:

@@ -289,6 +289,7 @@ def draw(path: str, by_depth: dict, sweep: list[dict], depths) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
     for ax, shape in zip(axes[:2], ("crossing", "catenary")):
@@ -309,10 +310,7 @@ def draw(path: str, by_depth: dict, sweep: list[dict], depths) -> None:
     ax.set_ylabel("RMS 3-D error (mm), crossing at 2 m")
     ax.set_title("speed against error")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 if __name__ == "__main__":

@@ -177,6 +177,7 @@ def plot(path: Path, curves: dict[str, list[dict]], dt_sweep: list[dict], n_seed
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, axes = plt.subplots(2, 3, figsize=(17, 9))
     panels = [("Fig. 4: food delivered, no zone", ["no zone"], "food"),
@@ -211,9 +212,7 @@ def plot(path: Path, curves: dict[str, list[dict]], dt_sweep: list[dict], n_seed
     else:
         ax.axis("off")
     fig.suptitle(f"Swarm task partitioning (seed 09): {n_seeds} seeds per point, 95 % intervals")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
 
 
 if __name__ == "__main__":

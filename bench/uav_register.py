@@ -195,6 +195,7 @@ def draw(path: str, sweeps: dict, ratios) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
     for method, sw in sweeps.items():
@@ -214,10 +215,7 @@ def draw(path: str, sweeps: dict, ratios) -> None:
     for a in axes:
         a.grid(alpha=0.3, which="both")
         a.legend(fontsize=8)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 if __name__ == "__main__":

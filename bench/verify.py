@@ -138,6 +138,7 @@ def plot(path: Path, rows: list[dict]) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     fig = plt.figure(figsize=(16, 8))
     ax = fig.add_subplot(2, 1, 1)
@@ -169,9 +170,7 @@ def plot(path: Path, rows: list[dict]) -> None:
     fig.text(0.5, 0.02, "SSYNC counterexample found by the checker (ring of 7, algorithm 'always toward'): "
              "adjacent robots both activated swap places for ever -- a fair schedule that never gathers "
              "(red r1 on the ring, green r2 inside)", ha="center", fontsize=9)
-    fig.tight_layout(rect=(0, 0.04, 1, 1))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90, rect=(0, 0.04, 1, 1))
 
 
 if __name__ == "__main__":

@@ -153,6 +153,7 @@ def plot(r2: dict, path: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from figures import save_figure
 
     w, curve = r2["_maps"]
     cut = broken(curve, 0.10, 4)
@@ -180,10 +181,7 @@ def plot(r2: dict, path: str) -> None:
     ax[2].set_ylabel("max error > 2 px from the curve")
     ax[2].legend(fontsize=8)
     ax[2].grid(alpha=0.3)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 def main() -> None:
