@@ -249,7 +249,7 @@ def sonar_carving_filter(d: dict) -> list[Row]:
         p, e, dflt = sd["passes"], sd["evidence"], sd["default"]
         worst = min(p, key=lambda n: p[n]["evidence"]["acc_frac_0p2"] - p[n]["default"]["acc_frac_0p2"])
         below = e["passes_acc_below_default_by_2"]
-        rows.append((f"`sonar_carving_filter.py` " + what.get(name, name + ": {n} passes").format(n=len(p)),
+        rows.append(("`sonar_carving_filter.py` " + what.get(name, name + ": {n} passes").format(n=len(p)),
                      f"`keep: evidence` (p >= {d['threshold_p']:g}): median {100 * e['acc_frac_0p2_median']:.1f} % within "
                      f"0.2 m, completeness {100 * e['completeness_0p2_median']:.1f} %, >= 90 % within 0.2 m on "
                      f"{e['passes_acc_ge_0p9']} of {e['passes']}; most below the default: {worst} "
