@@ -7,7 +7,6 @@ import os
 import struct
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from msgs.geometry import Twist2D
 from msgs.hand import HandGesture
 from nodes.control.gesture_map import GestureDrive
 from nodes.control.gesture_teleop import GestureTeleop

@@ -10,7 +10,7 @@ import pytest
 from nodes.sets import contract
 from nodes.sets.localize import Observation, SetLocalizer, displacement, pave, predict
 from nodes.sets.paving import box_diff, sivia
-from sim.markers import Bounds, MarkerWorld
+from sim.markers import MarkerWorld
 
 from nodes.sets.codac_env import available
 

@@ -2,7 +2,6 @@
 each other and against closed-form answers, with the issue's hard cases."""
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
