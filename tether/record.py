@@ -25,6 +25,8 @@ log = logging.getLogger("tether.record")
 
 #: the line the launcher's recorder process logs once it records (its stop handlers are set by then)
 READY_TEXT = "recording started:"
+FINISH_IDLE_S = 0.1      # stopped: write on until nothing arrived for this long
+FINISH_MAX_S = 2.0       # ... or for this long at most
 
 
 class Recorder:
@@ -77,16 +79,18 @@ class Recorder:
             writer, seg_bytes, seg_start = self._open_segment(), self.bytes, time.monotonic()
             self._ready.set()
             while not self._stop.is_set():
-                for sock, _ in poller.poll(100):
-                    while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
-                        frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
-                        if frames[0].bytes in wanted:
-                            self._write(writer, frames)
+                self._take(poller, wanted, writer, 100)
                 writer.maybe_flush()
                 if (self.max_bytes and self.bytes - seg_bytes >= self.max_bytes) or \
                         (self.max_duration_s and time.monotonic() - seg_start >= self.max_duration_s):
                     writer.close()                   # a complete file; the next one starts now
                     writer, seg_bytes, seg_start = self._open_segment(), self.bytes, time.monotonic()
+            # Stopped: what was sent before is written too (the launcher stops the recorder after
+            # the nodes: their last messages may still be on their way through ZeroMQ).
+            end, quiet = time.monotonic() + FINISH_MAX_S, time.monotonic() + FINISH_IDLE_S
+            while time.monotonic() < min(end, quiet):
+                if self._take(poller, wanted, writer, 20):
+                    quiet = time.monotonic() + FINISH_IDLE_S
             writer.close()
         except OSError as exc:     # the file, not a message: disk full, file too large, I/O error
             self.failed = f"{type(exc).__name__}: {exc}"
@@ -96,6 +100,17 @@ class Recorder:
             self._ready.set()
             for s in socks:
                 s.close(linger=0)
+
+    def _take(self, poller: zmq.Poller, wanted: set[bytes], writer: LogWriter, timeout_ms: int) -> int:
+        """Write what arrives within ``timeout_ms`` on the recorded topics; how many messages arrived."""
+        n = 0
+        for sock, _ in poller.poll(timeout_ms):
+            while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+                frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+                n += 1
+                if frames[0].bytes in wanted:
+                    self._write(writer, frames)
+        return n
 
     def _open_segment(self) -> LogWriter:
         k = len(self.segments)

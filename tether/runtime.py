@@ -40,6 +40,8 @@ ERROR_LOG_PERIOD_NS = 5_000_000_000
 SUBSCRIPTIONS_PERIOD_NS = 20_000_000      # how stale a publisher's view of who subscribes (plain or @shm/) may be
 READ_AHEAD = 16
 RETIRE_NS = 2_000_000_000                   # longest a replaced SUB socket keeps receiving beside its successor
+FINISH_IDLE_NS = 200_000_000       # a stopping node whose publishers are connected but silent this long is done
+FINISH_MAX_NS = 2_000_000_000      # longest a stopping node handles what still reaches its inputs
 # Plain ints: pyzmq's flag enums cost an enum construction per operation on the hot path.
 _SNDMORE, _NOBLOCK, _RCVMORE, _EVENTS, _POLLIN = (int(zmq.SNDMORE), int(zmq.NOBLOCK), int(zmq.RCVMORE),
                                                    int(zmq.EVENTS), int(zmq.POLLIN))
@@ -682,6 +684,9 @@ class NodeRuntime(Context):
                    if (src := self.spec.inputs.get(name)) is not None and src.endpoint == endpoint]
             for st in hit:
                 st.stats["link_resets"] += 1
+            if not refused and endpoint.startswith("ipc://") and not os.path.lexists(endpoint[6:]):
+                log.debug("the publisher at %s stopped (its socket is gone); redialled", endpoint)
+                continue       # a node stopping (a launch stops from its sources): not a fault
             held = self._log_throttle.admit("link:" + endpoint, now)
             if held is None:
                 continue
@@ -793,6 +798,11 @@ class NodeRuntime(Context):
                 thread.join(timeout=5.0)
                 if thread.is_alive():
                     node.log.error("run() did not stop within 5 s of shutdown")
+            if self.stop_event.is_set() and not failed.is_set():
+                try:
+                    self._finish_inputs(order)
+                except Exception:  # noqa: BLE001 - stopping goes on: teardown, statistics, sockets
+                    node.log.exception("handling the inputs' last messages failed")
             try:
                 node.teardown()
             except Exception:
@@ -803,8 +813,61 @@ class NodeRuntime(Context):
         return 1 if failed.is_set() else 0
 
     def stop(self) -> None:
+        """Ask the node to stop (a signal handler may call this): :meth:`serve` ends its loop, lets
+        ``run()`` return, handles what reached its inputs (:meth:`_finish_inputs`), then tears down."""
         self.stop_event.set()
         self.node.stopping.set()
+
+    def _finish_inputs(self, order: itertools.count) -> None:
+        """Handle, before the node stops, what its publishers sent before they stopped.
+
+        Timers fire no more (they are the node's own sources). Received messages are handled
+        in order until every input queue and socket is empty and every publisher the node
+        dials has gone (its connection closed: ZeroMQ delivers a connection's last messages
+        before its close, so nothing it sent is left in flight), or, while a publisher is
+        still connected (one the launcher does not stop first: another machine's, a replay,
+        a node hung in its stop), once nothing arrived for :data:`FINISH_IDLE_NS`; at most
+        :data:`FINISH_MAX_NS` in all. The launcher stops a graph from its sources
+        (:class:`tether.supervisor.Supervisor`), so a node's upstream is gone when it is asked
+        to stop, and the node stops as soon as it has handled the last message."""
+        for name in self.timers:
+            self.inputs[name].queue.clear()
+        socks = [*self._retiring, *self.subs]
+        ready = [(sock, _POLLIN) for sock in socks]
+        dialled = {self.spec.inputs[name].endpoint for name in self._socket_of}
+        start = heard = time.monotonic_ns()
+        handled = 0
+        while True:
+            now = time.monotonic_ns()
+            if now - start >= FINISH_MAX_NS:
+                self.node.log.warning("stopping with input still arriving after %.1f s (%d messages handled "
+                                      "meanwhile): what comes later is not handled", FINISH_MAX_NS / 1e9, handled)
+                return
+            queued = any(st.queue for st in self.inputs.values())
+            if queued:
+                self._handle_pending()                 # one message: the stop event is set
+                handled += 1
+            if self._read_ready(ready, 0, order):
+                heard = time.monotonic_ns()
+                continue
+            if queued:
+                continue
+            if self._links is not None:
+                self._links.poll(redial=False)         # a redial would discard what a dropped link delivered
+            if dialled <= (self._links.gone if self._links is not None else set()):
+                if not self._read_ready(ready, 0, order):   # its close came after its last message: all read
+                    return
+            elif now - heard >= FINISH_IDLE_NS:
+                return
+            elif self._read_ready(ready, 10, order):
+                heard = time.monotonic_ns()
+
+    def _read_ready(self, ready: list[tuple[zmq.Socket, int]], timeout_ms: int, order: itertools.count) -> bool:
+        """Queue what the sockets of ``ready`` hold, waiting up to ``timeout_ms`` for some; whether any did."""
+        hits = _zmq_poll(ready, timeout_ms) if ready else []
+        for sock, _ in hits:
+            self._drain(sock, order)
+        return bool(hits)
 
     def close(self) -> None:
         if self._links is not None:
@@ -817,15 +880,17 @@ class NodeRuntime(Context):
             sock.close(linger=0)
         self.subs, self._retiring = [], []
         if self.pub is not None:
-            self.pub.close()
-            self.pub = None
-            for endpoint in self.spec.binds:           # ZeroMQ unlinks ipc files lazily, or not at exit
+            # ZeroMQ unlinks ipc files lazily, or not at exit. Before the close: a subscriber that sees
+            # the connection drop finds the file gone, so it knows the publisher stopped (_check_links).
+            for endpoint in self.spec.binds:
                 if endpoint.startswith("ipc://"):
                     try:
                         if stat.S_ISSOCK(os.lstat(endpoint[6:]).st_mode):
                             os.unlink(endpoint[6:])
                     except OSError:
                         pass
+            self.pub.close()
+            self.pub = None
         if self._auth is not None:
             self._auth.stop()
             self._auth = None

@@ -1,4 +1,10 @@
-"""Launcher supervision: start node processes, prefix their logs, restart per policy, stop cleanly."""
+"""Launcher supervision: start node processes, prefix their logs, restart per policy, stop cleanly.
+
+A launch stops from its sources (:func:`stop_stages`): a node is asked to stop once every node
+it takes input from has exited, so it handles their last messages before it stops
+(:meth:`tether.runtime.NodeRuntime._finish_inputs`), and a recording holds everything the
+sources published before the stop went through the whole pipeline.
+"""
 from __future__ import annotations
 
 import fnmatch
@@ -19,7 +25,7 @@ from typing import IO
 import msgspec
 
 from tether import forked, keystore, registry
-from tether.launch import LaunchFile, plan
+from tether.launch import TIMER_RE, LaunchFile, plan
 from tether.record import READY_TEXT
 from tether.errors import ConfigError
 from tether.runtime import RunSpec
@@ -65,6 +71,46 @@ def _stop_timeout() -> float:
     return value
 
 
+def stop_stages(launch: LaunchFile, ids: list[str] | None = None) -> list[list[str]]:
+    """The order the launcher stops the nodes ``ids`` of ``launch`` (default: all) in: stages, sources first.
+
+    A node's stage is one after the last stage of the nodes it takes input from (stage 0: it
+    takes none, only timers); the nodes of a cycle (a strongly connected set) share one stage.
+    The stages are computed over the whole graph, nodes of other machines included, so that
+    ``a -> remote -> c`` still stops ``c`` after ``a``; then restricted to ``ids``, in launch file
+    order within a stage, empty stages dropped.
+    """
+    nodes = [n.id for n in launch.nodes]
+    preds = {n.id: {src.partition("/")[0] for src in n.inputs.values() if not TIMER_RE.match(src)}
+             for n in launch.nodes}
+    succs: dict[str, set[str]] = {v: set() for v in nodes}
+    for v, ps in preds.items():
+        for u in ps:
+            succs[u].add(v)
+    reach = {v: _reachable(v, succs) for v in nodes}
+    group = {v: frozenset(u for u in reach[v] if v in reach[u]) | {v} for v in nodes}
+    stage: dict[frozenset[str], int] = {}
+    while len(stage) < len(set(group.values())):          # longest path from a source, group by group
+        for g in set(group.values()) - stage.keys():
+            before = {group[u] for v in g for u in preds[v]} - {g}
+            if before <= stage.keys():
+                stage[g] = 1 + max((stage[b] for b in before), default=-1)
+    wanted = nodes if ids is None else [v for v in nodes if v in set(ids)]
+    out: dict[int, list[str]] = {}
+    for v in wanted:
+        out.setdefault(stage[group[v]], []).append(v)
+    return [out[k] for k in sorted(out)]
+
+
+def _reachable(start: str, succs: dict[str, set[str]]) -> set[str]:
+    seen, todo = set(), [start]
+    while todo:
+        for w in succs[todo.pop()] - seen:
+            seen.add(w)
+            todo.append(w)
+    return seen
+
+
 def _wait_delivered(pid: int, sig: int, timeout_s: float) -> None:
     """Wait (bounded) until ``sig`` is no longer pending for ``pid``: its handler has run (Linux /proc)."""
     bit = 1 << (sig - 1)
@@ -80,6 +126,19 @@ def _wait_delivered(pid: int, sig: int, timeout_s: float) -> None:
             time.sleep(0.05)                 # the handler runs once delivered: let it write
             return
         time.sleep(0.02)
+
+
+def _running(child: Child) -> bool:
+    return child.proc is not None and child.proc.poll() is None
+
+
+def _wait_exit(children: list[Child], until: float) -> list[Child]:
+    """Wait until ``children`` have all exited or the monotonic time ``until``; those still running."""
+    while True:
+        left = [c for c in children if _running(c)]
+        if not left or time.monotonic() >= until:
+            return left
+        time.sleep(0.005)
 
 
 def signal_node(pid: int, sig: int, *, group: bool = True) -> None:
@@ -143,6 +202,7 @@ class Supervisor:
         self.children = [Child(n.id, specs[n.id], n.restart, n.max_restarts, n.env)
                          for n in launch.nodes if not launch.machines or n.machine == self.machine]
         self.all_specs = specs
+        self.stop_stages = stop_stages(launch, [c.id for c in self.children])
         self.record_path = record
         self.record_topics = self._recorded(record_topics, record_exclude) if record else {}
         for child in self.children:   # the recorder is one more subscriber those sources wait for
@@ -238,26 +298,52 @@ class Supervisor:
                                                  "keystore": str(self.keystore) if self.curve else None})
 
     def _terminate_all(self) -> None:
-        live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
-        for child in live:
-            signal_node(child.proc.pid, signal.SIGTERM)
-        deadline = time.monotonic() + self.stop_timeout_s
-        for child in live:
-            try:
-                child.proc.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                # Its stack first (every node dumps all threads' stacks on SIGUSR1 into its log), then kill.
-                log.error("node %s did not stop within %g s: its stacks follow, then it is killed",
-                          child.id, self.stop_timeout_s)
-                signal_node(child.proc.pid, signal.SIGUSR1, group=False)
-                _wait_delivered(child.proc.pid, signal.SIGUSR1, 2.0)
-                signal_node(child.proc.pid, signal.SIGKILL)
-                try:
-                    child.proc.wait(STOP_TIMEOUT_S)
-                except subprocess.TimeoutExpired:
-                    log.error("node %s (pid %d) survived SIGKILL for %.0f s: left behind", child.id,
-                              child.proc.pid, STOP_TIMEOUT_S)
-                child.failed = True
+        """Stop this machine's nodes stage by stage (:func:`stop_stages`), all within one stop timeout.
+
+        Each stage's running nodes get SIGTERM, and the next stage is signalled once they have
+        all exited, so a node is asked to stop only after its upstream nodes are gone and handles
+        their last messages first. Nodes not running (ended, failed, waiting for a restart) are
+        skipped; restarts are over once the stop has begun. Bounds, with ``T`` =
+        ``TETHER_STOP_TIMEOUT_S``: the stages go in order for ``T / 2``; a stage still running
+        then (a node slow or hung in its stop) and every stage after it get SIGTERM together;
+        whatever runs at ``T`` has its stacks dumped (SIGUSR1, up to 2 s for all of them) and
+        is killed. A stop takes ``T`` + 2 s at most, however many stages or hung nodes.
+        """
+        start = time.monotonic()
+        ordered_until = start + self.stop_timeout_s / 2
+        deadline = start + self.stop_timeout_s
+        by_id = {c.id: c for c in self.children}
+        signalled: list[Child] = []
+        for k, stage in enumerate(self.stop_stages):
+            live = [by_id[i] for i in stage if _running(by_id[i])]
+            for child in live:
+                signal_node(child.proc.pid, signal.SIGTERM)
+            signalled += live
+            slow = _wait_exit(live, ordered_until)
+            if slow:
+                rest = [by_id[i] for later in self.stop_stages[k + 1:] for i in later if _running(by_id[i])]
+                if rest:
+                    log.warning("%s still stopping after %g s: stopping %s without waiting",
+                                ", ".join(c.id for c in slow), self.stop_timeout_s / 2, ", ".join(c.id for c in rest))
+                for child in rest:
+                    signal_node(child.proc.pid, signal.SIGTERM)
+                signalled += rest
+                break
+        hung = _wait_exit(signalled, deadline)
+        for child in hung:
+            # Its stacks first (every node dumps all threads' stacks on SIGUSR1 into its log), then kill.
+            log.error("node %s did not stop within %g s: its stacks follow, then it is killed",
+                      child.id, self.stop_timeout_s)
+            signal_node(child.proc.pid, signal.SIGUSR1, group=False)
+        dumped = time.monotonic() + 2.0
+        for child in hung:
+            _wait_delivered(child.proc.pid, signal.SIGUSR1, max(0.0, dumped - time.monotonic()))
+        for child in hung:
+            signal_node(child.proc.pid, signal.SIGKILL)
+            child.failed = True
+        for child in _wait_exit(hung, time.monotonic() + STOP_TIMEOUT_S):
+            log.error("node %s (pid %d) survived SIGKILL for %.0f s: left behind", child.id, child.proc.pid,
+                      STOP_TIMEOUT_S)
 
     # -- main loop --------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> int:

@@ -11,6 +11,7 @@ import os
 import socket
 import stat
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,7 @@ MAX_MESSAGE_BYTES = _env_bytes("TETHER_MAX_MESSAGE_BYTES", 1 << 30)
 #: dropped (the subscriber counts them as a seq gap).
 PUB_QUEUE_BYTES = _env_bytes("TETHER_PUB_QUEUE_BYTES", 64 << 20)
 HWM_MAX = 1000
+REDIAL_WAIT_NS = 1_000_000_000     # longest a dropped connection waits for its socket to be read empty
 
 
 def reload_env() -> None:
@@ -294,39 +296,62 @@ class LinkWatch:
     that simply went away is redialled the same way, which ZeroMQ would have done anyway.
     A connection that fails its security handshake (a plain socket dialling a CurveZMQ
     publisher, or keys from another keystore) is reported as such: redialling cannot mend it.
+
+    ``zmq_disconnect`` discards what the dropped connection delivered and the node has not
+    read yet (the last messages of a publisher that stopped): the redial waits until the
+    socket has nothing left to read, or :data:`REDIAL_WAIT_NS` at most (a socket that other
+    publishers keep busy). :attr:`gone` holds the endpoints whose connection dropped and has
+    not come back (a stopping node takes them as finished: :meth:`NodeRuntime.serve`).
     """
 
     HANDSHAKE_FAILED = (zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
                         | zmq.EVENT_HANDSHAKE_FAILED_AUTH)
 
     def __init__(self, sockets: list[zmq.Socket], endpoints: dict[zmq.Socket, set[str]]) -> None:
-        events = zmq.EVENT_DISCONNECTED | self.HANDSHAKE_FAILED
+        events = zmq.EVENT_DISCONNECTED | zmq.EVENT_HANDSHAKE_SUCCEEDED | self.HANDSHAKE_FAILED
         self._watch = [(sock, sock.get_monitor_socket(events), endpoints.get(sock, set())) for sock in sockets]
         self._refused: set[tuple[int, str]] = set()   # (socket index, endpoint) whose handshake failed, until its drop
+        self._due: dict[tuple[int, str], tuple[int, bool]] = {}   # dropped, not redialled yet -> (when ns, refused)
+        self.gone: set[str] = set()
 
-    def poll(self) -> list[tuple[str, bool]]:
-        """Redial every endpoint dropped since the last call; return them, one ``(endpoint,
-        handshake_failed)`` per drop."""
+    def poll(self, *, redial: bool = True) -> list[tuple[str, bool]]:
+        """Take in the connections' events and redial (unless ``redial`` is False) the endpoints
+        dropped whose socket has been read empty; return them, one ``(endpoint, handshake_failed)``
+        per redial."""
         from zmq.utils.monitor import recv_monitor_message
 
-        dropped = []
+        now = time.monotonic_ns()
         for k, (sock, monitor, known) in enumerate(self._watch):
             while monitor.poll(0):
                 event = recv_monitor_message(monitor)
                 endpoint = event["endpoint"].decode(errors="replace")
                 if endpoint not in known:
                     continue       # not one we dialled (a bind-side peer): nothing to redial
-                if event["event"] & self.HANDSHAKE_FAILED:
+                if event["event"] & zmq.EVENT_HANDSHAKE_SUCCEEDED:
+                    self.gone.discard(endpoint)
+                elif event["event"] & self.HANDSHAKE_FAILED:
                     self._refused.add((k, endpoint))      # its DISCONNECTED follows, maybe in a later call
-                    continue
-                try:
-                    sock.disconnect(endpoint)
-                except zmq.ZMQError:
-                    pass           # already forgotten by ZeroMQ: connecting again is still right
-                sock.connect(endpoint)
-                dropped.append((endpoint, (k, endpoint) in self._refused))
-                self._refused.discard((k, endpoint))
-        return dropped
+                else:
+                    self.gone.add(endpoint)
+                    self._due.setdefault((k, endpoint), (now, False))
+                    if (k, endpoint) in self._refused:
+                        self._due[k, endpoint] = (self._due[k, endpoint][0], True)
+                        self._refused.discard((k, endpoint))
+        if not redial:
+            return []
+        redialled = []
+        for (k, endpoint), (when_ns, refused) in list(self._due.items()):
+            sock = self._watch[k][0]
+            if now - when_ns < REDIAL_WAIT_NS and sock.poll(0, zmq.POLLIN):
+                continue           # read what it delivered first: disconnecting would discard it
+            del self._due[k, endpoint]
+            try:
+                sock.disconnect(endpoint)
+            except zmq.ZMQError:
+                pass               # already forgotten by ZeroMQ: connecting again is still right
+            sock.connect(endpoint)
+            redialled.append((endpoint, refused))
+        return redialled
 
     def close(self) -> None:
         for sock, monitor, _ in self._watch:

@@ -1,0 +1,155 @@
+"""Stopping a launch: sources first, each node handles its inputs' last messages, bounded by one timeout."""
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+from typing import Callable
+
+import pytest
+
+from conftest import REPO
+from tether.launch import load_launch
+from tether.log import LogReader
+from tether.supervisor import stop_stages
+
+
+def _values(path: Path, topic: str) -> list[float]:
+    reader = LogReader(path)
+    return [m.data for m in (reader.decode(r) for r in reader.messages([topic]))]
+
+
+def _saw(stdout: str, node: str) -> int:
+    """What ``node`` (a demo Printer) says it saw at teardown; -1 when it never said (killed)."""
+    found = re.findall(rf"\[{re.escape(node)}\] .*saw (\d+) values", stdout)
+    return int(found[0]) if found else -1
+
+
+def _stop_when(args: list[str], env: dict[str, str], until: Callable[[str], bool],
+               timeout_s: float = 60.0) -> tuple[subprocess.CompletedProcess, float]:
+    """``tether launch *args``, Ctrl-C once ``until(stdout)`` holds; the result and seconds from Ctrl-C to exit."""
+    proc = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", *args], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out: list[str] = []
+    err: list[str] = []
+    readers = [threading.Thread(target=lambda s=s, into=into: into.extend(s), daemon=True)
+               for s, into in ((proc.stdout, out), (proc.stderr, err))]
+    for reader in readers:
+        reader.start()
+    try:
+        deadline = time.monotonic() + timeout_s
+        while proc.poll() is None and time.monotonic() < deadline and not until("".join(out)):
+            time.sleep(0.02)
+        assert proc.poll() is None, "".join(err)[-2000:]
+        proc.send_signal(signal.SIGINT)
+        stopping = time.monotonic()
+        proc.wait(timeout=60)                          # a hang guard
+        stop_s = time.monotonic() - stopping
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for reader in readers:
+            reader.join(timeout=10)
+        proc.stdout.close()
+        proc.stderr.close()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(err)), stop_s
+
+
+def test_stop_stages_go_from_the_sources_with_a_cycle_as_one_stage(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.syspath_prepend(str(REPO))                   # tests.tether.stop_nodes, as the launched nodes see it
+    path = tmp_path / "g.yaml"
+    path.write_text(textwrap.dedent("""
+        name: stages
+        nodes:
+          - {id: sink, node: nodes.std.demo:Printer, inputs: {value: d/value}}
+          - {id: d, node: tests.tether.stop_nodes:Add, inputs: {a: c/value, b: e/value}}
+          - {id: c, node: tests.tether.stop_nodes:Add, inputs: {a: b/value, b: e/value}}
+          - {id: b, node: tests.tether.stop_nodes:Add, inputs: {a: a/value, b: c/value}}
+          - {id: a, node: nodes.std.demo:Scale, inputs: {value: src/value}}
+          - {id: src, node: nodes.std.demo:Counter}
+          - {id: e, node: nodes.std.demo:Counter}
+          - {id: self, node: nodes.std.demo:Scale, inputs: {value: self/value}}
+    """))
+    launch = load_launch(path)
+    assert stop_stages(launch) == [["src", "e", "self"], ["a"], ["c", "b"], ["d"], ["sink"]]
+    assert stop_stages(launch, ["sink", "a", "src"]) == [["src"], ["a"], ["sink"]]   # one machine's share
+
+
+def test_a_node_on_another_machine_still_orders_the_local_ones(tmp_path: Path) -> None:
+    path = tmp_path / "m.yaml"
+    path.write_text(textwrap.dedent("""
+        name: machines
+        machines:
+          boat:  {host: 127.0.0.1, port_base: 47100}
+          shore: {host: 127.0.0.1, port_base: 47110}
+        nodes:
+          - {id: counter, node: nodes.std.demo:Counter, machine: boat}
+          - {id: relay, node: nodes.std.demo:Scale, inputs: {value: counter/value}, machine: shore}
+          - {id: printer, node: nodes.std.demo:Printer, inputs: {value: relay/value}, machine: boat}
+          - {id: other, node: nodes.std.demo:Counter, machine: boat}
+    """))
+    launch = load_launch(path)
+    assert stop_stages(launch, ["counter", "printer", "other"]) == [["counter", "other"], ["printer"]]
+    assert stop_stages(launch, ["relay"]) == [["relay"]]
+
+
+def test_a_stopped_pipeline_handles_every_message_its_source_sent(tmp_path: Path, runtime_env: dict) -> None:
+    """A middle node slower than its source has a backlog when Ctrl-C comes: the source stops first,
+    the middle node handles its backlog, then the sink stops, having seen all of it. Before, every
+    node got SIGTERM at once and the backlog was lost (the middle node stopped at its next message)."""
+    path = tmp_path / "slow.yaml"
+    path.write_text(textwrap.dedent("""
+        name: slow
+        nodes:
+          - {id: counter, node: nodes.std.demo:Counter, params: {rate_hz: 200, count: 40}}
+          - {id: scale, node: tests.tether.stop_nodes:SlowScale, params: {gain: 3, delay_ms: 10},
+             inputs: {value: counter/value}}
+          - {id: printer, node: nodes.std.demo:Printer, inputs: {value: scale/value}}
+    """))
+    log = tmp_path / "run.mcap"
+    res, _ = _stop_when([str(path), "--record", str(log)], runtime_env,
+                        lambda out: "[printer] INFO tether.printer: value 0.0" in out)
+    assert res.returncode == 0, res.stderr[-2000:]
+    counter = _values(log, "counter/value")
+    assert counter == [float(i) for i in range(len(counter))] and len(counter) >= 1
+    assert _values(log, "scale/value") == [3.0 * v for v in counter]
+    assert _saw(res.stdout, "printer") == len(counter), res.stdout[-3000:]
+
+
+def test_a_node_hung_in_its_stop_holds_the_later_stages_for_half_the_timeout_only(tmp_path: Path,
+                                                                                  runtime_env: dict) -> None:
+    """Two stages in a row that cannot stop: the sink after them is still stopped (after T / 2, not
+    after each of them in turn), and the whole stop ends at T plus the stack dumps, not 2 T."""
+    path = tmp_path / "stuck.yaml"
+    path.write_text(textwrap.dedent("""
+        name: stuck
+        nodes:
+          - {id: counter, node: nodes.std.demo:Counter, params: {rate_hz: 20}}
+          - {id: stuck1, node: tests.tether.stop_nodes:SlowScale, params: {delay_ms: 0, hang_on_stop: true},
+             inputs: {value: counter/value}}
+          - {id: stuck2, node: tests.tether.stop_nodes:SlowScale, params: {delay_ms: 0, hang_on_stop: true, gain: 1},
+             inputs: {value: stuck1/value}}
+          - {id: printer, node: nodes.std.demo:Printer, inputs: {value: stuck2/value}}
+    """))
+    timeout_s = 4.0
+    log = tmp_path / "run.mcap"
+    res, stop_s = _stop_when([str(path), "--record", str(log)], {**runtime_env, "TETHER_STOP_TIMEOUT_S": str(timeout_s)},
+                             lambda out: "[printer] INFO tether.printer: value 4.0" in out)
+    assert res.returncode == 1
+    assert "failed: stuck1, stuck2" in res.stderr, res.stderr[-2000:]
+    assert "stuck1 still stopping after 2 s: stopping stuck2, printer without waiting" in res.stderr
+    for node in ("stuck1", "stuck2"):
+        assert f"node {node} did not stop within 4 s: its stacks follow, then it is killed" in res.stderr
+        assert f"[{node}] INFO tether.{node}: hanging in teardown" in res.stdout
+    counter = _values(log, "counter/value")
+    assert _values(log, "stuck2/value") == [2.0 * v for v in counter]      # each handled all it got first
+    assert _saw(res.stdout, "printer") == len(counter)                     # and the sink stopped by itself
+    # T, then up to 2 s for the stacks, plus the launcher's own exit; one T per hung stage would be 8 s
+    assert stop_s < timeout_s + 2.5, stop_s
