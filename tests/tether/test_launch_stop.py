@@ -153,3 +153,60 @@ def test_a_node_hung_in_its_stop_holds_the_later_stages_for_half_the_timeout_onl
     assert _saw(res.stdout, "printer") == len(counter)                     # and the sink stopped by itself
     # T, then up to 2 s for the stacks, plus the launcher's own exit; one T per hung stage would be 8 s
     assert stop_s < timeout_s + 2.5, stop_s
+
+
+def test_a_stopped_publishers_last_messages_are_read_before_its_link_is_redialled(runtime_env: dict) -> None:
+    """A publisher that stops leaves its last messages in its subscriber's ZeroMQ queue; redialling
+    its endpoint (``zmq_disconnect``) would discard them, so the redial waits until they are read.
+    Before, a node behind by more than one read-ahead lost the rest when its upstream stopped."""
+    import itertools
+
+    import zmq
+
+    from msgs.std import Float64
+    from nodes.std.chaos import QuietSink
+    from tether.codec import Codec
+    from tether.runtime import NodeRuntime, RunSpec, Source
+    from tether.transport import ipc_endpoint
+
+    ep = ipc_endpoint("drain", "src", "x")
+    rt = NodeRuntime(RunSpec(graph="drain", node_id="sink", node="nodes.std.chaos:QuietSink",
+                             inputs={"value": Source(topic="a/value", endpoint=ep)}), QuietSink)
+    rt.node.setup()
+    state = rt.inputs["value"]
+    pub = zmq.Context.instance().socket(zmq.PUB)
+    pub.bind(ep)
+    codec, order, seq = Codec(), itertools.count(), itertools.count(1)
+
+    def send() -> None:
+        pub.send_multipart([b"a/value", *(bytes(f) for f in codec.encode(Float64(data=1.0, seq=next(seq))))])
+
+    try:
+        deadline = time.monotonic() + 30
+        while not state.stats["handled"]:                  # subscribed: messages flow
+            assert time.monotonic() < deadline
+            send()
+            rt._receive(20, order)
+            rt._handle_pending()
+        while rt._receive(0, order) or state.queue:       # nothing of the probes left behind
+            rt._handle_pending()
+        before = state.stats["handled"]
+        for _ in range(200):
+            send()
+        pub.close(linger=5000)                             # the publisher stops: its connection drops
+        for _ in range(30):                                # the node checks its links meanwhile, busy elsewhere
+            rt._check_links()
+            time.sleep(0.01)
+        deadline = time.monotonic() + 10
+        while state.stats["handled"] < before + 200 and time.monotonic() < deadline:
+            rt._receive(20, order)
+            rt._handle_pending()
+        assert state.stats["handled"] - before == 200
+        deadline = time.monotonic() + 10
+        while not state.stats["link_resets"] and time.monotonic() < deadline:
+            rt._check_links()                              # read empty: now redialled
+            time.sleep(0.01)
+        assert state.stats["link_resets"] == 1
+    finally:
+        pub.close(linger=0)
+        rt.close()
