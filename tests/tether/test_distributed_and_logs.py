@@ -230,17 +230,21 @@ def test_replay_then_record_gives_the_same_messages(tmp_path: Path, runtime_env:
     replay = subprocess.Popen([sys.executable, "-m", "tether.cli", "replay", str(src), "--wait-subscribers", "1",
                                "--delay", "60"], cwd=REPO,
                               env=runtime_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rec = None
     try:
         wait_for_topic("cam/name", runtime_env, alive=replay)
         rec = subprocess.Popen([sys.executable, "-m", "tether.cli", "record", "-o", str(dst)], cwd=REPO,
                                env=runtime_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert replay.wait(90) == 0                 # replay starts once the recorder subscribes, ends by itself
-        time.sleep(1.0)                             # the recorder drains what is in flight
-        rec.send_signal(signal.SIGINT)
-        assert rec.wait(30) == 0
+        _, replay_err = replay.communicate(timeout=90)   # starts once the recorder subscribes, ends by itself
+        assert replay.returncode == 0, replay_err[-2000:]
+        rec.send_signal(signal.SIGINT)              # at once: a stopped recorder writes what is still in flight
+        _, rec_err = rec.communicate(timeout=30)
+        assert rec.returncode == 0, rec_err[-2000:]
     finally:
-        if replay.poll() is None:
-            replay.kill()
+        for proc in (replay, rec):
+            if proc is not None and proc.poll() is None:     # a failure above: no process left behind
+                proc.kill()
+                proc.communicate()
     a = [(r.topic, r.data) for r in LogReader(src).messages()]
     b = [(r.topic, r.data) for r in LogReader(dst).messages()]
     assert sorted(a) == sorted(b) and len(b) == 80

@@ -116,6 +116,7 @@ def test_children_stop_when_the_launcher_is_killed_and_stale_sockets_are_swept(t
     assert len(children) >= 4                                          # three nodes and the recorder
     launcher.send_signal(signal.SIGKILL)
     launcher.wait(10)
+    launcher.stdout.close()
     deadline = time.monotonic() + 30.0                                 # loaded CI: 15 s was marginal
     while any(_alive(pid) for pid in children) and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -180,6 +181,7 @@ def test_a_restart_storm_stays_bounded_and_the_launcher_responsive(tmp_path: Pat
     launcher.wait(timeout=30)                                        # a hang guard, not a measurement
     window = time.monotonic() - opened
     reader.join(timeout=10)
+    launcher.stdout.close()
     out = "".join(lines)
     restarts = out.count("restarting crash")
     # Backoff 0.5, 1, 2, 4, 8 s between restarts: in `window` seconds after the first restart at

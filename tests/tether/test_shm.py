@@ -49,6 +49,17 @@ def _child(code: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, text=True)
 
 
+def _end(child: subprocess.Popen) -> None:
+    """Kill ``child`` if it still runs, reap it and close its pipes (no ResourceWarning left behind)."""
+    child.kill()
+    child.wait(30)
+    for pipe in (child.stdin, child.stdout):
+        try:
+            pipe.close()
+        except BrokenPipeError:
+            pass                     # what we wrote to a child that died unread
+
+
 def test_round_trip_gives_read_only_views_of_the_slot() -> None:
     pool, reader = _pool(), shm.Reader()
     try:
@@ -141,7 +152,7 @@ def test_subscriber_killed_while_holding_a_buffer_frees_the_pool() -> None:
         again = pool.place(_frames(8), readers=0)
         assert again is not None and _slot(again) == _slot(placed)   # its lease and its cell went with it
     finally:
-        child.kill()
+        _end(child)
         pool.close()
 
 
@@ -168,7 +179,7 @@ def test_publisher_killed_mid_write_never_yields_a_torn_array() -> None:
         assert child.returncode == -signal.SIGKILL
         assert reader.resolve(table, [b"\x80"]) is None and reader.stale == 1
     finally:
-        child.kill()
+        _end(child)
         name = msgpack.unpackb(table)[0]
         Path(shm.SHM_DIR, name).unlink(missing_ok=True)
 
@@ -257,6 +268,7 @@ def test_stale_segments_of_killed_publishers_are_swept() -> None:
         assert shm.sweep_stale_segments() >= 1
         assert not Path(shm.SHM_DIR, name).exists() and Path(shm.SHM_DIR, live.segment.name).exists()
     finally:
+        _end(child)
         live.close()
 
 
@@ -281,8 +293,7 @@ def test_a_sweep_in_another_process_never_unlinks_a_segment_being_created() -> N
             seg.close()
         assert lost == []
     finally:
-        sweeper.kill()
-        sweeper.wait(30)
+        _end(sweeper)
 
 
 def test_a_sweep_leaves_a_young_unlocked_draft_and_takes_an_old_one() -> None:
