@@ -57,6 +57,9 @@ class Source:
     secure: bool = False      # the publisher is a CurveZMQ server (it has a tcp endpoint)
     server_key: str = ""      # its machine's public key (z85), when secure
     link: dict[str, Any] | None = None   # a LinkModel (to_json) the messages cross, from the launch file
+    #: a stopping node waits for this publisher to close (or fall silent) first; the launcher says
+    #: False for one it does not stop before this node (another machine's, one of the same stage)
+    await_on_stop: bool = True
 
 
 @dataclass
@@ -824,17 +827,20 @@ class NodeRuntime(Context):
         Timers fire no more (they are the node's own sources). Received messages are handled
         in order until every input queue and socket is empty and every publisher the node
         dials has gone (its connection closed: ZeroMQ delivers a connection's last messages
-        before its close, so nothing it sent is left in flight), or, while a publisher is
-        still connected (one the launcher does not stop first: another machine's, a replay,
-        a node hung in its stop), once nothing arrived for :data:`FINISH_IDLE_NS`; at most
-        :data:`FINISH_MAX_NS` in all. The launcher stops a graph from its sources
-        (:class:`tether.supervisor.Supervisor`), so a node's upstream is gone when it is asked
-        to stop, and the node stops as soon as it has handled the last message."""
+        before its close, so nothing it sent is left in flight), or, while one is still
+        connected (a replay, a node hung in its stop), once nothing arrived for
+        :data:`FINISH_IDLE_NS`; at most :data:`FINISH_MAX_NS` in all. The launcher stops a
+        graph from its sources (:class:`tether.supervisor.Supervisor`), so a node's upstream
+        is gone when it is asked to stop, and the node stops as soon as it has handled the
+        last message; publishers the launcher does not stop first (``Source.await_on_stop``
+        False: another machine's, the node's own cycle) are not waited for: what they sent
+        is handled until the sockets are read empty."""
         for name in self.timers:
             self.inputs[name].queue.clear()
         socks = [*self._retiring, *self.subs]
         ready = [(sock, _POLLIN) for sock in socks]
-        dialled = {self.spec.inputs[name].endpoint for name in self._socket_of}
+        awaited = {self.spec.inputs[name].endpoint for name in self._socket_of
+                   if self.spec.inputs[name].await_on_stop}
         start = heard = time.monotonic_ns()
         handled = 0
         while True:
@@ -854,7 +860,7 @@ class NodeRuntime(Context):
                 continue
             if self._links is not None:
                 self._links.poll(redial=False)         # a redial would discard what a dropped link delivered
-            if dialled <= (self._links.gone if self._links is not None else set()):
+            if awaited <= (self._links.gone if self._links is not None else set()):
                 if not self._read_ready(ready, 0, order):   # its close came after its last message: all read
                     return
             elif now - heard >= FINISH_IDLE_NS:

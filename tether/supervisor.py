@@ -203,6 +203,11 @@ class Supervisor:
                          for n in launch.nodes if not launch.machines or n.machine == self.machine]
         self.all_specs = specs
         self.stop_stages = stop_stages(launch, [c.id for c in self.children])
+        stage_of = {node_id: k for k, stage in enumerate(self.stop_stages) for node_id in stage}
+        for child in self.children:     # upstream nodes this launcher stops (and sees exit) before this one
+            for src in child.spec.inputs.values():
+                upstream = src.topic.partition("/")[0]
+                src.await_on_stop = stage_of.get(upstream, stage_of[child.id]) < stage_of[child.id]
         self.record_path = record
         self.record_topics = self._recorded(record_topics, record_exclude) if record else {}
         for child in self.children:   # the recorder is one more subscriber those sources wait for

@@ -16,7 +16,7 @@ import pytest
 from conftest import REPO
 from tether.launch import load_launch
 from tether.log import LogReader
-from tether.supervisor import stop_stages
+from tether.supervisor import Supervisor, stop_stages
 
 
 def _values(path: Path, topic: str) -> list[float]:
@@ -61,7 +61,7 @@ def _stop_when(args: list[str], env: dict[str, str], until: Callable[[str], bool
     return subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(err)), stop_s
 
 
-def test_stop_stages_go_from_the_sources_with_a_cycle_as_one_stage(tmp_path: Path,
+def test_stop_stages_go_from_the_sources_with_a_cycle_as_one_stage(tmp_path: Path, runtime_env: dict,
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.syspath_prepend(str(REPO))                   # tests.tether.stop_nodes, as the launched nodes see it
     path = tmp_path / "g.yaml"
@@ -80,9 +80,11 @@ def test_stop_stages_go_from_the_sources_with_a_cycle_as_one_stage(tmp_path: Pat
     launch = load_launch(path)
     assert stop_stages(launch) == [["src", "e", "self"], ["a"], ["c", "b"], ["d"], ["sink"]]
     assert stop_stages(launch, ["sink", "a", "src"]) == [["src"], ["a"], ["sink"]]   # one machine's share
+    b = Supervisor(launch).all_specs["b"].inputs
+    assert b["a"].await_on_stop and not b["b"].await_on_stop      # its cycle stops with it: not waited for
 
 
-def test_a_node_on_another_machine_still_orders_the_local_ones(tmp_path: Path) -> None:
+def test_a_node_on_another_machine_still_orders_the_local_ones(tmp_path: Path, runtime_env: dict) -> None:
     path = tmp_path / "m.yaml"
     path.write_text(textwrap.dedent("""
         name: machines
@@ -98,6 +100,15 @@ def test_a_node_on_another_machine_still_orders_the_local_ones(tmp_path: Path) -
     launch = load_launch(path)
     assert stop_stages(launch, ["counter", "printer", "other"]) == [["counter", "other"], ["printer"]]
     assert stop_stages(launch, ["relay"]) == [["relay"]]
+    # a stopping node waits only for the publishers its own launcher stopped before it
+    boat = Supervisor(launch, machine="boat")
+    assert boat.stop_stages == [["counter", "other"], ["printer"]]
+    assert not boat.all_specs["printer"].inputs["value"].await_on_stop            # relay: the shore's
+    shore = Supervisor(launch, machine="shore")
+    assert not shore.all_specs["relay"].inputs["value"].await_on_stop             # counter: the boat's
+    local = load_launch(REPO / "launch" / "counter.yaml")
+    specs = Supervisor(local).all_specs
+    assert specs["scale"].inputs["value"].await_on_stop and specs["printer"].inputs["value"].await_on_stop
 
 
 def test_a_stopped_pipeline_handles_every_message_its_source_sent(tmp_path: Path, runtime_env: dict) -> None:
