@@ -114,6 +114,7 @@ class IrlStack:
 
     name = "irl"
     plan_reason = ""        # the planner's last status reason (guard_why: planner_kept_blocked_path)
+    replans = 0             # local plans adopted (weaving: metrics' 'replans')
 
     def __init__(self, world: CrowdWorld, weights: str, params: dict[str, dict] | None = None) -> None:
         params = params or {}
@@ -140,6 +141,7 @@ class IrlStack:
             out = self.plan.feed([(t, "flow", flow), (t, "features", grid)] + [(t, "costs", c) for c in costs])
             cmds += [o.msg for o in out if o.output == "cmd"]
             self.plan_reason = next((o.msg.reason for o in reversed(out) if o.output == "status"), self.plan_reason)
+            self.replans += sum(replanned(o.msg.reason) for o in out if o.output == "status")
             t3 = time.perf_counter()
             ms.setdefault("flow+features", []).append((t1 - t0) * 1e3)
             ms.setdefault("cost", []).append((t2 - t1) * 1e3)
@@ -149,6 +151,12 @@ class IrlStack:
         sensed = [(t, "odom", odom), (t, "rgbd", frame)] + ([(t, "points", flow)] if flow is not None else [])
         shadow_guarded(self, self.guard_other.feed(sensed + [(t, "cmd", cmd)]), cmd)
         return guarded(self, self.guard.feed(sensed + [(t, "cmd", cmd)]), cmd)
+
+
+def replanned(reason: str) -> bool:
+    """Does a planner status reason ('mode/event/reason') report a new local plan adopted (not 'path kept')?"""
+    parts = reason.split("/")
+    return parts[0] == "local" and len(parts) > 1 and parts[1] not in ("", "path kept")
 
 
 def guarded(stack, outputs, cmd: Twist2D) -> tuple[float, float]:
@@ -282,7 +290,8 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
                    guard_why=dict(getattr(stack, "guard_why", {})),
                    ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s,
                    guard_ticks_other=getattr(stack, "guard_ticks_other", None),
-                   planner_why=dict(getattr(stack, "planner_why", {})) if stack.name == "irl" else None)
+                   planner_why=dict(getattr(stack, "planner_why", {})) if stack.name == "irl" else None,
+                   replans=getattr(stack, "replans", None))
 
 
 # -- report -----------------------------------------------------------------------------------------
@@ -453,7 +462,8 @@ def tradeoff_plot(report: dict, filename: str = "social_nav_tradeoff.png") -> Pa
     return _save(fig, filename)
 
 
-SPREAD_KEYS = ("closest_m", "time_s", "robot_contacts_strict", "contacts_strict_moving", "guard_frac", "collisions_robot")
+SPREAD_KEYS = ("closest_m", "time_s", "robot_contacts_strict", "contacts_strict_moving", "guard_frac", "collisions_robot",
+               "heading_reversals", "replans")
 
 
 def start_spread(cases: dict, shifts: dict, runs: dict, args: argparse.Namespace, starts: int, step_s: float = 0.4) -> dict:

@@ -33,6 +33,7 @@ class Episode:
     guard_why: dict[str, int] = dataclasses.field(default_factory=dict)   # braked ticks by guard rule (social_nav.guarded)
     guard_ticks_other: int | None = None     # ticks the other-rule shadow guard would have braked (social_nav.shadow_guarded)
     planner_why: dict[str, int] | None = None   # IRL planner: ticks its speed profile waited / slowed (planner_paced)
+    replans: int | None = None           # IRL planner: local plans it adopted (a re-plan event, not 'path kept')
 
 
 #: who was ahead when the guard braked (``guard_why`` keys ``ahead_*``): the nearest pedestrian centre in front of the
@@ -65,7 +66,9 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
     """The paper's metrics (centre distances, m; times, s) from an episode; when recorded, how often the
     other-rule guard would have braked (``guard_frac_other_rule``) and how often the IRL planner's own speed
     profile waited or slowed for predicted people (``planner_wait_frac``, and by ``planner_why``: 'wait',
-    speed 0 where steering would drive, or 'slow'), as shares of control ticks."""
+    speed 0 where steering would drive, or 'slow'), as shares of control ticks. Weaving: ``heading_reversals``
+    counts the turns that reverse the previous turn (sign changes of the yaw rate over the ticks turning faster than
+    TURN_RADPS), ``replans`` (IRL planner) the local plans adopted."""
     d = np.full(len(ep.t), np.inf)
     for k, (_, xy) in enumerate(ep.peds):
         if len(xy):
@@ -90,13 +93,23 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
             "guard_frac": round(ep.guard_ticks / ep.ticks, 4) if ep.ticks else None,
             "guard_why": {k: round(n / ep.ticks, 4) for k, n in sorted(ep.guard_why.items())} if ep.ticks else {},
             "stopped_at_closest": stopped_at_closest,
+            "heading_reversals": heading_reversals(ep.yaw_rate[:end]),
             "start_shift_s": round(ep.start_shift_s, 2)}
     if ep.guard_ticks_other is not None and ep.ticks:
         m["guard_frac_other_rule"] = round(ep.guard_ticks_other / ep.ticks, 4)
+    if ep.replans is not None:
+        m["replans"] = int(ep.replans)
     if ep.planner_why is not None and ep.ticks:
         m["planner_wait_frac"] = round(sum(ep.planner_why.values()) / ep.ticks, 4)
         m["planner_why"] = {k: round(n / ep.ticks, 4) for k, n in sorted(ep.planner_why.items())}
     return m
+
+
+def heading_reversals(yaw_rate: np.ndarray, turn_radps: float = TURN_RADPS) -> int:
+    """How often a turn (|yaw rate| above ``turn_radps``) goes the other way than the turn before it."""
+    w = np.asarray(yaw_rate, float)
+    sign = np.sign(w[np.abs(w) > turn_radps])
+    return int(np.count_nonzero(np.diff(sign)))
 
 
 #: the robot counts as stopped below this speed (m/s): a closest approach then is a person walking up to it
