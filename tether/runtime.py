@@ -825,9 +825,9 @@ class NodeRuntime(Context):
         """Handle, before the node stops, what its publishers sent before they stopped.
 
         Timers fire no more (they are the node's own sources). Received messages are handled
-        in order until every input queue and socket is empty and every publisher the node
-        dials has gone (its connection closed: ZeroMQ delivers a connection's last messages
-        before its close, so nothing it sent is left in flight), or, while one is still
+        in order until every input queue and socket is empty and every publisher it waits for
+        has gone (its connection closed: ZeroMQ delivers a connection's last messages before
+        its close, so nothing it sent is left in flight), or, while one is still
         connected (a replay, a node hung in its stop), once nothing arrived for
         :data:`FINISH_IDLE_NS`; at most :data:`FINISH_MAX_NS` in all. The launcher stops a
         graph from its sources (:class:`tether.supervisor.Supervisor`), so a node's upstream
