@@ -118,10 +118,23 @@ class LogWriter:
         self._last_flush = time.monotonic_ns()
 
     def close(self) -> None:
+        """Finish the file (summary and footer) and close it; the file is closed even if finishing fails."""
         if not self._closed:
             self._closed = True
-            self._writer.finish()
-            self._fh.close()
+            try:
+                self._writer.finish()
+            finally:
+                self._fh.close()
+
+    def abandon(self) -> None:
+        """Close the file without finishing it, after a write failed (disk full, I/O error): what was
+        flushed before stays readable (``tether log --recover``); a failure to close is ignored."""
+        if not self._closed:
+            self._closed = True
+            try:
+                self._fh.close()
+            except OSError:
+                pass
 
     def __enter__(self) -> "LogWriter":
         return self

@@ -94,6 +94,8 @@ class Recorder:
             writer.close()
         except OSError as exc:     # the file, not a message: disk full, file too large, I/O error
             self.failed = f"{type(exc).__name__}: {exc}"
+            if writer is not None:
+                writer.abandon()
             log.error("recording to %s stopped: %s; the %d messages written before stay readable "
                       "(tether log --recover)", self.path, self.failed, self.count)
         finally:

@@ -192,7 +192,7 @@ def test_cli_attaches_echo_hz_and_node_info_to_a_running_graph(runtime_env: dict
                  if "rate (stamps)" in line]
         arrivals = [float(line.split()[2]) for line in hz.stdout.splitlines() if line.startswith("rate (arrival)")]
         assert rates and abs(rates[-1] - 40.0) < 4.0 and arrivals and abs(arrivals[-1] - 40.0) < 8.0
-        info = tether("node", "info", "scale", env=runtime_env)
+        info = tether("node", "info", "scale", "--wait", "20", env=runtime_env)
         assert info.returncode == 0 and "<- value" in info.stdout and "-> value" in info.stdout
         nodes = tether("node", "list", env=runtime_env).stdout
         assert "scale" in nodes and "nodes.std.demo:Scale" in nodes

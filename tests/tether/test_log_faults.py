@@ -77,9 +77,12 @@ def test_a_full_disk_stops_recording_with_a_clear_error_and_the_log_stays_readab
         tmp_path: Path, runtime_env: dict, monkeypatch: pytest.MonkeyPatch) -> None:
     import tether.record
 
+    writers = []
+
     class SmallDiskWriter(LogWriter):
         def __init__(self, path, **kw) -> None:
             super().__init__(path, chunk_size=2048, **kw)
+            writers.append(self)
             self._fh = _FullDisk(self._fh, 40_000)
             self._writer._Writer__stream = self._fh     # mcap keeps its stream name-mangled
 
@@ -99,6 +102,7 @@ def test_a_full_disk_stops_recording_with_a_clear_error_and_the_log_stays_readab
     rec.stop()
     ctx.destroy(linger=0)
     assert "No space left" in rec.failed
+    assert writers and all(w._fh.closed for w in writers)             # the failed log's file is not left open
     values = [LogReader(tmp_path / "full.mcap").decode(r).data for r in LogReader(tmp_path / "full.mcap").messages()]
     assert len(values) > 100 and values == sorted(values)             # what was written before is all there
 
