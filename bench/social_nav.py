@@ -491,7 +491,7 @@ def start_spread(cases: dict, shifts: dict, runs: dict, args: argparse.Namespace
                                                                      node_params(args.param), shifts[name] + k * step_s)
                 m = got[stack.name] = metrics(ep)
                 for key in SPREAD_KEYS:
-                    rows.setdefault(stack.name, {}).setdefault(key, []).append(m[key])
+                    rows.setdefault(stack.name, {}).setdefault(key, []).append(m.get(key))
             if got["irl"]["closest_m"] is not None and got["dwa"]["closest_m"] is not None:
                 pairs.append(got["irl"]["closest_m"] >= got["dwa"]["closest_m"])
                 walk_in.append(pairs[-1] or bool(got["irl"]["stopped_at_closest"]))
