@@ -86,7 +86,8 @@ def two_machines(tmp_path: Path, name: str, more_nodes: str = "") -> Path:
 def launch_until(args: list[str], env: dict[str, str], until: Callable[[str, str], bool], *,
                  timeout_s: float = 60.0) -> subprocess.CompletedProcess:
     """``tether launch *args`` (no ``--duration``), stopped with Ctrl-C once ``until(stdout, stderr)``
-    holds (or after ``timeout_s``, or when it exits by itself).
+    holds (or after ``timeout_s``, or when it exits by itself). The result's ``stop_s`` is the time from
+    the Ctrl-C to the exit (None when it exited by itself: ``running_at_stop`` False).
 
     For tests that need something to have happened before the graph stops: a fixed duration
     counts the start-up too, which a loaded 2-core machine stretches past it (a recorder process
@@ -108,9 +109,13 @@ def launch_until(args: list[str], env: dict[str, str], until: Callable[[str, str
     try:
         while proc.poll() is None and time.monotonic() < deadline and not until("".join(out), "".join(err)):
             time.sleep(0.02)
+        stop_s = None
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=60)                                # a hang guard, not a measurement
+            stopping = time.monotonic()
+            proc.wait(timeout=60)                            # a hang guard
+            stop_s = time.monotonic() - stopping
+        proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -119,7 +124,9 @@ def launch_until(args: list[str], env: dict[str, str], until: Callable[[str, str
             reader.join(timeout=10)
         proc.stdout.close()
         proc.stderr.close()
-    return subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(err))
+    result = subprocess.CompletedProcess(proc.args, proc.returncode, "".join(out), "".join(err))
+    result.stop_s, result.running_at_stop = stop_s, stop_s is not None
+    return result
 
 
 def recording_for(seconds: float) -> Callable[[str, str], bool]:
