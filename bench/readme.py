@@ -95,6 +95,21 @@ def ping360(d: dict) -> list[Row]:
              "400 beams a turn, 0 checksum errors, resync after garbage: met (tests)")]
 
 
+def _guard_on_humans(d: dict, scenarios: dict) -> str:
+    """The same guard asked of the human reference (bench/guard_on_walkers.py's rule, in the social_nav run)."""
+    human = {k: v["human"].get("guard_frac_human") for k, v in scenarios.items() if isinstance(v.get("human"), dict)}
+    human = {k: v for k, v in human.items() if v is not None}
+    if not human or d.get("guard_frac_human_median") is None:
+        return ""
+    robot = {k: v["irl"].get("guard_frac") for k, v in scenarios.items() if isinstance(v.get("irl"), dict)}
+    below = [k for k in human if robot.get(k) is not None and robot[k] <= human[k]]
+    worst = max(robot, key=lambda k: robot[k] if robot[k] is not None else -1)
+    return (f" (the same guard brakes the human reference in {100 * d['guard_frac_human_median']:.0f} % of its moving "
+            f"ticks by median, {100 * min(human.values()):.0f}-{100 * max(human.values()):.0f} %; the robot is braked "
+            f"no more than the human on {len(below)} of {len(human)}; {worst}: robot {100 * robot[worst]:.0f} %, human "
+            f"{100 * human.get(worst, float('nan')):.0f} %)")
+
+
 def _guard_why(why: dict | None) -> str:
     """Which of the guard's rules braked, on the scenario where it braked most (shares of all ticks)."""
     if not why:
@@ -140,7 +155,7 @@ def social_nav(d: dict) -> list[Row]:
              f"0 contacts: {_met(d['robot_contacts'] == 0 and d['robot_contacts_strict'] == 0)}; closest >= DWA on all"
              + (" but walk-ins" if walk_in is not None else "")
              + f": {_met((walk_in if walk_in is not None else len(closer)) == n)}; on time >= 5 of 6: {_met(len(timely) >= n - 1)}; guard < 5 %: "
-             f"{_met(d['guard_frac'] < 0.05)}")]
+             f"{_met(d['guard_frac'] < 0.05)}" + _guard_on_humans(d, sc))]
     spread = d.get("start_spread")
     if isinstance(spread, dict) and "closest_ge_dwa" in spread:
         irl, dw = spread.get("irl") or {}, spread.get("dwa") or {}
