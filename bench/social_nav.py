@@ -363,14 +363,9 @@ def plot(cases: dict, runs: dict, filename: str = "social_nav.png") -> Path:
 
 def _save(fig, filename: str) -> Path:
     """Write ``fig`` to out/``filename`` and close it."""
-    import matplotlib.pyplot as plt
+    from figures import save_figure
 
-    fig.tight_layout()
-    out = ROOT / "out"
-    out.mkdir(exist_ok=True)
-    fig.savefig(out / filename, dpi=100)
-    plt.close(fig)
-    return out / filename
+    return save_figure(fig, ROOT / "out" / filename, dpi=100)
 
 
 HEADLINE = ("person_cost", "robot_contacts", "robot_contacts_strict", "closest_ge_dwa_count",
