@@ -57,9 +57,12 @@ class Source:
     secure: bool = False      # the publisher is a CurveZMQ server (it has a tcp endpoint)
     server_key: str = ""      # its machine's public key (z85), when secure
     link: dict[str, Any] | None = None   # a LinkModel (to_json) the messages cross, from the launch file
-    #: a stopping node waits for this publisher to close (or fall silent) first; the launcher says
-    #: False for one it does not stop before this node (another machine's, one of the same stage)
-    await_on_stop: bool = True
+    #: a stopping node waits for this publisher to close (or fall silent) first. The launcher says
+    #: True for a publisher it stops before this node (an earlier stage), False for another machine's
+    #: or one of the same stage; a node run alone (``tether run``, ``replay --into``) stops no
+    #: publisher first, so it handles what its sockets hold and stops (a live stream never closes:
+    #: waiting for it held Ctrl-C of ``tether run`` on a 200 Hz topic 2 s, with a warning)
+    await_on_stop: bool = False
 
 
 @dataclass

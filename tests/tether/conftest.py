@@ -84,8 +84,8 @@ def two_machines(tmp_path: Path, name: str, more_nodes: str = "") -> Path:
 
 
 def launch_until(args: list[str], env: dict[str, str], until: Callable[[str, str], bool], *,
-                 timeout_s: float = 60.0) -> subprocess.CompletedProcess:
-    """``tether launch *args`` (no ``--duration``), stopped with Ctrl-C once ``until(stdout, stderr)``
+                 timeout_s: float = 60.0, verb: str = "launch") -> subprocess.CompletedProcess:
+    """``tether launch *args`` (no ``--duration``; or another ``verb``: ``run``, ``replay``), stopped with Ctrl-C once ``until(stdout, stderr)``
     holds (or after ``timeout_s``, or when it exits by itself). The result's ``stop_s`` is the time from
     the Ctrl-C to the exit (None when it exited by itself: ``running_at_stop`` False).
 
@@ -97,7 +97,7 @@ def launch_until(args: list[str], env: dict[str, str], until: Callable[[str, str
     import threading
     import time
 
-    proc = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", *args], cwd=REPO, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "tether.cli", verb, *args], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     out: list[str] = []
     err: list[str] = []

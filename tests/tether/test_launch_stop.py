@@ -187,3 +187,28 @@ def test_a_stopped_publishers_last_messages_are_read_before_its_link_is_redialle
     finally:
         pub.close(linger=0)
         rt.close()
+
+
+def test_a_node_run_alone_on_a_live_stream_stops_at_once_on_ctrl_c(runtime_env: dict) -> None:
+    """``tether run`` attached to another graph's topic: that publisher never closes (nobody stops it
+    first), so the node handles what it holds and stops; before, it waited for the stream to end or
+    fall silent and took the 2 s bound with a warning at every Ctrl-C."""
+    import signal
+    import subprocess
+    import sys
+
+    from conftest import wait_for_topic
+
+    graph = subprocess.Popen([sys.executable, "-m", "tether.cli", "launch", "launch/counter.yaml",
+                              "--param", "counter.rate_hz=200"], cwd=REPO, env=runtime_env,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_for_topic("scale/value", runtime_env)
+        res = launch_until(["nodes.std.demo:Printer", "--id", "alone", "--input", "value=scale/value"], runtime_env,
+                           lambda out, err: "tether.alone: value" in out + err, verb="run")
+        said = res.stdout + res.stderr
+        assert res.running_at_stop and res.returncode == 0, said[-2000:]
+        assert "saw" in said and "still arriving" not in said, said[-2000:]
+    finally:
+        graph.send_signal(signal.SIGINT)
+        graph.wait(timeout=60)
