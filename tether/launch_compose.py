@@ -25,7 +25,9 @@
 Scoping is lexical: a source names a node of its own file (or ``ns.node`` of a file that file
 includes); a name the file does not define is looked up in the file that includes it, and so
 on up. ``$(arg NAME)`` alone keeps the argument's type (``20`` stays a number); inside text it
-is formatted. Command-line args set the top file's args only; a file passes values down with
+is formatted. ``$(dirname)`` is the absolute folder of the file it is written in (of the included
+file, in an include), as in ROS launch files: ``scene: $(dirname)/../sim/scenes/x.yaml`` finds the
+scene wherever ``tether launch`` is run from (a plain relative path is relative to that folder). Command-line args set the top file's args only; a file passes values down with
 ``include: args:``. An output remap renames the output in the launch graph (what other nodes
 and ``tether graph`` call it); on the wire the topic stays ``<id>/<output>``, as the runtime has
 no topic map. Every error is one :class:`ConfigError` line naming the file and line.
@@ -53,6 +55,7 @@ MAX_INCLUDE_DEPTH = 8
 MAX_NODES = 2000
 MAX_INCLUDES = 500                                      # files read in all, counting repeats
 _REQUIRED = object()
+_DIRNAME = "$dirname"                                  # where $(dirname) waits among the args (not an arg name)
 
 
 def at(mapping: Any, key: Any = None, fallback: str = "") -> str:
@@ -111,7 +114,8 @@ def _compose(path: Path, given: dict[str, Any], given_at: Located | None, stack:
         if key not in TOP_KEYS:
             raise ConfigError(f"{at(doc, key, where)}: unknown key {key!r} ({_hint(str(key), TOP_KEYS)})")
     values = _arguments(where, doc, given, given_at)
-    body = _substitute(doc.derive({k: v for k, v in doc.items() if k != "args"}), values, where)
+    body = _substitute(doc.derive({k: v for k, v in doc.items() if k != "args"}),
+                       {**values, _DIRNAME: str(path.resolve().parent)}, where)
     raw_nodes = body.get("nodes")
     if raw_nodes is not None and not isinstance(raw_nodes, list) or raw_nodes == [] and not body.get("include"):
         raise ConfigError(f"{at(body, 'nodes', where)}: 'nodes' must be a non-empty list")
@@ -196,7 +200,8 @@ def _arguments(where: str, doc: Located, given: dict[str, Any], given_at: Locate
                 if later in declared and later not in values:
                     raise ConfigError(f"{at(raw, name, where)}: arg {name!r}: its default uses {later!r}, declared "
                                       "after it (a default uses the args above it)")
-            values[name] = _substitute(default, values, at(raw, name, where))
+            values[name] = _substitute(default, {**values, _DIRNAME: str(Path(where).resolve().parent)},
+                                       at(raw, name, where))
     return values
 
 
@@ -219,7 +224,7 @@ def _substitute(value: Any, args: dict[str, Any], line: str) -> Any:
     if not isinstance(value, str) or "$(" not in value:
         return value
     if "$(" in SUBST_RE.sub("", value):
-        raise ConfigError(f"{line}: an unclosed or nested '$(' in {value[:80]!r} (expected $(arg NAME))")
+        raise ConfigError(f"{line}: an unclosed or nested '$(' in {value[:80]!r} (expected $(arg NAME) or $(dirname))")
     whole = SUBST_RE.fullmatch(value.strip())
     if whole:
         return _arg(whole.group(1), args, line)
@@ -236,8 +241,10 @@ def _substitute(value: Any, args: dict[str, Any], line: str) -> Any:
 def _arg(content: str, args: dict[str, Any], line: str) -> Any:
     kind, _, name = content.strip().partition(" ")
     name = name.strip()
+    if kind == "dirname" and not name and _DIRNAME in args:
+        return args[_DIRNAME]
     if kind != "arg" or not name:
-        raise ConfigError(f"{line}: unknown substitution $({content}) (the one there is: $(arg NAME))")
+        raise ConfigError(f"{line}: unknown substitution $({content}) (the ones there are: $(arg NAME), $(dirname))")
     if name not in args:
         raise ConfigError(f"{line}: $(arg {name}): the file declares no arg {name!r} ({_hint(name, args)})")
     return args[name]

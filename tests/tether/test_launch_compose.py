@@ -89,6 +89,31 @@ def test_arg_errors_name_file_and_line(tmp_path, body, message):
     assert re.search(message, _error(path)), _error(path)
 
 
+def test_dirname_is_the_folder_of_the_file_it_is_written_in(tmp_path, monkeypatch):
+    """$(dirname): the includer's folder in its own nodes and in the args it passes down, the included
+    file's folder in the included file's nodes, in an arg default too; from any working directory."""
+    top = _files(tmp_path, top="""
+    name: top
+    args: {data: "$(dirname)/data"}
+    include:
+      - {file: sub/pipe.yaml, namespace: s, args: {where: "$(dirname)/from_top"}}
+    nodes:
+      - {id: a, node: nodes.std.demo:Counter, env: {SCENE: "$(dirname)/scenes/x.yaml", DATA: $(arg data)}}
+    """, sub__pipe="""
+    name: pipe
+    args: {where: none}
+    nodes:
+      - {id: b, node: nodes.std.demo:Counter, env: {HERE: "$(dirname)", GIVEN: $(arg where)}}
+    """)
+    monkeypatch.chdir(tmp_path / "sub")                         # not where the top file is
+    launch = load_launch(top)
+    here = tmp_path.resolve()
+    assert launch.node("a").env == {"SCENE": f"{here}/scenes/x.yaml", "DATA": f"{here}/data"}
+    assert launch.node("s.b").env == {"HERE": f"{here}/sub", "GIVEN": f"{here}/from_top"}
+    bad = _files(tmp_path, g="name: g\nnodes:\n  - {id: a, node: nodes.std.demo:Counter, env: {A: \"$(dirname x)\"}}\n")
+    assert "unknown substitution $(dirname x) (the ones there are: $(arg NAME), $(dirname))" in _error(bad)
+
+
 def test_a_default_may_use_the_args_declared_before_it(tmp_path):
     path = _files(tmp_path, g="""
     name: g
