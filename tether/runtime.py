@@ -23,7 +23,7 @@ import zmq
 
 from tether import shm
 from tether.codec import Codec
-from tether.errors import ConfigError, DecodeError
+from tether.errors import ConfigError, DecodeError, TetherError
 from tether.inputs import InputState, SeqStore, saturate
 from tether.link import LinkModel
 from tether.message import Message
@@ -754,8 +754,14 @@ class NodeRuntime(Context):
         failed = threading.Event()
         try:
             node.setup()
+        except (ValueError, OSError, TetherError) as exc:
+            # A parameter or a file the node cannot use (a missing checkpoint, a scene it does not
+            # know): its message says what to do, in one line; a traceback would bury it.
+            node.log.error("setup failed: %s: %s", type(exc).__name__, exc)
+            self.close()
+            return 1
         except Exception:
-            node.log.exception("setup failed")
+            node.log.exception("setup failed")            # a fault in the node's code: where it is
             self.close()
             return 1
         self._wait_for_subscribers()

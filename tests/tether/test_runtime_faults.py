@@ -411,3 +411,30 @@ def test_header_and_length_extremes_of_every_message_type_through_a_live_graph(r
     finally:
         out = graph.close()
     assert "Traceback" not in out
+
+
+class _BadSetup(Node):
+    """Its setup fails the way its Config says (``fault``): a file it cannot open, a value it refuses, a bug."""
+
+    class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+        fault: str = "missing_file"
+
+    def setup(self) -> None:
+        if self.config.fault == "missing_file":
+            open("/nonexistent/weights.ppo", "rb")
+        if self.config.fault == "bad_value":
+            raise ValueError("no crowd scene 'nowhere': bundled scenes are ['toward'], or pass a YAML path")
+        raise KeyError("a bug")
+
+
+@pytest.mark.parametrize("fault, one_line", [("missing_file", True), ("bad_value", True), ("bug", False)])
+def test_a_setup_failure_is_one_line_unless_it_is_a_bug(fault: str, one_line: bool, runtime_env: dict,
+                                                       caplog: pytest.LogCaptureFixture) -> None:
+    rt = NodeRuntime(RunSpec(graph="g", node_id="bad", node="test:_BadSetup", params={"fault": fault}), _BadSetup)
+    with caplog.at_level("ERROR"):
+        assert rt.serve() == 1
+    failed = [r for r in caplog.records if r.getMessage().startswith("setup failed")]
+    assert len(failed) == 1
+    assert (failed[0].exc_info is None) == one_line, failed[0].getMessage()
+    if one_line:
+        assert ("FileNotFoundError" if fault == "missing_file" else "ValueError: no crowd scene") in failed[0].getMessage()
