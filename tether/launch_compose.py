@@ -27,10 +27,11 @@ includes); a name the file does not define is looked up in the file that include
 on up. ``$(arg NAME)`` alone keeps the argument's type (``20`` stays a number); inside text it
 is formatted. ``$(dirname)`` is the absolute folder of the file it is written in (of the included
 file, in an include), as in ROS launch files: ``scene: $(dirname)/../sim/scenes/x.yaml`` finds the
-scene wherever ``tether launch`` is run from (a plain relative path is relative to that folder). Command-line args set the top file's args only; a file passes values down with
-``include: args:``. An output remap renames the output in the launch graph (what other nodes
-and ``tether graph`` call it); on the wire the topic stays ``<id>/<output>``, as the runtime has
-no topic map. Every error is one :class:`ConfigError` line naming the file and line.
+scene wherever ``tether launch`` is run from (a plain relative path is relative to that folder).
+Command-line args set the top file's args only; a file passes values down with ``include: args:``.
+An output remap renames the output in the launch graph (what other nodes and ``tether graph``
+call it); on the wire the topic stays ``<id>/<output>``, as the runtime has no topic map. Every
+error is one :class:`ConfigError` line naming the file and line.
 """
 from __future__ import annotations
 
@@ -113,9 +114,9 @@ def _compose(path: Path, given: dict[str, Any], given_at: Located | None, stack:
     for key in doc:
         if key not in TOP_KEYS:
             raise ConfigError(f"{at(doc, key, where)}: unknown key {key!r} ({_hint(str(key), TOP_KEYS)})")
-    values = _arguments(where, doc, given, given_at)
-    body = _substitute(doc.derive({k: v for k, v in doc.items() if k != "args"}),
-                       {**values, _DIRNAME: str(path.resolve().parent)}, where)
+    here = {_DIRNAME: str(path.resolve().parent)}         # $(dirname), beside the args
+    values = _arguments(where, doc, given, given_at, here)
+    body = _substitute(doc.derive({k: v for k, v in doc.items() if k != "args"}), {**values, **here}, where)
     raw_nodes = body.get("nodes")
     if raw_nodes is not None and not isinstance(raw_nodes, list) or raw_nodes == [] and not body.get("include"):
         raise ConfigError(f"{at(body, 'nodes', where)}: 'nodes' must be a non-empty list")
@@ -163,9 +164,11 @@ def _list(body: Located, key: str, where: str) -> list:
 
 
 # -- args ------------------------------------------------------------------------------------
-def _arguments(where: str, doc: Located, given: dict[str, Any], given_at: Located | None) -> dict[str, Any]:
-    """Declared args with their values: defaults, overridden by ``given`` (the command line's when
-    ``given_at`` is None, else an include's ``args``); errors for unknown or missing ones."""
+def _arguments(where: str, doc: Located, given: dict[str, Any], given_at: Located | None,
+               here: dict[str, str]) -> dict[str, Any]:
+    """Declared args with their values: defaults (which may use ``here``'s $(dirname)), overridden by
+    ``given`` (the command line's when ``given_at`` is None, else an include's ``args``); errors for
+    unknown or missing ones."""
     raw = doc.get("args")
     if raw is None:
         raw = Located()
@@ -200,8 +203,7 @@ def _arguments(where: str, doc: Located, given: dict[str, Any], given_at: Locate
                 if later in declared and later not in values:
                     raise ConfigError(f"{at(raw, name, where)}: arg {name!r}: its default uses {later!r}, declared "
                                       "after it (a default uses the args above it)")
-            values[name] = _substitute(default, {**values, _DIRNAME: str(Path(where).resolve().parent)},
-                                       at(raw, name, where))
+            values[name] = _substitute(default, {**values, **here}, at(raw, name, where))
     return values
 
 
