@@ -430,9 +430,9 @@ def _worst(values: list) -> float | None:
     return round(float(np.max(v)), 4) if v else None
 
 
-def _median(values: list) -> float | None:
+def _median(values: list, digits: int = 3) -> float | None:
     v = [x for x in values if x is not None]
-    return round(float(np.median(v)), 3) if v else None
+    return round(float(np.median(v)), digits) if v else None
 
 
 def tradeoff_plot(report: dict, filename: str = "social_nav_tradeoff.png") -> Path:
@@ -534,14 +534,9 @@ def guard_on_people(cases: dict, runs: dict, report: dict, guard: dict) -> dict:
                 walkers[scene.replay.dataset] = dataset_guard(scene.replay.dataset, params=guard)
             except FileNotFoundError:
                 continue
-    return {"guard_frac_human": _worst(fracs), "guard_frac_human_median": _median4(fracs),
+    return {"guard_frac_human": _worst(fracs), "guard_frac_human_median": _median(fracs, 4),
             "guard_frac_walkers": {n: w["guard_frac"] for n, w in walkers.items()},
             "guard_frac_walkers_without_companions": {n: w["without_companions"]["guard_frac"] for n, w in walkers.items()}}
-
-
-def _median4(values: list) -> float | None:
-    v = [x for x in values if x is not None]
-    return round(float(np.median(v)), 4) if v else None
 
 
 def goal_checks(report: dict) -> dict:
