@@ -745,7 +745,6 @@ def sonar_refiner(d: dict) -> list[Row]:
              f"refined gap <= half the raw one at <= 20 ms: {_met(d['goal_met'])}")]
 
 
-#: bench name -> (arguments for --run, formatter)
 def guard_on_walkers(d: dict) -> list[Row]:
     """The bench builds its own row (``guard_on_walkers.readme_row``); imported here only when it is formatted."""
     sys.path.insert(0, str(Path(__file__).parent))
@@ -754,6 +753,7 @@ def guard_on_walkers(d: dict) -> list[Row]:
     return [readme_row(d)]
 
 
+#: bench name -> (arguments for --run, formatter)
 FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "rl_env": ([], rl_env),
     "rl_car": ([], rl_car),
