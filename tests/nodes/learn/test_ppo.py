@@ -1,6 +1,7 @@
 """PPO: advantages, determinism, checkpoints, and learning on a task it must solve."""
 from __future__ import annotations
 
+import jax
 import numpy as np
 import pytest
 
@@ -131,6 +132,40 @@ def test_a_checkpoint_from_before_the_squash_option_loads_as_clipped(tmp_path):
     agent = PPO(env.single_observation_space, env.single_action_space, TINY, seed=0)
     env.close()
     doc = agent.state_dict()
-    del doc["config"]["squash"]
+    del doc["config"]["squash"], doc["config"]["target_kl"]
     (tmp_path / "old.ppo").write_bytes(serialization.msgpack_serialize(doc))
-    assert PPO.load(tmp_path / "old.ppo").config.squash == "clip"
+    old = PPO.load(tmp_path / "old.ppo")
+    assert old.config.squash == "clip" and old.config.target_kl == 0.0
+
+
+def _params_after(cfg: PPOConfig) -> tuple[list[float], np.ndarray]:
+    env = BusVecEnv("sim.car_env:ReachCar", 2)
+    agent = PPO(env.single_observation_space, env.single_action_space, cfg, seed=5)
+    hist = agent.learn(env, 192, seed=5)
+    env.close()
+    flat = np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(agent.params)])
+    return [h["epochs_run"] for h in hist], flat
+
+
+def test_target_kl_stops_the_epochs_of_an_update_once_the_policy_has_moved_that_far():
+    cfg = PPOConfig(n_steps=32, epochs=4, minibatches=2, hidden=(16,), lr=3e-3)
+    epochs_off, off = _params_after(cfg)
+    epochs_never, never = _params_after(PPOConfig(**{**cfg.__dict__, "target_kl": 1e9}))
+    epochs_first, first = _params_after(PPOConfig(**{**cfg.__dict__, "target_kl": 1e-12}))
+    assert epochs_off == [4, 4, 4] and epochs_never == [4, 4, 4]
+    assert np.array_equal(never, off)                  # a bound never reached changes nothing
+    assert epochs_first == [1, 1, 1]                   # any move at all stops after the first epoch
+    init = _params_after(PPOConfig(**{**cfg.__dict__, "lr": 0.0}))[1]
+    assert 0 < np.abs(first - init).sum() < np.abs(off - init).sum()
+
+
+def test_target_kl_survives_a_checkpoint(tmp_path):
+    env = BusVecEnv("sim.car_env:ReachCar", 2)
+    agent = PPO(env.single_observation_space, env.single_action_space,
+                PPOConfig(n_steps=32, epochs=2, minibatches=2, hidden=(16,), target_kl=0.02), seed=0)
+    env.close()
+    agent.save(tmp_path / "k.ppo")
+    assert PPO.load(tmp_path / "k.ppo").config.target_kl == 0.02
+    for bad in (-0.01, float("nan")):
+        with pytest.raises(ValueError, match="target_kl must be >= 0"):
+            PPO(agent.observation_space, agent.action_space, PPOConfig(target_kl=bad))
