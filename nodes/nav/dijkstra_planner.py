@@ -42,6 +42,11 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     person_cost: float = _DEFAULT.person_cost
     commitment: float = _DEFAULT.commitment
     replan_margin_m: float = _DEFAULT.replan_margin_m
+    side_hold_m: float = _DEFAULT.side_hold_m
+    side_near_m: float = _DEFAULT.side_near_m
+    side_ray_m: float = _DEFAULT.side_ray_m
+    turn_near_radps: float = _DEFAULT.turn_near_radps
+    turn_near_m: float = _DEFAULT.turn_near_m
     memory_s: float = _DEFAULT.memory_s
     predict_s: float = 2.0        # 0 = plan on the features alone (no flow input needed)
     fov_deg: float = _DEFAULT.fov_deg

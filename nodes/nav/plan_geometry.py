@@ -302,3 +302,49 @@ def speed_profile(path_xy: np.ndarray, people_xy: np.ndarray, people_v: np.ndarr
             + progress_price * (progress.max() - progress) / cell_m)
     best = len(speeds) - 1 - int(np.argmin(cost[::-1]))      # ties -> the faster
     return SpeedChoice(float(speeds[best]), speeds, conflict_s, cost)
+
+
+def side_barriers(path_rel: np.ndarray, people: np.ndarray, frame: GridFrame, *, near_m: float,
+                  length_m: float, min_side_m: float = 0.0) -> np.ndarray:
+    """The cells (rows x cols bool on ``frame``) a plan has to cross to pass people on the other side than the
+    robot-frame polyline ``path_rel`` ((n, 2) m, the path being followed) passes them.
+
+    Each group of people cells (``people``, 8-connected) ahead of the robot whose centre lies beside the path,
+    between ``min_side_m`` and ``near_m`` from it and level with a point inside it (not beyond its ends), gets a
+    ray from that centre straight away from the path, ``length_m`` long: the path passes on one side of the group,
+    and any path that passes on the other side crosses the ray (or a wall it ends on). The rays are 4-connected
+    cells, so an 8-connected grid path cannot slip through diagonally. Groups on the path itself (nearer than
+    ``min_side_m``) or level with its ends have no side and no ray.
+    """
+    from scipy.ndimage import label
+
+    out = np.zeros(frame.shape, bool)
+    path_rel = np.asarray(path_rel, float).reshape(-1, 2)
+    if len(path_rel) < 2 or not np.asarray(people).any():
+        return out
+    a, d = path_rel[:-1], np.diff(path_rel, axis=0)
+    keep = np.hypot(d[:, 0], d[:, 1]) > 1e-9
+    a, d = a[keep], d[keep]
+    if not len(a):
+        return out
+    groups, n = label(np.asarray(people, bool), structure=np.ones((3, 3), int))
+    for k in range(1, n + 1):
+        centre = frame.xy_of(np.argwhere(groups == k)).mean(axis=0)
+        if centre[0] <= 0:
+            continue                                        # behind the robot: passed already
+        u = np.clip(((centre - a) * d).sum(axis=1) / (d * d).sum(axis=1), 0.0, 1.0)
+        foot = a + u[:, None] * d
+        dist = np.hypot(*(centre - foot).T)
+        i = int(np.argmin(dist))
+        if (i == 0 and u[i] <= 0.0) or (i == len(a) - 1 and u[i] >= 1.0):
+            continue                                        # level with an end of the path: no side
+        if not min_side_m <= dist[i] <= near_m or dist[i] <= 1e-9:
+            continue
+        away = (centre - foot[i]) / dist[i]
+        cells = line_cells(tuple(frame.cell_of(centre)[0]), tuple(frame.cell_of(centre + length_m * away)[0]))
+        steps = np.diff(cells, axis=0)
+        corner = cells[:-1][(steps != 0).all(axis=1)] + steps[(steps != 0).all(axis=1)] * [1, 0]
+        cells = np.vstack([cells, corner])
+        cells = cells[frame.inside(cells)]
+        out[cells[:, 0], cells[:, 1]] = True
+    return out

@@ -28,7 +28,7 @@ from nodes.nav.dijkstra import GridGraph, backtrack, cost_from, smooth_path
 from nodes.nav.grid_frame import GridFrame, densify, extract_waypoint, inflate, plan_on_map, steer, to_robot, to_world
 from nodes.nav.plan_geometry import (SpeedChoice, footprint_cost, on_rim, passes_people, people_motion,
                                      person_floor_cost, polyline_cost, remaining_m, rest_of_path,
-                                     speed_profile, unseen_by_camera, waypoint_reach)
+                                     side_barriers, speed_profile, unseen_by_camera, waypoint_reach)
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,13 @@ class PlannerParams:
                                   # (Before the conflict feature, 4 carried the avoidance: issue 18.)
     commitment: float = 0.5       # cost of moving the sub-goal between re-plans, x typical cost per cell
     replan_margin_m: float = 0.5  # a blocked path is replaced only by a plan cheaper by this much typical floor; < 0: always
+    side_hold_m: float = 0.0      # > 0: a re-plan because the path became blocked prices passing a person beside the path
+                                  # on the other side than the path does as this much more typical floor (_hold_sides)
+    side_near_m: float = 1.5      # ... people whose centre is this near the path (beside it, level with a point of it)
+    side_ray_m: float = 3.0       # ... the barrier: a ray this long from each such person away from the path
+    turn_near_radps: float = 0.0  # > 0: turning toward a person nearer than turn_near_m (beside or ahead, on the side
+                                  # the robot turns to) is at most this fast (command); 0: steering's w_max_radps
+    turn_near_m: float = 1.5
     memory_s: float = 1.5         # unseen cells keep what was seen there this long
     fov_deg: float = 57.0         # the camera's horizontal field of view
     camera_x_m: float = 0.3       # camera ahead of the robot centre
@@ -220,6 +227,8 @@ class SocialPlanner:
         t0 = time.perf_counter()
         subgoal = self._subgoal
         grid = self._planning_cost(footprint, static)
+        if event == "path_blocked":
+            grid = self._hold_sides(pose, grid, frame, high_density)
         decision = self._local(pose, grid, frame, event, high_density)
         decision.plan_ms = (time.perf_counter() - t0) * 1e3
         if event == "path_blocked" and decision.mode == "local" and not self._worth_switching(pose, grid, frame, decision):
@@ -366,6 +375,29 @@ class SocialPlanner:
                                clear_m=self._clear_m)
         return Decision("local", event, extract_waypoint(path_xy, reach), path_xy, score=plan_score)
 
+    def _hold_sides(self, pose: tuple[float, float, float], grid: np.ndarray, frame: GridFrame,
+                    people: np.ndarray) -> np.ndarray:
+        """The planning grid with a price (``side_hold_m`` of typical floor per cell) on the cells a plan crosses to
+        pass a person beside the path being followed on its other side (:func:`side_barriers`); unchanged when
+        ``side_hold_m`` is 0 or there is no path.
+
+        For re-plans because the path became blocked only: a walker's cells cost little more than free floor,
+        and the fresh plan chose either side of the same walker grid after grid (hallway: the plan's offset
+        +1.1 m then -1.1 m within 0.5 s); each flip turned the robot at its full rate, and that turn's arc swept
+        into the people beside it. The other side stays open: a plan takes it when it is cheaper by more than
+        the price, or when this side is walled off.
+        """
+        if self.p.side_hold_m <= 0 or self._path is None or len(self._path) < 2:
+            return grid
+        barrier = side_barriers(to_robot(pose, self._path), people, frame, near_m=self.p.side_near_m,
+                                length_m=self.p.side_ray_m, min_side_m=0.5 * frame.resolution_m)
+        start = frame.clamp(frame.cell_of(np.zeros(2)))[0]
+        barrier[start[0], start[1]] = False
+        if not barrier.any():
+            return grid
+        typical = float(np.median(grid[np.isfinite(grid)]))
+        return np.where(barrier, grid + typical * self.p.side_hold_m / frame.resolution_m, grid)
+
     @staticmethod
     def _planning_cost(footprint: np.ndarray, static: np.ndarray) -> np.ndarray:
         """The grid the local plan searches: the robot's footprint cost (:func:`footprint_cost` of the cell
@@ -435,12 +467,28 @@ class SocialPlanner:
         v, w = steer(pose, target, v_max_mps=self.p.v_max_mps, w_max_radps=self.p.w_max_radps,
                      stop_at_m=0.0 if final else None)
         self.speed_steer_mps = v
+        if t_s is not None:
+            w = self._turn_bound(pose, t_s, w)
         if t_s is not None and v > 0:
             choice = self._speed(pose, target, t_s, v if v_now_mps is None else v_now_mps)
             if choice is not None:
                 self.speed = choice
                 v = min(v, choice.v_mps)
         return v, w
+
+    def _turn_bound(self, pose: tuple[float, float, float], t_s: float, w_radps: float) -> float:
+        """``w_radps`` at most ``turn_near_radps`` in size when it turns the robot toward a person (predicted now from
+        :meth:`set_people`, no older than ``people_timeout_s``) within ``turn_near_m`` beside or ahead of it, on the
+        side it turns to; unchanged otherwise (off, no fresh people, nobody there)."""
+        if self.p.turn_near_radps <= 0 or abs(w_radps) <= self.p.turn_near_radps or self._people is None:
+            return w_radps
+        t0, xy, vel, _ = self._people
+        if not 0 <= t_s - t0 <= self.p.people_timeout_s or not len(xy):
+            return w_radps
+        rel = to_robot(pose, xy + vel * (t_s - t0))
+        near = ((np.hypot(rel[:, 0], rel[:, 1]) <= self.p.turn_near_m) & (rel[:, 0] > -self.p.robot_radius_m)
+                & (rel[:, 1] * w_radps > 0))
+        return float(np.clip(w_radps, -self.p.turn_near_radps, self.p.turn_near_radps)) if near.any() else w_radps
 
     def _ahead(self, pose: tuple[float, float, float], target: np.ndarray, *, length_m: float = 4.0,
                dt_s: float = 0.1) -> np.ndarray:
