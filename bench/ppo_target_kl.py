@@ -26,42 +26,23 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
 
-from nodes.learn.ppo import PPO, PPOConfig  # noqa: E402
-
-HELD_OUT = 10_000
-CLEANRL = PPOConfig(n_steps=128, epochs=4, minibatches=4, lr=2.5e-4, ent_coef=0.01, clip_value=True, norm_reward=False)
+from nodes.learn.ppo import PPOConfig  # noqa: E402
+from rl_car import CARTPOLE_PPO, cartpole  # noqa: E402
 
 
 def run(steps: int, seed: int, lr: float, target_kl: float) -> dict:
-    import gymnasium
-    from gymnasium.vector import AutoresetMode
-
-    env = gymnasium.make_vec("CartPole-v1", num_envs=8, vectorization_mode="sync",
-                             vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP})
-    cfg = PPOConfig(**{**CLEANRL.__dict__, "lr": lr, "target_kl": target_kl})
-    agent = PPO(env.single_observation_space, env.single_action_space, cfg, seed=seed)
-    t0 = time.perf_counter()
-    hist = agent.learn(env, steps, seed=seed)
-    minutes = (time.perf_counter() - t0) / 60
-    env.close()
-    ev = gymnasium.make("CartPole-v1")
-    rets = []
-    for ep in range(100):
-        o, _ = ev.reset(seed=HELD_OUT + ep)
-        total, done = 0.0, False
-        while not done:
-            o, r, te, tr, _ = ev.step(int(agent.act(o[None])[0]))
-            total, done = total + r, te or tr
-        rets.append(total)
-    return {"lr": lr, "target_kl": target_kl, "seed": seed, "return": float(np.mean(rets)), "minutes": minutes,
+    cfg = PPOConfig(**{**CARTPOLE_PPO.__dict__, "lr": lr, "target_kl": target_kl})
+    c = cartpole(steps, seed, cfg)
+    hist = c["history"]
+    return {"lr": lr, "target_kl": target_kl, "seed": seed, "return": c["return_mean"], "minutes": c["minutes"],
             "epochs_median": float(np.median([h["epochs_run"] for h in hist])),
             "stopped_frac": float(np.mean([h["epochs_run"] < cfg.epochs for h in hist])),
             "kl_median": float(np.median([h["approx_kl"] for h in hist]))}
@@ -78,7 +59,7 @@ def main() -> None:
     for mult in (1, 4, 16):
         for kl in (0.0, 0.03, 0.015, 0.0075):
             for seed in range(args.seeds):
-                r = run(int(args.steps), seed, CLEANRL.lr * mult, kl)
+                r = run(int(args.steps), seed, CARTPOLE_PPO.lr * mult, kl)
                 runs.append(r)
                 print(f"lr {r['lr']:.1e} target_kl {kl or 'off':>6}  seed {seed}: return {r['return']:6.1f}  "
                       f"{r['minutes'] * 60:5.1f} s  epochs {r['epochs_median']:.0f}  stopped {r['stopped_frac']:.0%} of updates  "
@@ -86,7 +67,7 @@ def main() -> None:
                       file=sys.stderr, flush=True)
     table = {}
     for mult in (1, 4, 16):
-        lr = CLEANRL.lr * mult
+        lr = CARTPOLE_PPO.lr * mult
         for kl in (0.0, 0.03, 0.015, 0.0075):
             rs = [r for r in runs if r["lr"] == lr and r["target_kl"] == kl]
             table[f"lr{mult}x_kl{kl}"] = {"median_return": float(np.median([r["return"] for r in rs])),
