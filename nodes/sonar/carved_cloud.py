@@ -6,7 +6,11 @@ each return's elevation is chosen where the arcs of many poses cross and no ping
 1-sigma is at most ``max_sigma_m``, that sigma in ``sigma_m`` (metres, along the elevation arc) and the
 number of arcs that chose each point in ``intensity``. Published every ``publish_every`` pings. With
 ``keep="evidence"`` the points are those the carving evidence filter (:mod:`nodes.sonar.carving_filter`) finds
-likely on a surface, at any sigma: a point the views did not pin keeps its large sigma.
+likely on a surface, at any sigma: a point the views did not pin keeps its large sigma. With ``generative``
+the cloud also holds the voxels the generative elevations of the pings voted for (:mod:`nodes.sonar.generative`,
+per beam from the intensity profile; :mod:`nodes.sonar.generative_votes`, free space deciding between the
+leading-edge hypotheses), ``generative_min_votes`` or more, with their own sigma (off by default: see
+``bench/sonar_cloud.py`` for where it helps and where it does not).
 
 Poses as in ``highlight_cloud``: each ping is placed with the pose at its own stamp, interpolated
 between the two poses around it (:class:`nodes.sonar.pose_buffer.PoseBuffer`); a ping newer than the
@@ -28,6 +32,7 @@ from msgs.sensor import PointCloud
 from msgs.sonar import SonarPing
 from nodes.sonar.carving import CarvingGrid, CarvingParams
 from nodes.sonar.gain import compensate_row_gains
+from nodes.sonar.generative_votes import GenerativeVotes, fuse
 from nodes.sonar.pose_buffer import PoseBuffer
 from tether import Input, Node
 
@@ -48,6 +53,8 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     max_sigma_m: float = 0.3                 # publish points whose elevation 1-sigma is at most this ("sigma")
     keep: Literal["sigma", "evidence"] = "sigma"   # "evidence": the carving evidence filter decides, any sigma
     min_surface_p: float | None = None       # "evidence": its probability threshold (None: the model's own)
+    generative: bool = False                 # add the generative elevations' voxels (nodes.sonar.generative_votes)
+    generative_min_votes: int = 10           # ... those with this many votes
     body_frame: Literal["frd", "flu"] = "frd"
     publish_every: int = 10
     max_pose_gap_s: float = 0.5
@@ -61,10 +68,10 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
         if not (np.all(np.isfinite(self.bounds_m)) and np.all(hi > lo)):
             raise ValueError("bounds_m is (x0, y0, z0, x1, y1, z1) with x1 > x0, y1 > y0, z1 > z0")
         if not (self.voxel_m > 0 and 0 < self.spread_rad < math.pi and self.publish_every >= 1
-                and self.max_sigma_m > 0 and self.gap_weight >= 0
+                and self.max_sigma_m > 0 and self.gap_weight >= 0 and self.generative_min_votes >= 1
                 and (self.min_surface_p is None or 0 <= self.min_surface_p <= 1)):
             raise ValueError("need voxel_m > 0, 0 < spread_rad < pi, publish_every >= 1, max_sigma_m > 0, "
-                             "gap_weight >= 0 and min_surface_p in [0, 1] or null")
+                             "gap_weight >= 0, generative_min_votes >= 1 and min_surface_p in [0, 1] or null")
         if not (self.max_pose_gap_s > 0 and self.max_wait_s >= 0 and self.max_pending >= 1
                 and self.pose_buffer_s >= self.max_pose_gap_s and self.settle_pings >= 0):
             raise ValueError("need max_pose_gap_s > 0, max_wait_s >= 0, max_pending >= 1, "
@@ -85,6 +92,8 @@ class CarvedCloud(Node):
                                occlusion=cfg.occlusion, shadow_darks=cfg.shadow_darks, gap_weight=cfg.gap_weight,
                                keep=cfg.keep, min_surface_p=cfg.min_surface_p)
         self.grid = CarvingGrid((cfg.bounds_m[:3], cfg.bounds_m[3:]), params, seafloor_z_m=cfg.seafloor_z_m)
+        self.generative = (GenerativeVotes(self.grid, min_votes=cfg.generative_min_votes)
+                           if cfg.generative else None)
         self._poses = PoseBuffer(span_ns=int(cfg.pose_buffer_s * 1e9))
         self._pending: deque[tuple[int, SonarPing]] = deque()
         self.dropped: dict[str, int] = {}
@@ -143,6 +152,8 @@ class CarvedCloud(Node):
             transform[:3, :3] = transform[:3, :3] @ _FLIP
         try:
             update = self.grid.integrate(img, bearings, resolution, transform, spread)
+            if self.generative is not None:
+                self.generative.integrate(img, bearings, resolution, transform, spread, gamma=ping.gamma or None)
         except ValueError as exc:
             self._drop(f"ping {ping.ping_id}: {exc}".split(",")[0])
             return []
@@ -157,8 +168,11 @@ class CarvedCloud(Node):
         """The voxels voted for with elevation sigma <= ``max_sigma_m`` (or those the evidence filter keeps, at
         any sigma): that sigma (m), and the votes."""
         c = self.grid.cloud(flush=flush, max_sigma_m=self._max_sigma())
-        return PointCloud(stamp_ns=stamp_ns, frame_id=self.config.world_frame, points_m=c.points_m.astype(np.float32),
-                          intensity=c.votes.astype(np.float32), sigma_m=c.sigma_m.astype(np.float32))
+        points, sigma, votes = c.points_m, c.sigma_m, c.votes
+        if self.generative is not None:
+            points, sigma, votes = fuse(points, sigma, votes, self.generative.cloud(flush=flush), self.config.voxel_m)
+        return PointCloud(stamp_ns=stamp_ns, frame_id=self.config.world_frame, points_m=points.astype(np.float32),
+                          intensity=votes.astype(np.float32), sigma_m=sigma.astype(np.float32))
 
     def teardown(self) -> None:
         ms = np.asarray(self._work_ms) if self._work_ms else np.zeros(1)

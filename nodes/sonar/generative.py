@@ -1,0 +1,215 @@
+"""Generative elevation per beam: one sonar ping -> surface points with elevation 1-sigma (pure numpy).
+
+After Westman & Kaess (2019, wide-aperture sonar reconstruction with generative models): in one beam
+(an azimuth column) a surface is a curve in the range-elevation plane that starts at its *leading edge*
+(the first return) on an aperture edge and runs on, one elevation per range bin. The image formation
+model ties each bin's echo to the curve's slope there: an echo spread uniformly over the range
+interval neighbouring elevations span (the simulator's ``sim.fls_render``) has level
+
+    L(r) = echo_scale * cos(incidence) * beam(phi) * absorption(r) * |d phi / d r|,
+
+and with the surface normal in the beam's plane ``cos(incidence) = |s| / sqrt(1 + s^2)`` for
+``s = r d phi / d r``, so ``L r / (echo_scale beam absorption) = s^2 / sqrt(1 + s^2)``: one positive
+root ``|s|`` per bin (a steep face fills few bins brightly, a grazing one many dimly). Integrating
+``d phi = |s| dr / r`` from the leading edge gives every later bin's elevation: ``phi = -spread / 2 +
+integral`` when the surface leads at the aperture's top edge (a face rising past the fan: a pile, a
+wall; range grows with depression), ``spread / 2 - integral`` at its bottom edge (the seafloor, a
+surface below the fan). Both hypotheses come out; which one holds is for other evidence to say
+(free space from other views, :mod:`nodes.sonar.carving`; or the scene: ``leading``).
+
+A run is a range interval of a beam whose smoothed level stays above ``min_level`` (before the
+seafloor's near edge when the seafloor is given: beyond it the floor's own echo would be read as
+slope). Every ``bin_m`` of a run gives one point per hypothesis. Its elevation 1-sigma (rad) adds
+the speckle noise carried through the integration (a fully developed speckle sample has relative
+standard deviation 1; a smoothing window of ``n`` independent samples, ``1 / sqrt(n)``; the root's
+relative error is half the level's on a grazing surface, all of it on a steep one; independent from
+window to window, so the variance grows with range from the leading edge) to a model error of
+``model_error`` times the elevation swept (reflectivity and out-of-plane normals the model does not
+know). A run whose integral leaves the aperture is clipped at the far edge and flagged ``saturated``.
+Frames: sonar FRD (x boresight, y starboard, z down; elevation positive down).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class GenerativeParams:
+    """Tuning of :func:`surface_elevations` (levels in full scale = 1, before gain; lengths in m)."""
+
+    echo_scale: float = 54.0          # level per unit cos(incidence) x beam x absorption x |dphi/dr| (rad/m)
+    absorption_db_per_m: float = 0.05 # one way (the simulator's low frequency)
+    gamma: float = 0.5                # the ping's intensity = level ** gamma (full scale = 1)
+    noise_level: float = 0.01         # mean noise floor subtracted from the level
+    min_level: float = 0.03           # a run's bins: smoothed level above this
+    smooth_beams: int = 5             # box over neighbouring beams (odd)
+    bin_m: float = 0.1                # the profile's range bin: one point per bin of a run and hypothesis
+    min_run_m: float = 0.1            # shorter runs are dropped
+    model_error: float = 0.2          # elevation 1-sigma per radian swept from the leading edge
+    leading: str = "both"             # "top", "bottom" or "both" (both hypotheses, top first)
+
+    def __post_init__(self) -> None:
+        if not (self.echo_scale > 0 and self.absorption_db_per_m >= 0 and 0 < self.gamma <= 1):
+            raise ValueError("need echo_scale > 0, absorption_db_per_m >= 0 and 0 < gamma <= 1")
+        if not (self.min_level > 0 and self.noise_level >= 0 and self.model_error >= 0):
+            raise ValueError("need min_level > 0, noise_level >= 0 and model_error >= 0")
+        if not (self.smooth_beams >= 1 and self.smooth_beams % 2 == 1 and self.bin_m > 0 and self.min_run_m >= 0):
+            raise ValueError("need an odd smooth_beams >= 1, bin_m > 0 and min_run_m >= 0")
+        if self.leading not in ("top", "bottom", "both"):
+            raise ValueError(f"leading must be 'top', 'bottom' or 'both', got {self.leading!r}")
+
+
+@dataclass(frozen=True)
+class SurfaceSamples:
+    """Points of one ping's runs, one per hypothesis: ``range_m``, ``bearing_rad``, ``elevation_rad`` (positive
+    down), ``sigma_rad`` (elevation 1-sigma), ``swept_rad`` (elevation from the leading edge), ``beam`` and
+    ``run`` (int), ``top`` (bool: the top-edge hypothesis), ``saturated`` (bool: the integral left the aperture);
+    all (K,). ``points_frd()`` gives (K, 3) sonar-frame points and ``sigma_m()`` the 1-sigma along the arc."""
+
+    range_m: np.ndarray
+    bearing_rad: np.ndarray
+    elevation_rad: np.ndarray
+    sigma_rad: np.ndarray
+    swept_rad: np.ndarray
+    beam: np.ndarray
+    run: np.ndarray
+    top: np.ndarray
+    saturated: np.ndarray
+
+    def points_frd(self) -> np.ndarray:
+        r, b, e = self.range_m, self.bearing_rad, self.elevation_rad
+        return np.stack([r * np.cos(e) * np.cos(b), r * np.cos(e) * np.sin(b), r * np.sin(e)], axis=1)
+
+    def sigma_m(self) -> np.ndarray:
+        return self.range_m * self.sigma_rad
+
+
+def level_of(intensities: np.ndarray, *, gamma: float = 0.5, gain: float = 1.0) -> np.ndarray:
+    """Echo level (full scale = 1, float32) of 8- or 16-bit intensities: ``(I / full) ** (1 / gamma) / gain``."""
+    img = np.asarray(intensities)
+    if img.dtype not in (np.uint8, np.uint16):
+        raise TypeError(f"intensities must be uint8 or uint16, got {img.dtype}")
+    full = np.float32(np.iinfo(img.dtype).max)
+    x = img.astype(np.float32) / full
+    return (x * x if gamma == 0.5 else x ** np.float32(1.0 / gamma)) / np.float32(gain)
+
+
+def slope_of(y: np.ndarray) -> np.ndarray:
+    """The root ``|s| >= 0`` of ``s^2 / sqrt(1 + s^2) = y`` (``y >= 0``)."""
+    y = np.maximum(y, 0.0)
+    return np.sqrt(0.5 * (y * y + y * np.sqrt(y * y + 4.0)))    # s^2 = (y^2 + sqrt(y^4 + 4 y^2)) / 2, no y^4
+
+
+def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_resolution_m: float,
+                       spread_rad: float, *, params: GenerativeParams = GenerativeParams(),
+                       limit_rows: np.ndarray | None = None, gain: float = 1.0) -> SurfaceSamples:
+    """Every run's surface points of one ping, per leading-edge hypothesis (see the module docstring).
+
+    Parameters
+    ----------
+    intensities : (M, N) uint8/uint16, ranges x beams, row i at (i + 0.5) * range_resolution_m.
+    bearings_rad : (N,) bearings (rad), positive to starboard.
+    range_resolution_m : m per row, > 0. spread_rad : vertical aperture (rad), in (0, pi).
+    limit_rows : (N,) rows (fractional) each beam's runs must end before (the seafloor's near edge); None: all.
+    gain : linear gain the ping was amplified by (1 at 50 %).
+    """
+    img = np.asarray(intensities)
+    bearings = np.asarray(bearings_rad, float)
+    if img.ndim != 2 or img.shape[1] != bearings.size or img.shape[0] < 2:
+        raise ValueError(f"intensities must be (ranges, beams) with one bearing per beam, got {img.shape} and "
+                         f"{bearings.size} bearings")
+    if not (range_resolution_m > 0 and 0 < spread_rad < np.pi and gain > 0):
+        raise ValueError("need range_resolution_m > 0, 0 < spread_rad < pi and gain > 0")
+    p = params
+    k = max(1, int(round(p.bin_m / range_resolution_m)))  # rows per profile bin
+    dr = k * float(range_resolution_m)                     # the profile's bin (m)
+    m = img.shape[0] // k
+    limit = None if limit_rows is None else np.asarray(limit_rows, float) / k
+    if limit is not None:                                  # nothing past the last beam's limit: crop the work
+        m = int(min(m, max(np.ceil(limit.max(initial=0.0)), 0)))
+    if m == 0:
+        return _empty()
+    level, unclipped = censored_level(img[:m * k], k, p, gain)    # beams x bins
+    # a run's bins: bright over three bins (one dim bin inside a surface must not restart its integral)
+    bright = cv2.blur(level, (3, 1), borderType=cv2.BORDER_REPLICATE) > p.min_level
+    if limit is not None:
+        bright &= np.arange(m)[None, :] + 1 <= limit[:, None]
+    cols, rows = np.nonzero(bright)                        # beam by beam, bins in range order
+    if rows.size == 0:
+        return _empty()
+    level, unclipped = level[cols, rows], unclipped[cols, rows]
+    new = np.r_[True, (np.diff(cols) != 0) | (np.diff(rows) != 1)]
+    run = np.cumsum(new) - 1
+    first = np.flatnonzero(new)
+    r = (rows + 0.5) * dr
+    y0 = level * r / (p.echo_scale * 10.0 ** (-2 * p.absorption_db_per_m * r / 10))
+    half = 0.5 * spread_rad
+    # the n samples behind a level estimate: its relative sd 1 / sqrt(n) (censored: the unclipped ones count); the
+    # slope's share of it 1/2 (grazing) .. 1 (steep), taken as 3/4; independent bin to bin: variances add along a run
+    rel = 0.75 / np.sqrt(np.maximum(unclipped, 1.0))
+    out = []
+    for top in ((True, False) if p.leading == "both" else ((p.leading == "top"),)):
+        swept = np.zeros(rows.size)
+        for _ in range(2):                                 # the beam pattern at the edge, then where pass 1 put it
+            inside = np.clip(swept, 0.0, 2 * half)          # the pattern where the aperture ends, past it
+            phi = (-half + inside) if top else (half - inside)
+            d_phi = slope_of(y0 / 2.0 ** (-(2 * phi / spread_rad) ** 2)) * dr / r
+            swept = _in_runs(d_phi, run, first) - 0.5 * d_phi
+        var = _in_runs((rel * d_phi) ** 2, run, first)
+        out.append(_sample(rows, cols, run, first, swept, var, top, half, bearings, dr, p))
+    return SurfaceSamples(*(np.concatenate([getattr(s, f) for s in out]) for f in SurfaceSamples.__dataclass_fields__))
+
+
+def censored_level(img: np.ndarray, k: int, p: GenerativeParams, gain: float) -> tuple[np.ndarray, np.ndarray]:
+    """Echo level of bins of ``k`` rows smoothed over ``smooth_beams`` beams, and the number of unclipped samples
+    behind it: both (N, M // k) float32, beams x bins, of the (M, N) ping ``img``.
+
+    Speckle is exponential and the sonar clips at full scale: over a window the maximum-likelihood mean of
+    right-censored exponential samples is the sum of all (clipped ones at full scale) over the count of unclipped
+    ones -- a steep face whose level is many times full scale still reads as it is, if noisily. (Row gains
+    compensated before this move the clipping point below full scale; it is read at full scale.)
+    """
+    full = np.iinfo(img.dtype).max
+    if img.dtype == np.uint8:                              # a 256-entry table beats the float arithmetic
+        lut = np.maximum(level_of(np.arange(256, dtype=np.uint8), gamma=p.gamma) - np.float32(p.noise_level), 0)
+        level = lut[img]
+    else:
+        level = np.maximum(level_of(img, gamma=p.gamma) - np.float32(p.noise_level), 0.0)
+    m, n = img.shape[0] // k, img.shape[1]
+    total = np.ascontiguousarray(level.reshape(m, k, n).sum(axis=1, dtype=np.float32).T)
+    kept = np.ascontiguousarray((img < full).reshape(m, k, n).sum(axis=1, dtype=np.float32).T)
+    size = (1, p.smooth_beams)                             # cv2 (width along bins, height across beams)
+    total = cv2.blur(total, size, borderType=cv2.BORDER_REPLICATE)
+    kept = cv2.blur(kept, size, borderType=cv2.BORDER_REPLICATE)
+    count = np.float32(p.smooth_beams)
+    est = total / np.maximum(kept, np.float32(0.5)) / np.float32(gain)
+    return est, kept * count
+
+
+def _in_runs(x: np.ndarray, run: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Cumulative sum of ``x`` along each run (``first``: each run's first index in the beam-major list)."""
+    c = np.cumsum(x)
+    return c - (c[first] - x[first])[run]
+
+
+def _sample(rows, cols, run, first, swept, var, top: bool, half: float, bearings: np.ndarray, dr: float,
+            p: GenerativeParams) -> SurfaceSamples:
+    """One point per bin of each run at least ``min_run_m`` long, with its sigma."""
+    length = np.diff(np.r_[first, rows.size])
+    keep = length[run] * dr >= p.min_run_m
+    rows, cols, run, s, var = rows[keep], cols[keep], run[keep], swept[keep], var[keep]
+    r = (rows + 0.5) * dr
+    sigma = np.sqrt(var + (p.model_error * s) ** 2 + (dr / r) ** 2)
+    saturated = s > 2 * half
+    s = np.minimum(s, 2 * half)
+    return SurfaceSamples(range_m=r, bearing_rad=bearings[cols], elevation_rad=(-half + s) if top else (half - s),
+                          sigma_rad=sigma, swept_rad=s, beam=cols.astype(np.int64), run=run.astype(np.int64),
+                          top=np.full(rows.size, top), saturated=saturated)
+
+
+def _empty() -> SurfaceSamples:
+    f, i = np.zeros(0), np.zeros(0, np.int64)
+    return SurfaceSamples(f, f, f, f, f, i, i, np.zeros(0, bool), np.zeros(0, bool))
