@@ -630,6 +630,23 @@ def rl_env(d: dict) -> list[Row]:
              f"at N = 1, {_met(v['ipc_n64_shards1'] >= 5000)} vectorised")]
 
 
+def ppo_target_kl(d: dict) -> list[Row]:
+    t = d["by_setting"]
+
+    def cell(mult: int) -> str:
+        off = t[f"lr{mult}x_kl0.0"]
+        on = ", ".join(f"{kl} {t[f'lr{mult}x_kl{kl}']['median_return']:.0f} "
+                       f"(stops {t[f'lr{mult}x_kl{kl}']['stopped_frac']:.0%})" for kl in (0.03, 0.015, 0.0075))
+        return f"lr {mult}x: {on}"
+
+    ref = "; ".join(f"lr {m}x off {t[f'lr{m}x_kl0.0']['median_return']:.0f} (min {t[f'lr{m}x_kl0.0']['min_return']:.0f})"
+                    for m in (1, 4, 16))
+    return [(f"`ppo_target_kl.py` PPO's approximate-KL stop, CartPole-v1, {d['steps'] // 1000}k steps, "
+             f"{d['seeds']} seeds: median held-out return",
+             "; ".join(cell(m) for m in (1, 4, 16)), f"the bound off, same run: {ref}",
+             "no goal; no bound better at every learning rate: off by default")]
+
+
 def rl_car(d: dict) -> list[Row]:
     cp, rb, mb = d["cartpole"], d["reach"]["baseline"], d["maze"]["baseline"]
     curve = d["reach"]["curve"]
@@ -757,6 +774,7 @@ def guard_on_walkers(d: dict) -> list[Row]:
 FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "rl_env": ([], rl_env),
     "rl_car": ([], rl_car),
+    "ppo_target_kl": ([], ppo_target_kl),
     "pretrain": ([], pretrain),
     "hand_gesture": ([], hand_gesture),
     "selfplay": ([], selfplay),
