@@ -54,7 +54,7 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     keep: Literal["sigma", "evidence"] = "sigma"   # "evidence": the carving evidence filter decides, any sigma
     min_surface_p: float | None = None       # "evidence": its probability threshold (None: the model's own)
     generative: bool = False                 # add the generative elevations' voxels (nodes.sonar.generative_votes)
-    generative_min_votes: int = 10           # ... those with this many votes
+    generative_min_votes: int = 8            # ... those with this many votes
     body_frame: Literal["frd", "flu"] = "frd"
     publish_every: int = 10
     max_pose_gap_s: float = 0.5

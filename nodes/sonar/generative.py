@@ -17,15 +17,25 @@ wall; range grows with depression), ``spread / 2 - integral`` at its bottom edge
 surface below the fan). Both hypotheses come out; which one holds is for other evidence to say
 (free space from other views, :mod:`nodes.sonar.carving`; or the scene: ``leading``).
 
-A run is a range interval of a beam whose smoothed level stays above ``min_level`` (before the
-seafloor's near edge when the seafloor is given: beyond it the floor's own echo would be read as
-slope). Every ``bin_m`` of a run gives one point per hypothesis. Its elevation 1-sigma (rad) adds
-the speckle noise carried through the integration (a fully developed speckle sample has relative
-standard deviation 1; a smoothing window of ``n`` independent samples, ``1 / sqrt(n)``; the root's
-relative error is half the level's on a grazing surface, all of it on a steep one; independent from
-window to window, so the variance grows with range from the leading edge) to a model error of
-``model_error`` times the elevation swept (reflectivity and out-of-plane normals the model does not
-know). A run whose integral leaves the aperture is clipped at the far edge and flagged ``saturated``.
+The ping is read in bins of ``bin_m`` along range, averaged over ``smooth_beams`` beams. Speckle is
+exponential and the 8-bit image clips a steep face (its level is many times full scale at the demo's
+gain): a bin's level is the maximum-likelihood mean of right-censored exponential samples (the sum
+over the count of unclipped ones), noisy where few are unclipped. A run is a range interval of a beam
+whose level stays above ``min_level``; with a flat seafloor given, runs end before its near edge
+(beyond it the floor's own echo would be read as slope), and the floor is a witness: where its echo
+starts at the near edge the bottom-edge ray reached it unblocked, so no run of that beam leads there;
+where it is shadowed, the ray was blocked, and a beam's single run read from the top edge must sweep
+``reach_frac`` of the aperture to be what blocked it (else only the bottom edge holds).
+
+Every bin of a run gives one point per hypothesis. Its elevation 1-sigma (rad) adds the speckle noise
+carried through the integration (relative sd ``1 / sqrt(n)`` for ``n`` unclipped samples; the root's
+share of it 1/2 on a grazing surface, 1 on a steep one, taken as 3/4; independent bin to bin, so the
+variance grows with range from the leading edge) to a model error of ``model_error`` times the
+elevation swept (reflectivity, out-of-plane normals and clipping the model does not know) and the
+bin's own extent. A run whose integral leaves the aperture is clipped at the far edge and flagged
+``saturated``. Where the model does not hold -- a convex body (a cylinder, a box's top front edge)
+leads at an elevation *inside* the aperture, and two branches of its surface share each range bin --
+neither hypothesis is right: measured in ``bench/sonar_cloud.py``.
 Frames: sonar FRD (x boresight, y starboard, z down; elevation positive down).
 """
 from __future__ import annotations
@@ -48,6 +58,10 @@ class GenerativeParams:
     smooth_beams: int = 5             # box over neighbouring beams (odd)
     bin_m: float = 0.1                # the profile's range bin: one point per bin of a run and hypothesis
     min_run_m: float = 0.1            # shorter runs are dropped
+    floor_guard_m: float = 0.08       # runs end this far before the seafloor's near edge
+    floor_check_m: float = 0.3        # the floor's echo starting within this of its near edge: bottom ray unblocked
+    floor_witness: bool = True        # ... then no bottom-edge hypothesis there; shadowed: see surface_elevations
+    reach_frac: float = 0.5           # a top-leading run blocks the bottom ray if it sweeps this much of the aperture
     model_error: float = 0.2          # elevation 1-sigma per radian swept from the leading edge
     leading: str = "both"             # "top", "bottom" or "both" (both hypotheses, top first)
 
@@ -58,6 +72,8 @@ class GenerativeParams:
             raise ValueError("need min_level > 0, noise_level >= 0 and model_error >= 0")
         if not (self.smooth_beams >= 1 and self.smooth_beams % 2 == 1 and self.bin_m > 0 and self.min_run_m >= 0):
             raise ValueError("need an odd smooth_beams >= 1, bin_m > 0 and min_run_m >= 0")
+        if not (self.floor_guard_m >= 0 and self.floor_check_m > 0 and 0 < self.reach_frac <= 1):
+            raise ValueError("need floor_guard_m >= 0, floor_check_m > 0 and 0 < reach_frac <= 1")
         if self.leading not in ("top", "bottom", "both"):
             raise ValueError(f"leading must be 'top', 'bottom' or 'both', got {self.leading!r}")
 
@@ -105,7 +121,7 @@ def slope_of(y: np.ndarray) -> np.ndarray:
 
 def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_resolution_m: float,
                        spread_rad: float, *, params: GenerativeParams = GenerativeParams(),
-                       limit_rows: np.ndarray | None = None, gain: float = 1.0) -> SurfaceSamples:
+                       floor_rows: np.ndarray | None = None, gain: float = 1.0) -> SurfaceSamples:
     """Every run's surface points of one ping, per leading-edge hypothesis (see the module docstring).
 
     Parameters
@@ -113,7 +129,10 @@ def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_
     intensities : (M, N) uint8/uint16, ranges x beams, row i at (i + 0.5) * range_resolution_m.
     bearings_rad : (N,) bearings (rad), positive to starboard.
     range_resolution_m : m per row, > 0. spread_rad : vertical aperture (rad), in (0, pi).
-    limit_rows : (N,) rows (fractional) each beam's runs must end before (the seafloor's near edge); None: all.
+    floor_rows : (N,) fractional row of each beam's seafloor near edge (where its bottom-edge ray meets a flat
+        floor, :func:`nodes.sonar.carving_arcs.seafloor_rows`); runs end ``floor_guard_m`` before it, and where the
+        floor's echo starts there (within ``floor_check_m``) the bottom-edge ray reached the floor unblocked: that
+        beam's runs have no bottom-edge hypothesis. None: no seafloor, every run has both.
     gain : linear gain the ping was amplified by (1 at 50 %).
     """
     img = np.asarray(intensities)
@@ -127,16 +146,21 @@ def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_
     k = max(1, int(round(p.bin_m / range_resolution_m)))  # rows per profile bin
     dr = k * float(range_resolution_m)                     # the profile's bin (m)
     m = img.shape[0] // k
-    limit = None if limit_rows is None else np.asarray(limit_rows, float) / k
-    if limit is not None:                                  # nothing past the last beam's limit: crop the work
-        m = int(min(m, max(np.ceil(limit.max(initial=0.0)), 0)))
+    floor = None if floor_rows is None else np.asarray(floor_rows, float) / k
+    if floor is not None:                                  # nothing past the floor's near edge (and its check)
+        m = int(min(m, max(np.ceil(floor.max(initial=0.0) + p.floor_check_m / dr), 0)))
     if m == 0:
         return _empty()
     level, unclipped = censored_level(img[:m * k], k, p, gain)    # beams x bins
+    unblocked = np.zeros(img.shape[1], bool)
+    if floor is not None:
+        bins = np.arange(m)[None, :]
+        near_edge = (bins >= np.floor(floor)[:, None]) & (bins < (floor + p.floor_check_m / dr)[:, None])
+        unblocked = np.any(near_edge & (level > p.min_level), axis=1)
     # a run's bins: bright over three bins (one dim bin inside a surface must not restart its integral)
     bright = cv2.blur(level, (3, 1), borderType=cv2.BORDER_REPLICATE) > p.min_level
-    if limit is not None:
-        bright &= np.arange(m)[None, :] + 1 <= limit[:, None]
+    if floor is not None:
+        bright &= np.arange(m)[None, :] + 1 <= (floor - p.floor_guard_m / dr)[:, None]
     cols, rows = np.nonzero(bright)                        # beam by beam, bins in range order
     if rows.size == 0:
         return _empty()
@@ -151,6 +175,11 @@ def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_
     # slope's share of it 1/2 (grazing) .. 1 (steep), taken as 3/4; independent bin to bin: variances add along a run
     rel = 0.75 / np.sqrt(np.maximum(unclipped, 1.0))
     out = []
+    # the floor as a witness: a beam whose floor echo starts at its near edge has its bottom-edge ray unblocked (no
+    # surface leads there); one whose floor is shadowed there has it blocked -- and with a single run before the
+    # floor, a top-leading reading of that run must reach the bottom edge to block it (else only the bottom edge)
+    blocked = np.zeros(img.shape[1], bool) if floor is None else ~unblocked
+    lone = np.bincount(cols[first], minlength=img.shape[1]) == 1
     for top in ((True, False) if p.leading == "both" else ((p.leading == "top"),)):
         swept = np.zeros(rows.size)
         for _ in range(2):                                 # the beam pattern at the edge, then where pass 1 put it
@@ -159,7 +188,16 @@ def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_
             d_phi = slope_of(y0 / 2.0 ** (-(2 * phi / spread_rad) ** 2)) * dr / r
             swept = _in_runs(d_phi, run, first) - 0.5 * d_phi
         var = _in_runs((rel * d_phi) ** 2, run, first)
-        out.append(_sample(rows, cols, run, first, swept, var, top, half, bearings, dr, p))
+        sample = _sample(rows, cols, run, first, swept, var, top, half, bearings, dr, p)
+        if p.floor_witness and floor is not None:
+            if top:
+                last = np.r_[first[1:], rows.size] - 1
+                total = (swept + 0.5 * d_phi)[last]          # each run's whole sweep
+                keep = ~(blocked & lone)[sample.beam] | (total[sample.run] >= p.reach_frac * 2 * half)
+            else:
+                keep = ~unblocked[sample.beam]
+            sample = SurfaceSamples(*(getattr(sample, f)[keep] for f in SurfaceSamples.__dataclass_fields__))
+        out.append(sample)
     return SurfaceSamples(*(np.concatenate([getattr(s, f) for s in out]) for f in SurfaceSamples.__dataclass_fields__))
 
 

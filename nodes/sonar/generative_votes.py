@@ -38,16 +38,15 @@ class GenerativeVotes:
     """Votes of the generative elevations of every ping, checked against ``grid``'s free space."""
 
     def __init__(self, grid: CarvingGrid, params: GenerativeParams = GenerativeParams(), *, settle_pings: int = 50,
-                 max_contradiction: float = 0.1, max_darks: int = 1, max_sigma_m: float = 0.4, min_votes: int = 10,
-                 floor_margin_m: float = 0.15, floor_guard_rows: int = 4) -> None:
+                 max_contradiction: float = 0.1, max_darks: int = 1, max_sigma_m: float = 0.4, min_votes: int = 8,
+                 floor_margin_m: float = 0.15) -> None:
         if not (settle_pings >= 0 and 0 <= max_contradiction <= 1 and max_darks >= 0 and max_sigma_m > 0
-                and min_votes >= 1 and floor_margin_m >= 0 and floor_guard_rows >= 0):
+                and min_votes >= 1 and floor_margin_m >= 0):
             raise ValueError("need settle_pings >= 0, 0 <= max_contradiction <= 1, max_darks >= 0, max_sigma_m > 0, "
-                             "min_votes >= 1, floor_margin_m >= 0 and floor_guard_rows >= 0")
+                             "min_votes >= 1 and floor_margin_m >= 0")
         self.grid, self.params = grid, params
         self.settle_pings, self.max_contradiction, self.max_darks = settle_pings, max_contradiction, max_darks
         self.max_sigma_m, self.min_votes, self.floor_margin_m = max_sigma_m, min_votes, floor_margin_m
-        self.floor_guard_rows = floor_guard_rows
         n = int(np.prod(grid.shape))
         self.votes = np.zeros(n, np.uint16)
         self.sigma2 = np.zeros(n, np.float32)
@@ -63,12 +62,11 @@ class GenerativeVotes:
         bearings = np.asarray(bearings_rad, float)
         pose = np.asarray(pose, float)
         g = self.grid
-        limit = None
+        floor = None
         if g.seafloor_z_m is not None:      # the seafloor's echo past its near edge is not the structure's slope
-            limit = seafloor_rows(bearings, img.shape[0], range_resolution_m, pose, spread_rad,
-                                  g.seafloor_z_m) - self.floor_guard_rows
+            floor = seafloor_rows(bearings, img.shape[0], range_resolution_m, pose, spread_rad, g.seafloor_z_m)
         params = self.params if gamma is None or gamma == self.params.gamma else replace(self.params, gamma=gamma)
-        s = surface_elevations(img, bearings, range_resolution_m, spread_rad, params=params, limit_rows=limit,
+        s = surface_elevations(img, bearings, range_resolution_m, spread_rad, params=params, floor_rows=floor,
                                gain=gain)
         world = s.points_frd() @ pose[:3, :3].T + pose[:3, 3]
         cell = np.floor((world - g.origin) / g.params.voxel_m).astype(np.int64)

@@ -111,6 +111,28 @@ def test_uncertainty_grows_from_the_leading_edge_and_one_view_keeps_both_hypothe
     assert np.all(np.isfinite(cloud.sigma_m)) and np.all(cloud.sigma_m > 0)
 
 
+def test_the_seafloor_witnesses_which_edge_leads() -> None:
+    # one short bright run (a low surface) at 6 m in every beam; the flat floor's echo from its near edge (row 600,
+    # 12 m) on the port half, shadowed to row 800 on the starboard half
+    bearings = np.radians(np.linspace(-30, 30, 128))
+    img = np.zeros((1000, 128), np.uint8)
+    img[300:330] = 180
+    img[600:, :64] = 81
+    img[800:, 64:] = 81
+    floor = np.full(128, 600.0)
+    s = surface_elevations(img, bearings, 0.02, math.radians(20), floor_rows=floor)
+    port, starboard = s.beam < 62, s.beam >= 66                # (the beams next to the divide see both halves)
+    # port: the bottom-edge ray reached the floor, nothing led there; the run reads from the top edge only
+    assert np.any(port & s.top) and not np.any(port & ~s.top)
+    # starboard: the bottom ray was blocked, and the run's top reading sweeps too little to be what blocked it
+    assert np.any(starboard & ~s.top) and not np.any(starboard & s.top)
+    # every run ends before the floor's near edge, the floor's own echo is never a run
+    assert np.all(s.range_m < 600 * 0.02)
+    blind = surface_elevations(img, bearings, 0.02, math.radians(20), floor_rows=floor,
+                               params=GenerativeParams(floor_witness=False))
+    assert np.all(blind.top[:blind.top.size // 2]) and np.any(blind.beam[~blind.top] < 64)
+
+
 def test_a_one_sided_block_pass_votes_near_its_seen_faces() -> None:
     scene = load_scene("block")
     surface, _ = sample_structures(scene, 0.03)
