@@ -192,3 +192,37 @@ def test_fuse_adds_only_voxels_the_carved_cloud_lacks() -> None:
     pts, sigma, votes = fuse(carved, np.array([0.03, 0.04]), np.array([3, 4]), gen, 0.1)
     assert pts.shape == (3, 3) and np.allclose(pts[2], [2.05, 0.05, 0.05])
     assert np.allclose(sigma, [0.03, 0.04, 0.3]) and list(votes) == [3, 4, 15]
+
+
+def test_the_carved_cloud_node_adds_the_generative_voxels_when_asked() -> None:
+    from msgs.geometry import Pose3D
+    from msgs.sonar import SonarPing
+    from nodes.sonar.carved_cloud import CarvedCloud
+    from tether.testing import Harness
+
+    scene = load_scene("block")
+    rng = np.random.default_rng(6)
+    events = []
+    for t in np.arange(0.0, 6.05, 0.05):
+        events.append((t, "pose", Pose3D.from_matrix(scene.sonar_pose(t), stamp_ns=int(round(t * 1e9)),
+                                                     frame_id="world")))
+    for k, t in enumerate(np.arange(0.02, 6.0, 0.1)):
+        r = render_ping(scene, scene.sonar_pose(t), SETTINGS, rng=rng)
+        events.append((t + 0.06, "ping", SonarPing(
+            stamp_ns=int(round(t * 1e9)), intensities=r.intensities, bearings_rad=r.bearings_rad.astype(np.float32),
+            range_resolution_m=r.range_resolution_m, range_m=r.range_m, ping_id=k, gamma=0.5,
+            vertical_aperture_rad=r.vertical_aperture_rad)))
+    events.sort(key=lambda e: e[0])
+    params = {"bounds_m": [-8, -8, -6.5, 8, 10, 0], "seafloor_z_m": -6.0, "publish_every": 10, "settle_pings": 10}
+    clouds = {}
+    for generative in (False, True):
+        with Harness(CarvedCloud, params=dict(params, generative=generative, generative_min_votes=4)) as h:
+            h.feed(events)
+        assert not h.node.dropped
+        clouds[generative] = h.node.cloud(flush=True)
+    plain, both = clouds[False], clouds[True]
+    n = len(plain.points_m)
+    assert len(both.points_m) > n                          # the generative voxels come on top
+    assert np.allclose(np.asarray(both.points_m)[:n], np.asarray(plain.points_m))    # the carved ones unchanged
+    sigma = np.asarray(both.sigma_m)
+    assert np.all(np.isfinite(sigma) & (sigma > 0)) and len(sigma) == len(both.intensity)
