@@ -211,20 +211,20 @@ def censored_level(img: np.ndarray, k: int, p: GenerativeParams, gain: float) ->
     compensated before this move the clipping point below full scale; it is read at full scale.)
     """
     full = np.iinfo(img.dtype).max
+    m, n = img.shape[0] // k, img.shape[1]
     if img.dtype == np.uint8:                              # a 256-entry table beats the float arithmetic
         lut = np.maximum(level_of(np.arange(256, dtype=np.uint8), gamma=p.gamma) - np.float32(p.noise_level), 0)
-        level = lut[img]
+        level = cv2.LUT(img, lut.astype(np.float32))
     else:
         level = np.maximum(level_of(img, gamma=p.gamma) - np.float32(p.noise_level), 0.0)
-    m, n = img.shape[0] // k, img.shape[1]
-    total = np.ascontiguousarray(level.reshape(m, k, n).sum(axis=1, dtype=np.float32).T)
-    kept = np.ascontiguousarray((img < full).reshape(m, k, n).sum(axis=1, dtype=np.float32).T)
+    # sums over each bin's k rows, then beams x bins
+    total = cv2.transpose(level.reshape(m, k, n).sum(axis=1, dtype=np.float32))
+    kept = cv2.transpose((img < full).reshape(m, k, n).sum(axis=1, dtype=np.float32))
     size = (1, p.smooth_beams)                             # cv2 (width along bins, height across beams)
     total = cv2.blur(total, size, borderType=cv2.BORDER_REPLICATE)
     kept = cv2.blur(kept, size, borderType=cv2.BORDER_REPLICATE)
-    count = np.float32(p.smooth_beams)
     est = total / np.maximum(kept, np.float32(0.5)) / np.float32(gain)
-    return est, kept * count
+    return est, kept * np.float32(p.smooth_beams)
 
 
 def _in_runs(x: np.ndarray, run: np.ndarray, first: np.ndarray) -> np.ndarray:

@@ -91,9 +91,8 @@ class GenerativeVotes:
         bad = ~inside
         v = voxel[inside]
         bad[inside] = (self.grid.misses[v] > 0) | (self.grid.darks[v] > self.max_darks)
-        _, inv = np.unique(key, return_inverse=True)
-        frac = np.bincount(inv, bad) / np.bincount(inv)
-        good = (frac[inv] <= self.max_contradiction) & inside & np.isfinite(sigma)
+        frac = np.bincount(key, bad) / np.maximum(np.bincount(key), 1)   # keys are small: run id x 2 + top
+        good = (frac[key] <= self.max_contradiction) & inside & np.isfinite(sigma)
         np.add.at(self.votes, voxel[good], 1)
         np.add.at(self.sigma2, voxel[good], sigma[good] ** 2)
 
