@@ -37,6 +37,13 @@ pass over the square pier, the two piles and the wall (sim/scenes), the one-side
 tests (its 6 s pass), and the tripod there and back
 (the demo pass, then the return leg from the north) with shadow-aware darks too (``shadow_darks``).
 
+Then the generative elevations (``nodes.sonar.generative``, after Westman & Kaess 2019: each beam's intensity profile
+integrated into elevation from the aperture edge its surface leads at, voted over the pings with carving's free space
+and the seafloor deciding between edges, ``nodes.sonar.generative_votes``), alone and fused with the evidence cloud
+(``generative_*``, ``fused_*``; per scene ``generative`` and ``generative + evidence``), timed on the same pings. Their
+parameters were chosen on three training passes of ``bench/sonar_carving_filter.py`` (tripod_west, tripod_east,
+pier4_west); the demo pass and every check scene here are held out for them.
+
     python bench/sonar_cloud.py [--quick] [--json]
 """
 from __future__ import annotations
