@@ -58,6 +58,8 @@ class PlannerParams:
                                   # on the other side than the path does as this much more typical floor (_hold_sides)
     side_near_m: float = 1.5      # ... people whose centre is this near the path (beside it, level with a point of it)
     side_ray_m: float = 3.0       # ... the barrier: a ray this long from each such person away from the path
+    side_motion: bool = True      # ... only people seen there (set_people) who stay on their side until the robot is
+                                  # level with them (not walking across the path); False: every people cell's group
     turn_near_radps: float = 0.0  # > 0: turning toward a person nearer than turn_near_m (beside or ahead, on the side
                                   # the robot turns to) is at most this fast (command); 0: steering's w_max_radps
     turn_near_m: float = 1.5
@@ -228,7 +230,7 @@ class SocialPlanner:
         subgoal = self._subgoal
         grid = self._planning_cost(footprint, static)
         if event == "path_blocked":
-            grid = self._hold_sides(pose, grid, frame, high_density)
+            grid = self._hold_sides(pose, grid, frame, high_density, t_s)
         decision = self._local(pose, grid, frame, event, high_density)
         decision.plan_ms = (time.perf_counter() - t0) * 1e3
         if event == "path_blocked" and decision.mode == "local" and not self._worth_switching(pose, grid, frame, decision):
@@ -375,8 +377,16 @@ class SocialPlanner:
                                clear_m=self._clear_m)
         return Decision("local", event, extract_waypoint(path_xy, reach), path_xy, score=plan_score)
 
+    def _people_now(self, pose: tuple[float, float, float], t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The people points (:meth:`set_people`) moved on to ``t_s`` and their velocities, robot frame at ``pose``;
+        none when there is no prediction no older than ``people_timeout_s``."""
+        if self._people is None or not 0 <= t_s - self._people[0] <= self.p.people_timeout_s:
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        t0, xy, vel, _ = self._people
+        return to_robot(pose, xy + vel * (t_s - t0)), to_robot((0.0, 0.0, pose[2]), vel)
+
     def _hold_sides(self, pose: tuple[float, float, float], grid: np.ndarray, frame: GridFrame,
-                    people: np.ndarray) -> np.ndarray:
+                    people: np.ndarray, t_s: float) -> np.ndarray:
         """The planning grid with a price (``side_hold_m`` of typical floor per cell) on the cells a plan crosses to
         pass a person beside the path being followed on its other side (:func:`side_barriers`); unchanged when
         ``side_hold_m`` is 0 or there is no path.
@@ -389,8 +399,10 @@ class SocialPlanner:
         """
         if self.p.side_hold_m <= 0 or self._path is None or len(self._path) < 2:
             return grid
+        motion = self._people_now(pose, t_s) if self.p.side_motion else None
         barrier = side_barriers(to_robot(pose, self._path), people, frame, near_m=self.p.side_near_m,
-                                length_m=self.p.side_ray_m, min_side_m=0.5 * frame.resolution_m)
+                                length_m=self.p.side_ray_m, min_side_m=0.5 * frame.resolution_m,
+                                motion=motion, robot_speed_mps=self.p.v_max_mps)
         start = frame.clamp(frame.cell_of(np.zeros(2)))[0]
         barrier[start[0], start[1]] = False
         if not barrier.any():
