@@ -310,6 +310,13 @@ def sonar_cloud(d: dict) -> list[Row]:
                 + "; the first filter (a height feature, 15 passes, p >= 0.77, its last feature picked with this pass "
                   "in view) gave 92.1 % / 70.6 % here but 69.6 % within 0.2 m on a never-seen jacket crossed above its deck"
                 if "evidence_acc_frac_0p2" in d else "")
+             + (f"; option `generative` (Westman & Kaess's image model per beam, off by default: parameters chosen on "
+                f"3 other passes) alone {100 * d['generative_acc_frac_0p2']:.1f} % / completeness "
+                f"{100 * d['generative_completeness_0p2']:.1f} %, {d['generative_ms_per_ping']:.1f} ms; added to "
+                f"`keep: evidence` {100 * d['fused_acc_frac_0p2']:.1f} % / {100 * d['fused_completeness_0p2']:.1f} %, "
+                f"{d['fused_ms_per_ping']:.1f} ms per ping ({d['fused_ms_per_ping_in_view']:.1f} in view): a point on "
+                f"the evidence filter's own trade, not a better one"
+                if "fused_acc_frac_0p2" in d else "")
              + (f" (load average {d['load_average']:g} on {d['cpu_count']} cores while timing)"
                 if d.get("load_average", 0) > d.get("cpu_count", 99) else ""),
              f"the paper's highlight cloud {100 * d['highlight_acc_frac_0p2']:.1f} % (p90 {d['highlight_acc_p90_m']:.2f} m), "
