@@ -92,10 +92,23 @@ class ReachCar(_Car):
     metric_names = ("distance_m",)
     observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (11,), np.float32)
 
-    def configure(self, *, min_range_m: float = 0.3, max_range_m: float = 1.5) -> None:
+    def configure(self, *, min_range_m: float = 0.3, max_range_m: float = 1.5, shaping: float = 0.0,
+                  shaping_gamma: float = 0.99, step_cost: float = 1.0) -> None:
+        """Training-signal options (the defaults give the paper's reward; the metric is the final
+        distance whatever the reward): ``shaping`` (reward per m, 0: off) adds the potential-based
+        term F = gamma Phi(s') - Phi(s) with Phi = -shaping x distance (Ng et al. 1999: the optimal
+        policy is unchanged when ``shaping_gamma`` is the learner's discount); ``step_cost`` is the
+        constant eq. (5) takes off every step (the paper's 1), which changes no policy's ranking here
+        (every episode lasts MAX_STEPS steps) but sets the sign of every return."""
         if not 0.0 <= min_range_m <= max_range_m:
             raise ValueError(f"need 0 <= min_range_m <= max_range_m, got {min_range_m}, {max_range_m}")
+        if not (np.isfinite(shaping) and shaping >= 0 and 0 < shaping_gamma <= 1):
+            raise ValueError(f"need shaping >= 0 (reward per m; 0: off) and 0 < shaping_gamma <= 1 (the learner's "
+                             f"discount), got {shaping}, {shaping_gamma}")
         self.ranges_m = (float(min_range_m), float(max_range_m))
+        if not np.isfinite(step_cost):
+            raise ValueError(f"step_cost must be finite (the paper's 1), got {step_cost}")
+        self.shaping, self.shaping_gamma, self.step_cost = float(shaping), float(shaping_gamma), float(step_cost)
         self._setup_car()
 
     def _reset(self, mask: np.ndarray) -> None:
@@ -110,9 +123,13 @@ class ReachCar(_Car):
         return self._car_obs().astype(np.float32)
 
     def _advance(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        before = np.hypot(*(self.target - self.pose[:, :2]).T)
         self.pose = self._move(actions)
         dist = np.hypot(*(self.target - self.pose[:, :2]).T)
-        return reward(dist), np.zeros(self.n, bool), dist[:, None]
+        rew = reward(dist) + (1.0 - self.step_cost)
+        if self.shaping:
+            rew = rew + self.shaping * (before - self.shaping_gamma * dist)     # gamma Phi(s') - Phi(s)
+        return rew, np.zeros(self.n, bool), dist[:, None]
 
 
 def serpentine() -> tuple[np.ndarray, tuple[float, float, float], tuple[float, float]]:
