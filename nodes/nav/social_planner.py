@@ -58,8 +58,8 @@ class PlannerParams:
                                   # on the other side than the path does as this much more typical floor (_hold_sides)
     side_near_m: float = 1.5      # ... people whose centre is this near the path (beside it, level with a point of it)
     side_ray_m: float = 3.0       # ... the barrier: a ray this long from each such person away from the path
-    side_motion: bool = True      # ... only people seen there (set_people) who stay on their side until the robot is
-                                  # level with them (not walking across the path); False: every people cell's group
+    side_motion: bool = True      # ... except people seen there (set_people) walking toward the path faster than
+    side_crossing_mps: float = 0.5  # this (crossing it); False: every people cell's group holds its side
     turn_near_radps: float = 0.0  # > 0: turning toward a person nearer than turn_near_m (beside or ahead, on the side
                                   # the robot turns to) is at most this fast (command); 0: steering's w_max_radps
     turn_near_m: float = 1.5
@@ -402,7 +402,7 @@ class SocialPlanner:
         motion = self._people_now(pose, t_s) if self.p.side_motion else None
         barrier = side_barriers(to_robot(pose, self._path), people, frame, near_m=self.p.side_near_m,
                                 length_m=self.p.side_ray_m, min_side_m=0.5 * frame.resolution_m,
-                                motion=motion, robot_speed_mps=self.p.v_max_mps)
+                                motion=motion, crossing_mps=self.p.side_crossing_mps)
         start = frame.clamp(frame.cell_of(np.zeros(2)))[0]
         barrier[start[0], start[1]] = False
         if not barrier.any():
