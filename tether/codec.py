@@ -105,12 +105,17 @@ class Codec:
 
     def encode(self, msg: Message) -> list[Any]:
         """Frames for the wire: ``[body, *array_buffers]``; buffers are views, not copies."""
-        self._buffers = []
+        # self._buffers is empty between calls (the hook fills it during one encode only)
         try:
             body = self._wire_encoder.encode(msg)
-            return [body, *self._buffers]
-        finally:
+        except BaseException:
             self._buffers = []
+            raise
+        if not self._buffers:
+            return [body]               # no array field: the common small message
+        frames = [body, *self._buffers]
+        self._buffers = []
+        return frames
 
     def encode_inline(self, msg: Message) -> bytes:
         """One msgpack blob with arrays inline (the log record form)."""
@@ -149,9 +154,13 @@ class Codec:
         if dec is None:
             dec = self._wire_decoders[tp] = msgspec.msgpack.Decoder(tp, dec_hook=self._dec_wire)
         body = frames[0]
-        self._frames = frames[1:]
+        if type(body) is not bytes:
+            body = getattr(body, "buffer", body)
+        # self._frames is () between calls: a message without buffer frames leaves it so
+        if len(frames) > 1:
+            self._frames = frames[1:]
         try:
-            return dec.decode(getattr(body, "buffer", body))
+            return dec.decode(body)
         except msgspec.DecodeError as exc:
             raise DecodeError(f"cannot decode {tp.type_name()}: {exc}") from None
         except (DecodeError, TypeError, ValueError) as exc:

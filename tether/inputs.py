@@ -65,6 +65,9 @@ class InputState:
     def track_seq(self, seq: int) -> None:
         """Count what the jump from the last ``seq`` to this one says was lost (or a reset)."""
         last = self.last_seq
+        if seq == last + 1 and 0 < last < U64_MAX:
+            self.last_seq = seq           # the next one, nothing lost: the common case
+            return
         if seq <= 0 or seq > U64_MAX:
             self.stats["seq_resets"] += 1          # no usable number: not a reference for gaps
             self.last_seq = 0

@@ -184,6 +184,8 @@ class NodeRuntime(Context):
         self._retiring: list[zmq.Socket] = []     # replaced SUB sockets, still read until their successors overlap
         self._retire_by_ns = 0
         self._overlapped: set[str] = set()         # inputs whose new socket delivered a message the old one did
+        # the queues the read-ahead bound counts (latest-only inputs keep one message: not counted)
+        self._deep_queues = [st.queue for st in self.inputs.values() if st.maxlen > 1]
         self._subscribe({})
 
     def _subscribe(self, rcvhwm: dict[bool, int], *, retire: bool = False) -> None:
@@ -264,9 +266,12 @@ class NodeRuntime(Context):
             msg = msgspec.structs.replace(msg, seq=seq, stamp_ns=msg.stamp_ns or time.time_ns())
             frames = self._codec.encode(msg)
             if self.pub is not None:
-                nbytes = sum(map(len, frames))
+                nbytes = len(frames[0]) if len(frames) == 1 else sum(map(len, frames))
                 topic = self._topics[output]
-                plain, to_shm = self._routes_of(topic)
+                routes = self._sub_routes.get(topic)
+                if routes is None or time.monotonic_ns() - self._subs_read_ns > SUBSCRIPTIONS_PERIOD_NS:
+                    routes = self._routes_of(topic)
+                plain, to_shm = routes
                 placed = self._place(output, frames) if to_shm and len(frames) > 1 else None
                 wire = nbytes if placed is None or plain else nbytes - placed[2] + len(placed[0])
                 if wire > self._largest_sent:
@@ -345,38 +350,50 @@ class NodeRuntime(Context):
         return out
 
     # -- receiving --------------------------------------------------------------------
-    def _recv(self, sock: zmq.Socket, flags: int) -> tuple[bytes, list[Any], int]:
-        """One message: the topic, then body and array buffers as zero-copy frames, and its size in bytes.
+    def _take(self, sock: zmq.Socket, flags: int, order: itertools.count) -> None:
+        """Receive one message from ``sock`` and queue it (:meth:`_route`): the topic, then the body
+        and array buffers as zero-copy frames; the common case -- a plain topic, one input, no link
+        model, a body without buffers -- is routed inline.
 
-        ``Frame.more`` instead of ``getsockopt(RCVMORE)``: pyzmq builds an enum per getsockopt,
-        which doubled the cost of a small message. A multipart message arrives whole, so the
-        loop never blocks mid-message.
+        The C-level recv with positional arguments, and ``Frame.more`` instead of
+        ``getsockopt(RCVMORE)``: pyzmq builds an enum per getsockopt, which doubled the cost of a
+        small message. A multipart message arrives whole, so the loop never blocks mid-message.
         """
-        frame = sock.recv(flags, copy=False)
-        topic = frame.bytes
-        frames: list[Any] = []
-        nbytes = 0
+        frame = _recv_frame(sock, flags, False)
         if frame.more:
-            frame = sock.recv(copy=False)
-            body = frame.bytes                # the body is small: bytes decode faster than a memoryview
-            frames.append(body)
+            topic = frame.bytes
+            frame = _recv_frame(sock, 0, False)
+            if not frame.more:
+                body = frame.bytes
+                states = self.routes.get(topic)
+                if states is not None and len(states) == 1 and topic[0] != 64 and states[0].link is None \
+                        and topic not in self._shm_dupes:
+                    nbytes = len(body)
+                    self._accept(states[0], [body], next(order), nbytes, nbytes)
+                else:
+                    self._route(topic, [body], len(body), order)
+                return
+            body = frame.bytes
+            frames: list[Any] = [body]
             nbytes = len(body)
             while frame.more:
-                frame = sock.recv(copy=False)
+                frame = _recv_frame(sock, 0, False)
                 frames.append(frame)          # array buffers stay zero-copy
                 nbytes += len(frame)
-        return topic, frames, nbytes
+            self._route(topic, frames, nbytes, order)
+            return
+        self._route(frame.bytes, [], 0, order)
 
     def _route(self, topic: bytes, frames: list[Any], nbytes: int, order: itertools.count) -> None:
         states = self.routes.get(topic)
         if not states:
             return  # a longer topic sharing our prefix: not ours
-        if topic[:1] != b"@":
+        if topic[0] != 64:          # not b"@" (a routed topic is never empty)
             if topic in self._shm_dupes:
                 return    # its publisher sends us slot tables on @shm/: this copy is for plain subscribers
         elif topic not in self._shm_seen:
             self._shm_started(topic)
-        if topic[:1] == b"@" and frames and frames[0][:1] and frames[0][0] in shm.TABLE_MARKERS:
+        if topic[0] == 64 and frames and frames[0][:1] and frames[0][0] in shm.TABLE_MARKERS:
             resolved = self._resolve_shm(topic, states, frames)
             if resolved is None:
                 for state in states:
@@ -455,9 +472,10 @@ class NodeRuntime(Context):
         ready = self._poll_lists.get(sock)
         if ready is None:
             ready = self._poll_lists[sock] = [(sock, _POLLIN)]
+        deep = self._deep_queues
         while _zmq_poll(ready, 0):   # cheaper than getsockopt(EVENTS), which builds an enum per call
-            self._route(*self._recv(sock, _NOBLOCK), order)
-            if sum(len(st.queue) for st in self.inputs.values() if st.maxlen > 1) >= READ_AHEAD:
+            self._take(sock, _NOBLOCK, order)
+            if sum(map(len, deep)) >= READ_AHEAD:
                 return
 
     def _receive(self, timeout_ms: int, order: itertools.count) -> None:
@@ -484,7 +502,7 @@ class NodeRuntime(Context):
                 sock.setsockopt(zmq.RCVTIMEO, timeout_ms)
                 self._rcvtimeo = timeout_ms
             try:
-                self._route(*self._recv(sock, 0), order)
+                self._take(sock, 0, order)
             except zmq.Again:
                 return
             self._drain(sock, order)
@@ -495,10 +513,11 @@ class NodeRuntime(Context):
     def _accept(self, state: InputState, frames: list[Any], index: int, nbytes: int = -1, wire: int = -1) -> None:
         """Decode one received message into ``state``'s queue; ``nbytes`` is its size (-1: measure it),
         ``wire`` what of it ZeroMQ carried (less when its buffers lie in shared memory; -1: all)."""
-        state.stats["received"] += 1
+        stats = state.stats
+        stats["received"] += 1
         if nbytes < 0:
             nbytes = sum(map(len, frames))
-        state.stats["received_bytes"] += nbytes
+        stats["received_bytes"] += nbytes
         try:
             msg = self._codec.decode(state.type, frames)
         except Exception as exc:  # noqa: BLE001 - whatever a crafted frame makes the decoder raise
@@ -568,7 +587,7 @@ class NodeRuntime(Context):
         if time.monotonic_ns() >= self._retire_by_ns or self._overlapped.issuperset(self._socket_of):
             for sock in self._retiring:
                 while _zmq_poll([(sock, _POLLIN)], 0):
-                    self._route(*self._recv(sock, _NOBLOCK), order)
+                    self._take(sock, _NOBLOCK, order)
                 sock.close(linger=0)
             self._retiring = []
             self._poller = None
@@ -595,11 +614,14 @@ class NodeRuntime(Context):
     def _handle_pending(self) -> bool:
         """Handle queued messages oldest-first across inputs; True if any was handled."""
         handled = False
+        states = self.inputs.values()
         while True:
             best: InputState | None = None
-            for state in self.inputs.values():
-                if state.queue and (best is None or state.queue[0][0] < best.queue[0][0]):
-                    best = state
+            first = 0
+            for state in states:
+                queue = state.queue
+                if queue and (best is None or queue[0][0] < first):
+                    best, first = state, queue[0][0]
             if best is None:
                 return handled
             msg = best.pop()
@@ -613,9 +635,10 @@ class NodeRuntime(Context):
     def _call(self, state: InputState, msg: Message) -> None:
         t0 = time.perf_counter_ns()
         try:
-            if state.handler is None:
-                state.handler = self.node.handler(state.name)
-            result = state.handler(msg)
+            handler = state.handler
+            if handler is None:
+                handler = state.handler = self.node.handler(state.name)
+            result = handler(msg)
             if result is not None:
                 for output, out in iter_outputs(result):
                     self.node.publish(output, out)
@@ -627,7 +650,8 @@ class NodeRuntime(Context):
         dt = time.perf_counter_ns() - t0
         state.stats["handled"] += 1
         state.handler_ns += dt
-        state.handler_max_ns = max(state.handler_max_ns, dt)
+        if dt > state.handler_max_ns:
+            state.handler_max_ns = dt
 
     # -- timers and stats -------------------------------------------------------------
     def _fire_timers(self, due: dict[str, int], order: itertools.count) -> None:
@@ -791,7 +815,7 @@ class NodeRuntime(Context):
                 if self._links is not None and now >= next_link_check:
                     self._check_links()
                     next_link_check = now + LINK_CHECK_NS
-                wake = min([next_stats, *due.values()])
+                wake = min(next_stats, min(due.values())) if due else next_stats
                 timeout_ms = max(0, min(100, (wake - now) // 1_000_000 + (1 if wake > now else 0)))
                 if self.subs:
                     self._receive(timeout_ms, order)
@@ -916,6 +940,7 @@ class NodeRuntime(Context):
 
 
 _zmq_poll = zmq.backend.zmq_poll
+_recv_frame = zmq.backend.Socket.recv   # (sock, flags, copy): the C-level recv, without keyword parsing
 _send_frame = zmq.backend.Socket.send   # pyzmq's C-level send: the Python wrapper only adds routing_id/group
 
 
