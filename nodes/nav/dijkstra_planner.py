@@ -46,7 +46,6 @@ class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     side_near_m: float = _DEFAULT.side_near_m
     side_ray_m: float = _DEFAULT.side_ray_m
     side_motion: bool = _DEFAULT.side_motion
-    side_crossing_mps: float = _DEFAULT.side_crossing_mps
     turn_near_radps: float = _DEFAULT.turn_near_radps
     turn_near_m: float = _DEFAULT.turn_near_m
     memory_s: float = _DEFAULT.memory_s

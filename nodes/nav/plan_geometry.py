@@ -306,7 +306,7 @@ def speed_profile(path_xy: np.ndarray, people_xy: np.ndarray, people_v: np.ndarr
 
 def side_barriers(path_rel: np.ndarray, people: np.ndarray, frame: GridFrame, *, near_m: float,
                   length_m: float, min_side_m: float = 0.0, motion: tuple[np.ndarray, np.ndarray] | None = None,
-                  crossing_mps: float = 0.5) -> np.ndarray:
+                  robot_speed_mps: float = 1.0) -> np.ndarray:
     """The cells (rows x cols bool on ``frame``) a plan has to cross to pass people on the other side than the
     robot-frame polyline ``path_rel`` ((n, 2) m, the path being followed) passes them.
 
@@ -318,10 +318,10 @@ def side_barriers(path_rel: np.ndarray, people: np.ndarray, frame: GridFrame, *,
     ``min_side_m``) or level with its ends have no side and no ray.
 
     With ``motion`` (people points (M, 2) m and their velocities (M, 2) m/s, robot frame; see
-    :func:`people_motion`) a group with points of people on its cells keeps its side only while their mean
-    velocity does not carry them toward the path faster than ``crossing_mps``: a walker crossing the path changes
-    sides, and holding the side would steer into them. A group without points (predicted or remembered cells)
-    keeps its side.
+    :func:`people_motion`) a group needs points of people on its cells, and keeps its side only if, moving at
+    their mean velocity for the time the robot takes to come level with it (its distance / ``robot_speed_mps``),
+    it is still ``min_side_m`` or more from the path on the same side: a walker crossing the path changes sides,
+    and holding the side would steer into them (crossing walkers in a replayed crowd).
     """
     from scipy.ndimage import label
 
@@ -354,7 +354,10 @@ def side_barriers(path_rel: np.ndarray, people: np.ndarray, frame: GridFrame, *,
             inside = frame.inside(on)
             mine = np.zeros(len(xy), bool)
             mine[inside] = groups[on[inside, 0], on[inside, 1]] == k
-            if mine.any() and float(vel[mine].mean(axis=0) @ away) < -crossing_mps:
+            if not mine.any():
+                continue                                    # no person there (a predicted or remembered cell)
+            t_level = float(np.hypot(*centre)) / max(robot_speed_mps, 1e-6)
+            if dist[i] + float(vel[mine].mean(axis=0) @ away) * t_level < min_side_m:
                 continue                                    # walking across the path: the side will change
         cells = line_cells(tuple(frame.cell_of(centre)[0]), tuple(frame.cell_of(centre + length_m * away)[0]))
         steps = np.diff(cells, axis=0)

@@ -43,6 +43,11 @@ def test_a_blocked_path_is_replanned_on_the_same_side_of_the_person():
     assert waypoint[1] < 0                              # still passing the person on their right
 
 
+def test_the_hold_is_on_by_default():
+    _, waypoint = _replan(side_hold_m=PlannerParams().side_hold_m, dearer_right=0.3)
+    assert waypoint[1] < 0
+
+
 def test_without_the_hold_the_replan_flips_to_the_other_side():
     _, waypoint = _replan(side_hold_m=0.0, dearer_right=0.3)
     assert waypoint[1] > 0.5                            # the slightly cheaper left side: the flip the hold prevents
@@ -53,14 +58,11 @@ def test_a_walker_crossing_the_path_is_not_held_to_a_side():
     assert waypoint[1] > 0.5                            # passes behind them: the side changes as they cross
 
 
-def test_cells_without_people_points_hold_their_side():
-    _, waypoint = _replan(side_hold_m=2.0, dearer_right=0.3, seen=False)    # no flow points: no motion to test
-    assert waypoint[1] < 0
-
-
-def test_without_the_motion_test_a_crossing_walker_holds_too():
-    _, waypoint = _replan(side_hold_m=2.0, dearer_right=0.3, vy_mps=-0.8, side_motion=False)
-    assert waypoint[1] < 0
+def test_only_people_the_flow_sees_there_hold_a_side():
+    _, waypoint = _replan(side_hold_m=2.0, dearer_right=0.3, seen=False)
+    assert waypoint[1] > 0.5
+    _, waypoint = _replan(side_hold_m=2.0, dearer_right=0.3, seen=False, side_motion=False)
+    assert waypoint[1] < 0                              # without the motion test every people cell holds
 
 
 def test_a_much_dearer_side_still_gives_way():
