@@ -9,7 +9,9 @@ runs Dijkstra over the learnt cost grid from its cell to a sub-goal (the farthes
 path point within reach) and extracts the next waypoint ``waypoint_m`` along that path.
 Outside the safe zone it keeps its waypoint, except on re-plan events: the waypoint's cell
 turned high-density (a pedestrian stepped onto it), the waypoint fell behind the robot,
-or it has been held longer than ``waypoint_timeout_s``. When to go along the path is the planner's
+or it has been held longer than ``waypoint_timeout_s``. A re-plan because the path became blocked keeps passing
+each person beside the path on the side the path passes them unless the other side is cheaper by ``side_hold_m`` of
+floor (:meth:`SocialPlanner._hold_sides`). When to go along the path is the planner's
 too (path-velocity decomposition, Kant & Zucker 1986): :meth:`SocialPlanner.command` drives no
 faster than :func:`nodes.nav.plan_geometry.speed_profile` chooses against the people it predicts
 (:meth:`SocialPlanner.set_people`), a second in conflict priced at the learnt cost's conflict weight
