@@ -23,8 +23,8 @@
    seed 3 41.92 -> 0.14, seed 4 236.45 -> 0.92 (median of the 5 seeds 236 -> 0.89 mm, worst
    5145 -> 1.05). With the step cost kept: potential-based shaping (``shaping``, Phi = -k distance)
    at k = 10/m gives 0.06, 0.97, 1.54 mm on seeds 0-2 (validation means 0.80 mm against 0.68 for
-   step cost 0), at k = 1/m 3.77, 13.71, 3136.87 (seed 2 still drives off); PPO's target_kl 0.02 gives 8.17, 490.52, 6115.46 (the cause is
-   in the returns, not the step size).
+   step cost 0), at k = 1/m 3.77, 13.71, 3136.87 (seed 2 still drives off); PPO's target_kl 0.02
+   gives 8.17, 490.52, 6115.46 (the cause is in the returns, not the step size).
 3. Maze: PPO with the paper's straight-line distance in its reward (the default), and with the
    corridor (geodesic) distance, same budget; success = the exit reached within 30 s, over 100
    held-out episodes. Baseline: a left-hand wall follower on the same range readings, gains by a
