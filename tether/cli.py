@@ -689,7 +689,7 @@ EXAMPLES = {
     "doctor": "tether doctor",
     "slam": "tether slam optimize graph.g2o --initial chordal --robust gnc -o optimised.g2o",
     "selfcal": "tether selfcal ../shared/data/camera/opencv-chessboard-stereo/left*.jpg --chessboard 9x6",
-    "learn": "tether learn train --env sim.car_env:ReachCar --steps 2e6 -o out/learn/reach.ppo --resume",
+    "learn": "tether learn train --env sim.car_env:ReachCar --param step_cost=0 --steps 2e6 -o out/learn/reach.ppo --resume",
 }
 
 
