@@ -168,11 +168,21 @@ def social_nav(d: dict) -> list[Row]:
                      f"({spread.get('closest_ge_dwa_or_walk_in', '?')} leaving out walk-ins), median "
                      f"{spread['closest_median_m']['irl']:.2f} m; on time by median {spread['time_ok_count']} of {n} "
                      f"({spread.get('time_ok_episodes', '?')} episodes); guard median share at worst "
-                     + (f"{100 * guard[worst]:.0f} % ({worst})" if worst else "?"),
+                     + (f"{100 * guard[worst]:.0f} % ({worst})" if worst else "?")
+                     + _first_starts(spread.get("starts3")),
                      f"DWA: robot contacts at touching distance {dw.get('robot_contacts_strict', '?')} "
                      f"(0.65 m: {dw.get('collisions_robot', '?')}), median closest {spread['closest_median_m']['dwa']:.2f} m",
                      "—"))
     return rows
+
+
+def _first_starts(s3: dict | None) -> str:
+    """The same summary over the run's first 3 starts: the rule the row had before it took 6."""
+    if not isinstance(s3, dict) or "closest_ge_dwa" not in s3:
+        return ""
+    return (f"; over the first 3 starts of the same run (the rule before): touching contacts "
+            f"{(s3.get('irl') or {}).get('robot_contacts_strict', '?')}, closest >= DWA's {s3['closest_ge_dwa']}, "
+            f"on time {s3['time_ok_count']} of {len(s3.get('time_ratio_median') or {}) or '?'} ({s3.get('time_ok_episodes', '?')})")
 
 
 def nav_plan(d: dict) -> list[Row]:
