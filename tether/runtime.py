@@ -268,10 +268,7 @@ class NodeRuntime(Context):
             if self.pub is not None:
                 nbytes = len(frames[0]) if len(frames) == 1 else sum(map(len, frames))
                 topic = self._topics[output]
-                routes = self._sub_routes.get(topic)
-                if routes is None or time.monotonic_ns() - self._subs_read_ns > SUBSCRIPTIONS_PERIOD_NS:
-                    routes = self._routes_of(topic)
-                plain, to_shm = routes
+                plain, to_shm = self._routes_of(topic)
                 placed = self._place(output, frames) if to_shm and len(frames) > 1 else None
                 wire = nbytes if placed is None or plain else nbytes - placed[2] + len(placed[0])
                 if wire > self._largest_sent:
