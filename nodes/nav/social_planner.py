@@ -384,11 +384,11 @@ class SocialPlanner:
                                clear_m=self._clear_m)
         return Decision("local", event, extract_waypoint(path_xy, reach), path_xy, score=plan_score)
 
-    def _people_now(self, pose: tuple[float, float, float], t_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def _people_now(self, pose: tuple[float, float, float], t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """The people points (:meth:`set_people`) moved on to ``t_s`` and their velocities, robot frame at ``pose``;
-        none when there is no prediction no older than ``people_timeout_s``."""
+        None when there is no prediction no older than ``people_timeout_s``."""
         if self._people is None or not 0 <= t_s - self._people[0] <= self.p.people_timeout_s:
-            return np.zeros((0, 2)), np.zeros((0, 2))
+            return None
         t0, xy, vel, _ = self._people
         return to_robot(pose, xy + vel * (t_s - t0)), to_robot((0.0, 0.0, pose[2]), vel)
 
@@ -406,7 +406,9 @@ class SocialPlanner:
         """
         if self.p.side_hold_m <= 0 or self._path is None or len(self._path) < 2:
             return grid
-        motion = self._people_now(pose, t_s) if self.p.side_motion else None
+        motion = None
+        if self.p.side_motion:      # no fresh prediction: nobody seen, nobody holds a side
+            motion = self._people_now(pose, t_s) or (np.zeros((0, 2)), np.zeros((0, 2)))
         barrier = side_barriers(to_robot(pose, self._path), people, frame, near_m=self.p.side_near_m,
                                 length_m=self.p.side_ray_m, min_side_m=0.5 * frame.resolution_m,
                                 motion=motion, robot_speed_mps=self.p.v_max_mps)
@@ -499,12 +501,12 @@ class SocialPlanner:
         """``w_radps`` at most ``turn_near_radps`` in size when it turns the robot toward a person (predicted now from
         :meth:`set_people`, no older than ``people_timeout_s``) within ``turn_near_m`` beside or ahead of it, on the
         side it turns to; unchanged otherwise (off, no fresh people, nobody there)."""
-        if self.p.turn_near_radps <= 0 or abs(w_radps) <= self.p.turn_near_radps or self._people is None:
+        if self.p.turn_near_radps <= 0 or abs(w_radps) <= self.p.turn_near_radps:
             return w_radps
-        t0, xy, vel, _ = self._people
-        if not 0 <= t_s - t0 <= self.p.people_timeout_s or not len(xy):
+        people = self._people_now(pose, t_s)
+        if people is None or not len(people[0]):
             return w_radps
-        rel = to_robot(pose, xy + vel * (t_s - t0))
+        rel = people[0]
         near = ((np.hypot(rel[:, 0], rel[:, 1]) <= self.p.turn_near_m) & (rel[:, 0] > -self.p.robot_radius_m)
                 & (rel[:, 1] * w_radps > 0))
         return float(np.clip(w_radps, -self.p.turn_near_radps, self.p.turn_near_radps)) if near.any() else w_radps
@@ -535,15 +537,13 @@ class SocialPlanner:
     def _speed(self, pose: tuple[float, float, float], target: np.ndarray, t_s: float,
                v_now_mps: float) -> SpeedChoice | None:
         """The speed profile's choice along the path ahead (None: off, or no fresh prediction of people)."""
-        if self.p.conflict_price <= 0 or self.p.speed_horizon_s <= 0 or self._people is None:
+        if self.p.conflict_price <= 0 or self.p.speed_horizon_s <= 0 or self._floor is None:
             return None
-        t0, xy, vel, _ = self._people
-        if not 0 <= t_s - t0 <= self.p.people_timeout_s or self._floor is None:
+        people = self._people_now(pose, t_s)
+        if people is None:
             return None
-        now = xy + vel * (t_s - t0)
         price, cell = self._floor
-        return speed_profile(to_robot(pose, self._ahead(pose, target)), to_robot(pose, now),
-                             to_robot((0.0, 0.0, pose[2]), vel), v_now_mps=v_now_mps,
+        return speed_profile(to_robot(pose, self._ahead(pose, target)), *people, v_now_mps=v_now_mps,
                              v_max_mps=self.p.v_max_mps, conflict_price=self.p.conflict_price, progress_price=price,
                              cell_m=cell,
                              clear_m=self._clear_full_m, headway_s=self.p.headway_s,
