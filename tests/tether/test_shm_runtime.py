@@ -76,9 +76,25 @@ def _until(done: Callable[[], bool], what: str, timeout_s: float = 60.0) -> None
 
 @contextmanager
 def _running(*runtimes: NodeRuntime) -> Iterator[None]:
+    """Serve each runtime on its own thread, from when every node's setup has run (a test's checks
+    read what setup creates: before, a check could run first, 'Taker' object has no attribute 'values')."""
+    ready = []
+    for rt in runtimes:
+        done, setup = threading.Event(), rt.node.setup
+
+        def setup_then_say(setup=setup, done=done) -> None:
+            try:
+                setup()
+            finally:
+                done.set()
+
+        rt.node.setup = setup_then_say
+        ready.append(done)
     threads = [threading.Thread(target=rt.serve, daemon=True) for rt in runtimes]
     for t in threads:
         t.start()
+    for done in ready:
+        done.wait(30)
     try:
         yield
     finally:
