@@ -1,0 +1,308 @@
+"""Feature-expectation matching of the conflict price with the deployed planner in the loop.
+
+Apprenticeship learning (Abbeel & Ng 2004; the feature matching of Kretzschmar et al. 2016)
+on one weight: the planner's price of a conflict (the weights file's ``conflict`` weight, which
+the IRL cost and the planner's speed profile both read). The robot takes the place of a
+recorded walker among the others replayed (as the bench's real-crowd scenes do), the planner
+node drives it from the walker's start to where the walker was ``window_s`` later, and the
+feature the price controls is measured on both: the **encounter rate**, the fraction of the
+walk's time with another walker's centre within 0.5 m of one's own (walkers who were the
+walker's companions at the start are left out, for both: a robot walks with nobody). The
+learnt price is where the planner's mean encounter rate over the training walkers crosses the
+demonstrators' (:func:`match_price`, monotone interpolation over a log grid of prices).
+
+Perception is ground truth, the way ``sim.irl_demos.track_demos`` learnt the 12 weights: each
+other walker in the camera's view is a column of points moving at its recorded velocity
+(no rendering, no optical flow), through the crowd-features, IRL-cost and planner nodes as the
+launch file wires them. No collision guard: the price is the planner's to set.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ENCOUNTER_M = 0.5          # centre distance of an encounter (m)
+COMPANION_M = 1.5          # a walker this near at the start ...
+COMPANION_MPS = 0.5        # ... at a velocity this close is a companion (left out of the feature)
+
+
+@dataclass(frozen=True)
+class Walk:
+    """One demonstration: recorded walker ``pid`` of ``dataset`` over a gapless stretch of its track.
+
+    ``t_s`` (n,) data-set seconds, ``xy_m`` (n, 2) metres; the goal is ``xy_m[-1]``.
+    ``companions``: ids left out of the encounter feature."""
+
+    dataset: str
+    pid: int
+    t_s: np.ndarray
+    xy_m: np.ndarray
+    companions: tuple[int, ...] = ()
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+
+@dataclass
+class Encounters:
+    """The encounter feature of one walk: ``rate`` (fraction of ticks, 0-1), ``count`` (distinct encounters:
+    a walker coming within ``ENCOUNTER_M``), ``time_s`` (to the goal, or the episode's length if not reached),
+    ``reached``, ``closest_m`` (nearest non-companion centre); ``rate_self`` / ``count_self`` the same for the
+    encounters whose onset the walk itself caused (``sim.crowd.robot_drove_in`` on the closing speeds): replayed
+    people never make way for the robot, while the recorded walker's neighbours did make way for him."""
+
+    rate: float
+    count: int
+    time_s: float
+    reached: bool
+    closest_m: float
+    rate_self: float = 0.0
+    count_self: int = 0
+    xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+
+
+def pick_walks(tracks, n: int, *, seed: int = 0, window_s: float = 8.0, min_len_m: float = 4.0,
+               min_s: float = 4.0) -> list[Walk]:
+    """A seeded choice of ``n`` demonstrations from ``tracks`` (``sim.pedestrian_data.Tracks``).
+
+    Every gapless stretch of a track (:meth:`Tracks.segments`: a walker out of sight is cut there,
+    never interpolated) gives its first ``window_s`` seconds; kept if it lasts ``min_s`` and ends
+    ``min_len_m`` from where it began. Fewer than ``n`` candidates: all of them."""
+    if n < 1:
+        raise ValueError(f"n must be >= 1 walkers, got {n}")
+    cands = []
+    for i in range(len(tracks.ids)):
+        for t, xy in tracks.segments(i):
+            keep = t <= t[0] + window_s + 1e-9
+            t, xy = t[keep], xy[keep]
+            if len(t) >= 3 and t[-1] - t[0] >= min_s and np.hypot(*(xy[-1] - xy[0])) >= min_len_m:
+                cands.append((i, t, xy))
+                break                                   # one stretch per walker
+    rng = np.random.default_rng(seed)
+    pick = sorted(rng.choice(len(cands), size=min(n, len(cands)), replace=False).tolist()) if cands else []
+    walks = []
+    for j in pick:
+        i, t, xy = cands[j]
+        walks.append(Walk(tracks.name, int(tracks.ids[i]), t, xy, companions_at(tracks, int(tracks.ids[i]), t, xy)))
+    return walks
+
+
+def companions_at(tracks, pid: int, t_s: np.ndarray, xy_m: np.ndarray) -> tuple[int, ...]:
+    """Ids walking with ``pid`` at its start: within ``COMPANION_M`` and ``COMPANION_MPS`` of its velocity."""
+    ids, pos, vel = tracks.state_at(float(t_s[0]))
+    own = (xy_m[1] - xy_m[0]) / max(t_s[1] - t_s[0], 1e-9)
+    near = ((ids != pid) & (np.hypot(*(pos - xy_m[0]).T) < COMPANION_M)
+            & (np.hypot(*(vel - own).T) < COMPANION_MPS))
+    return tuple(int(i) for i in ids[near])
+
+
+class _Tally:
+    """Running encounter feature of one walk (see :class:`Encounters`)."""
+
+    def __init__(self, skip: set[int]) -> None:
+        self.skip, self.inside = skip, {}            # id -> did we close the gap at its onset
+        self.ticks = self.hits = self.hits_self = self.count = self.count_self = 0
+        self.closest = np.inf
+
+    def add(self, xy: np.ndarray, vel: np.ndarray, ids: np.ndarray, pos: np.ndarray, pvel: np.ndarray) -> None:
+        from sim.crowd import robot_drove_in
+
+        keep = np.array([int(i) not in self.skip for i in ids], bool) if len(ids) else np.zeros(0, bool)
+        now = {}
+        for i, q, v in zip(ids[keep], pos[keep], pvel[keep]):
+            d = float(np.hypot(*(q - xy)))
+            self.closest = min(self.closest, d)
+            if d >= ENCOUNTER_M:
+                continue
+            if int(i) in self.inside:
+                now[int(i)] = self.inside[int(i)]
+                continue
+            u = (q - xy) / max(d, 1e-9)
+            now[int(i)] = robot_drove_in(float(vel @ u), float(-(v @ u)))
+            self.count += 1
+            self.count_self += int(now[int(i)])
+        self.inside = now
+        self.ticks += 1
+        self.hits += bool(now)
+        self.hits_self += any(now.values())
+
+    def result(self, time_s: float, reached: bool, xy: np.ndarray) -> Encounters:
+        n = max(self.ticks, 1)
+        return Encounters(self.hits / n, self.count, time_s, reached, self.closest, self.hits_self / n,
+                          self.count_self, xy)
+
+
+def human_encounters(tracks, walk: Walk, *, dt_s: float = 1.0 / 15.0) -> Encounters:
+    """The demonstrator's own encounter feature over its recorded walk (positions interpolated at ``dt_s``)."""
+    tt = np.arange(walk.t_s[0], walk.t_s[-1] + 1e-9, dt_s)
+    xy = np.column_stack([np.interp(tt, walk.t_s, walk.xy_m[:, 0]), np.interp(tt, walk.t_s, walk.xy_m[:, 1])])
+    own = np.gradient(xy, dt_s, axis=0) if len(xy) > 1 else np.zeros_like(xy)
+    tally = _Tally({walk.pid, *walk.companions})
+    for tk, p, v in zip(tt, xy, own):
+        tally.add(p, v, *tracks.state_at(float(tk)))
+    return tally.result(walk.duration_s, True, xy)
+
+
+def weights_with_price(src: str | Path, price: float, dst: str | Path) -> Path:
+    """Copy the weights file ``src`` to ``dst`` with its ``conflict`` weight set to ``price`` (cost units, as
+    the step cost). Raises ValueError when ``src`` has no conflict feature (learn one with conflict on)."""
+    data = json.loads(Path(src).read_text(encoding="utf-8"))
+    if "conflict" not in data.get("names", []):
+        raise ValueError(f"{src} has no 'conflict' weight: use weights learnt with the conflict feature "
+                         "(nodes/nav/weights/default.json)")
+    if not np.isfinite(price) or price < 0:
+        raise ValueError(f"price must be finite and >= 0, got {price}")
+    data["weights"][data["names"].index("conflict")] = float(price)
+    Path(dst).write_text(json.dumps(data), encoding="utf-8")
+    return Path(dst)
+
+
+def replace_walker(tracks, walk: Walk, weights_path: str | Path, *, dt_s: float = 1.0 / 15.0,
+                   timeout_factor: float = 2.5, slack_s: float = 8.0, goal_tol_m: float = 0.5,
+                   fov_deg: float = 130.0, range_m: float = 8.0, planner_params: dict | None = None,
+                   seed: int = 0) -> Encounters:
+    """Drive the planner node from ``walk``'s start to its goal among the other walkers replayed.
+
+    The robot (``sim.crowd.RobotLimits``, unicycle) starts at the walker's first position facing
+    its first step; the episode ends at the goal (``goal_tol_m``) or after ``timeout_factor`` x
+    the walker's time + ``slack_s``. Each tick (``dt_s``) the others in the camera's view
+    (``fov_deg`` from a camera 0.3 m ahead, ``range_m``) become body points with their recorded
+    velocities (``sim.irl_demos.body_points``) -> CrowdFeatures -> IrlCost -> DijkstraPlanner
+    (``nodes.nav.demos.PLANNER_PARAMS`` + ``planner_params``; person_cost at its default 0)."""
+    from msgs.geometry import Odometry2D, Pose2D, Twist2D
+    from msgs.nav import FlowPoints, Goal2D
+    from msgs.sensor import Grid
+    from nodes.nav.crowd_features import CrowdFeatures
+    from nodes.nav.demos import FEATURE_PARAMS, PLANNER_PARAMS
+    from nodes.nav.dijkstra_planner import DijkstraPlanner
+    from nodes.nav.grid_frame import to_robot
+    from nodes.nav.irl_cost import IrlCost
+    from sim.crowd import RobotLimits, unicycle_step
+    from sim.irl_demos import body_points
+    from tether.testing import Harness
+
+    rng = np.random.default_rng(seed)
+    feats = Harness(CrowdFeatures, params=FEATURE_PARAMS, roundtrip=False, node_id="features")
+    cost = Harness(IrlCost, params={"weights_path": str(weights_path)}, roundtrip=False, node_id="cost")
+    plan = Harness(DijkstraPlanner, params={**PLANNER_PARAMS, "weights_path": str(weights_path), **(planner_params or {})},
+                   roundtrip=False, node_id="planner")
+    for h in (feats, cost, plan):
+        h.node.log.setLevel(logging.ERROR)
+    goal_xy = walk.xy_m[-1]
+    lo, hi = np.minimum(walk.xy_m.min(0), goal_xy) - 10.0, np.maximum(walk.xy_m.max(0), goal_xy) + 10.0
+    shape = tuple(np.ceil((hi - lo) / 0.1).astype(int)[::-1])
+    goal = Goal2D(x_m=float(goal_xy[0]), y_m=float(goal_xy[1]), tolerance_m=goal_tol_m, frame_id="world")
+    feats.feed([(0.0, "goal", goal)])
+    plan.feed([(0.0, "goal", goal), (0.0, "map", Grid(data=np.zeros(shape, np.uint8), resolution_m=0.1,
+                                                        origin_x_m=float(lo[0]), origin_y_m=float(lo[1]), frame_id="world"))])
+    k = int(np.argmax(np.hypot(*(walk.xy_m - walk.xy_m[0]).T) > 0.3)) or 1
+    heading = np.arctan2(*(walk.xy_m[k] - walk.xy_m[0])[::-1])
+    pose, twist, limits = (float(walk.xy_m[0, 0]), float(walk.xy_m[0, 1]), float(heading)), (0.0, 0.0), RobotLimits()
+    tally, path = _Tally({walk.pid, *walk.companions}), []
+    max_s, t, cmd, reached = timeout_factor * walk.duration_s + slack_s, 0.0, (0.0, 0.0), False
+    while t <= max_s:
+        ids, pos, vel = tracks.state_at(float(walk.t_s[0] + t))
+        tally.add(np.array(pose[:2]), twist[0] * np.array([np.cos(pose[2]), np.sin(pose[2])]), ids, pos, vel)
+        path.append(pose[:2])
+        if np.hypot(pose[0] - goal_xy[0], pose[1] - goal_xy[1]) <= goal_tol_m:
+            reached = True
+            break
+        others = ids != walk.pid
+        rel = to_robot(pose, pos[others])
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        rvel = vel[others] @ np.array([[c, -s], [s, c]])
+        seen = ((np.hypot(rel[:, 0], rel[:, 1]) <= range_m)
+                & (np.abs(np.arctan2(rel[:, 1], rel[:, 0] - 0.3)) <= np.radians(fov_deg) / 2))
+        pts, pvel = body_points(rel[seen], rvel[seen], rng)
+        stamp = int(round(t * 1e9))
+        odom = Odometry2D(stamp_ns=stamp, frame_id="world", pose=Pose2D(x_m=pose[0], y_m=pose[1], yaw_rad=pose[2]),
+                          twist=Twist2D(vx_mps=twist[0], wz_radps=twist[1]))
+        flow = FlowPoints(stamp_ns=stamp, frame_id="base", points_m=pts.astype(np.float32),
+                          velocity_mps=pvel.astype(np.float32))
+        cmds = [o.msg for o in plan.feed([(t, "odom", odom)]) if o.output == "cmd"]
+        feats.feed([(t, "odom", odom)])
+        grids = [o.msg for o in feats.feed([(t, "flow", flow)]) if o.output == "features"]
+        if grids:
+            costs = [o.msg for o in cost.feed([(t, "features", grids[-1])])]
+            out = plan.feed([(t, "flow", flow), (t, "features", grids[-1])] + [(t, "costs", cg) for cg in costs])
+            cmds += [o.msg for o in out if o.output == "cmd"]
+        if cmds:
+            cmd = (cmds[-1].vx_mps, cmds[-1].wz_radps)
+        pose, twist = unicycle_step(pose, twist, cmd, dt_s, limits)
+        t += dt_s
+    return tally.result(t if reached else max_s, reached, np.array(path))
+
+
+@dataclass(frozen=True)
+class Match:
+    """A matched price (cost units) and whether it lies outside the grid searched: ``censored`` is
+    '' (inside), 'below' (the planner meets fewer than the demonstrators even at the lowest price) or
+    'above' (more even at the highest)."""
+
+    price: float
+    censored: str = ""
+
+
+def match_price(prices: np.ndarray, planner: np.ndarray, human: float) -> Match:
+    """The price at which the planner's feature equals the demonstrators' ``human``.
+
+    ``prices`` (P,) increasing, > 0; ``planner`` (P,) the planner's mean feature at each price. The
+    curve is made non-increasing (running minimum: a dearer conflict never buys more encounters,
+    wiggles are noise) and crossed by linear interpolation in log price. Outside the curve's range
+    the nearest end is returned, ``censored``."""
+    prices, planner = np.asarray(prices, float), np.asarray(planner, float)
+    if prices.ndim != 1 or prices.shape != planner.shape or len(prices) < 2:
+        raise ValueError(f"give >= 2 prices and one planner feature per price, got {prices.shape} and {planner.shape}")
+    if not (np.all(prices > 0) and np.all(np.diff(prices) > 0)):
+        raise ValueError("prices must be > 0 and increasing (a log grid, e.g. np.geomspace(0.1, 40, 7))")
+    if not (np.isfinite(human) and np.all(np.isfinite(planner))):
+        raise ValueError("features must be finite: drop walkers with no samples before averaging")
+    f = np.minimum.accumulate(planner)
+    if human >= f[0]:
+        return Match(float(prices[0]), "below" if human > f[0] else "")
+    if human < f[-1]:
+        return Match(float(prices[-1]), "above")
+    j = int(np.flatnonzero(f <= human)[0])          # first price at or under the demonstrators
+    lp = np.log(prices)
+    if f[j - 1] == f[j]:
+        return Match(float(prices[j]))
+    a = (f[j - 1] - human) / (f[j - 1] - f[j])
+    return Match(float(np.exp(lp[j - 1] + a * (lp[j] - lp[j - 1]))))
+
+
+def bootstrap_prices(prices: np.ndarray, planner: np.ndarray, human: np.ndarray, *, n_boot: int = 1000,
+                     seed: int = 0) -> np.ndarray:
+    """Matched prices over walkers resampled with replacement: ``planner`` (W, P) per walker and price,
+    ``human`` (W,). Returns (n_boot,) prices (censored ones at the grid's ends)."""
+    planner, human = np.asarray(planner, float), np.asarray(human, float)
+    if planner.ndim != 2 or planner.shape[0] != len(human) or len(human) < 2:
+        raise ValueError(f"planner must be (walkers, prices) and human (walkers,), >= 2 walkers; got "
+                         f"{planner.shape} and {human.shape}")
+    rng = np.random.default_rng(seed)
+    out = np.empty(n_boot)
+    for b in range(n_boot):
+        k = rng.integers(0, len(human), len(human))
+        out[b] = match_price(prices, planner[k].mean(0), float(human[k].mean())).price
+    return out
+
+
+def loso_prices(prices: np.ndarray, per_scene: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, Match]:
+    """Leave-one-scene-out: for each scene, the price matched on the others' walkers pooled.
+
+    ``per_scene`` maps a scene name to (planner (W, P), human (W,)). Raises ValueError with fewer than
+    two scenes (nothing is left to learn from: use :func:`bootstrap_prices` over walkers instead)."""
+    if len(per_scene) < 2:
+        raise ValueError(f"leave-one-scene-out needs >= 2 scenes, got {list(per_scene)}: add a data set, or "
+                         "give an interval with bootstrap_prices over the walkers")
+    out = {}
+    for name in per_scene:
+        rest = [v for k, v in per_scene.items() if k != name]
+        pm = np.concatenate([np.asarray(p, float).reshape(-1, len(prices)) for p, _ in rest])
+        hm = np.concatenate([np.asarray(h, float).ravel() for _, h in rest])
+        out[name] = match_price(prices, pm.mean(0), float(hm.mean()))
+    return out
