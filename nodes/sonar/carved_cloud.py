@@ -139,21 +139,28 @@ class CarvedCloud(Node):
     def _integrate(self, ping: SonarPing, pose: np.ndarray) -> list[tuple[str, PointCloud]]:
         begin = time.perf_counter()
         cfg = self.config
-        img = compensate_row_gains(np.asarray(ping.intensities), np.asarray(ping.row_gains), ping.gamma).image
+        raw = np.asarray(ping.intensities)
+        gains = compensate_row_gains(raw, np.asarray(ping.row_gains), ping.gamma)
+        img = gains.image
+        # the generative levels read the raw samples with their row gains (clipping stays at full scale there);
+        # gains repaired, invalid or absent: the image as carving reads it
+        row_gains = np.asarray(ping.row_gains, np.float32) if gains.status == "applied" else None
+        raw = raw if row_gains is not None else img
         bearings = np.asarray(ping.bearings_rad, float)
         resolution = ping.range_resolution_m
         if not resolution > 0 and ping.range_m > 0 and img.ndim == 2 and img.shape[0] > 0:
             resolution = ping.range_m / img.shape[0]
         spread = ping.vertical_aperture_rad if 0 < ping.vertical_aperture_rad < math.pi else cfg.spread_rad
         if bearings.size > 1 and bearings[0] > bearings[-1]:              # either order on the wire
-            bearings, img = bearings[::-1], img[:, ::-1]
+            bearings, img, raw = bearings[::-1], img[:, ::-1], raw[:, ::-1]
         transform = np.array(pose, float)
         if cfg.body_frame == "flu":
             transform[:3, :3] = transform[:3, :3] @ _FLIP
         try:
             update = self.grid.integrate(img, bearings, resolution, transform, spread)
             if self.generative is not None:
-                self.generative.integrate(img, bearings, resolution, transform, spread, gamma=ping.gamma or None)
+                self.generative.integrate(raw, bearings, resolution, transform, spread, gamma=ping.gamma or None,
+                                          row_gains=row_gains)
         except ValueError as exc:
             self._drop(f"ping {ping.ping_id}: {exc}".split(",")[0])
             return []

@@ -121,7 +121,8 @@ def slope_of(y: np.ndarray) -> np.ndarray:
 
 def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_resolution_m: float,
                        spread_rad: float, *, params: GenerativeParams = GenerativeParams(),
-                       floor_rows: np.ndarray | None = None, gain: float = 1.0) -> SurfaceSamples:
+                       floor_rows: np.ndarray | None = None, gain: float = 1.0,
+                       row_gains: np.ndarray | None = None) -> SurfaceSamples:
     """Every run's surface points of one ping, per leading-edge hypothesis (see the module docstring).
 
     Parameters
@@ -134,6 +135,9 @@ def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_
         floor's echo starts there (within ``floor_check_m``) the bottom-edge ray reached the floor unblocked: that
         beam's runs have no bottom-edge hypothesis. None: no seafloor, every run has both.
     gain : linear gain the ping was amplified by (1 at 50 %).
+    row_gains : (M,) linear gain the device amplified each row by before its gamma and quantisation, with
+        ``intensities`` the raw samples (not compensated: a row-gain-compensated image clips below full scale, where
+        the censoring cannot see it); None: no row gains (or all 1).
     """
     img = np.asarray(intensities)
     bearings = np.asarray(bearings_rad, float)
@@ -142,6 +146,11 @@ def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_
                          f"{bearings.size} bearings")
     if not (range_resolution_m > 0 and 0 < spread_rad < np.pi and gain > 0):
         raise ValueError("need range_resolution_m > 0, 0 < spread_rad < pi and gain > 0")
+    if row_gains is not None:
+        row_gains = np.asarray(row_gains, np.float32).reshape(-1)
+        if row_gains.size != img.shape[0] or not np.all(np.isfinite(row_gains) & (row_gains > 0)):
+            raise ValueError(f"row_gains must be one finite gain > 0 per row ({img.shape[0]}), got {row_gains.size}: "
+                             "repair them first, or pass the compensated image without them")
     p = params
     k = max(1, int(round(p.bin_m / range_resolution_m)))  # rows per profile bin
     dr = k * float(range_resolution_m)                     # the profile's bin (m)
@@ -151,7 +160,8 @@ def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_
         m = int(min(m, max(np.ceil(floor.max(initial=0.0) + p.floor_check_m / dr), 0)))
     if m == 0:
         return _empty()
-    level, unclipped = censored_level(img[:m * k], k, p, gain)    # beams x bins
+    level, unclipped = censored_level(img[:m * k], k, p, gain,
+                                      None if row_gains is None else row_gains[:m * k])    # beams x bins
     unblocked = np.zeros(img.shape[1], bool)
     if floor is not None:
         bins = np.arange(m)[None, :]
@@ -201,18 +211,26 @@ def surface_elevations(intensities: np.ndarray, bearings_rad: np.ndarray, range_
     return SurfaceSamples(*(np.concatenate([getattr(s, f) for s in out]) for f in SurfaceSamples.__dataclass_fields__))
 
 
-def censored_level(img: np.ndarray, k: int, p: GenerativeParams, gain: float) -> tuple[np.ndarray, np.ndarray]:
+def censored_level(img: np.ndarray, k: int, p: GenerativeParams, gain: float,
+                   row_gains: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Echo level of bins of ``k`` rows smoothed over ``smooth_beams`` beams, and the number of unclipped samples
     behind it: both (N, M // k) float32, beams x bins, of the (M, N) ping ``img``.
 
     Speckle is exponential and the sonar clips at full scale: over a window the maximum-likelihood mean of
     right-censored exponential samples is the sum of all (clipped ones at full scale) over the count of unclipped
-    ones -- a steep face whose level is many times full scale still reads as it is, if noisily. (Row gains
-    compensated before this move the clipping point below full scale; it is read at full scale.)
+    ones -- a steep face whose level is many times full scale still reads as it is, if noisily. With ``row_gains``
+    (M,) ``img`` holds the raw samples of a device that amplified row i by ``row_gains[i]``: each sample's level is
+    divided by its row's gain and a sample is clipped where it reads full scale (compensating the image first would
+    move a row's clipping point below full scale, where a clipped sample would pass for an unclipped one).
     """
     full = np.iinfo(img.dtype).max
     m, n = img.shape[0] // k, img.shape[1]
-    if img.dtype == np.uint8:                              # a 256-entry table beats the float arithmetic
+    if row_gains is not None and np.all(row_gains == 1.0):
+        row_gains = None
+    if row_gains is not None:                              # each row's level at unit gain, then the noise floor
+        level = level_of(img, gamma=p.gamma) / np.asarray(row_gains, np.float32)[:, None]
+        level = np.maximum(level - np.float32(p.noise_level), 0.0)
+    elif img.dtype == np.uint8:                            # a 256-entry table beats the float arithmetic
         lut = np.maximum(level_of(np.arange(256, dtype=np.uint8), gamma=p.gamma) - np.float32(p.noise_level), 0)
         level = cv2.LUT(img, lut.astype(np.float32))
     else:

@@ -54,10 +54,12 @@ class GenerativeVotes:
         self.pings = 0
 
     def integrate(self, intensities: np.ndarray, bearings_rad: np.ndarray, range_resolution_m: float,
-                  pose: np.ndarray, spread_rad: float, *, gain: float = 1.0, gamma: float | None = None) -> int:
+                  pose: np.ndarray, spread_rad: float, *, gain: float = 1.0, gamma: float | None = None,
+                  row_gains: np.ndarray | None = None) -> int:
         """Add one ping's generative points (taken at ``pose``); returns how many fell in the grid. Call it after
         ``grid.integrate`` with the same ping (so the grid has carved with it); ``gamma`` the ping's, when it is
-        not the params'."""
+        not the params'; ``row_gains`` the device's per-row gains, ``intensities`` then raw (not compensated: see
+        :func:`nodes.sonar.generative.censored_level`)."""
         img = np.asarray(intensities)
         bearings = np.asarray(bearings_rad, float)
         pose = np.asarray(pose, float)
@@ -67,7 +69,7 @@ class GenerativeVotes:
             floor = seafloor_rows(bearings, img.shape[0], range_resolution_m, pose, spread_rad, g.seafloor_z_m)
         params = self.params if gamma is None or gamma == self.params.gamma else replace(self.params, gamma=gamma)
         s = surface_elevations(img, bearings, range_resolution_m, spread_rad, params=params, floor_rows=floor,
-                               gain=gain)
+                               gain=gain, row_gains=row_gains)
         world = s.points_frd() @ pose[:3, :3].T + pose[:3, 3]
         cell = np.floor((world - g.origin) / g.params.voxel_m).astype(np.int64)
         ok = np.all((cell >= 0) & (cell < np.array(g.shape)), axis=1) & ~s.saturated

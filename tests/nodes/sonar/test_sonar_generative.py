@@ -226,3 +226,65 @@ def test_the_carved_cloud_node_adds_the_generative_voxels_when_asked() -> None:
     assert np.allclose(np.asarray(both.points_m)[:n], np.asarray(plain.points_m))    # the carved ones unchanged
     sigma = np.asarray(both.sigma_m)
     assert np.all(np.isfinite(sigma) & (sigma > 0)) and len(sigma) == len(both.intensity)
+
+
+def test_row_gained_pings_are_read_raw_with_their_gains_clipping_at_full_scale() -> None:
+    """A device that amplifies far rows (a time-varying gain) clips them sooner. Compensating the image first moves a
+    row's clipping point below full scale, where the censored level takes clipped samples for unclipped ones and
+    reads the face several times too dim; the raw samples with their gains read it as a ping without row gains."""
+    from nodes.sonar.gain import compensate_row_gains
+    from nodes.sonar.generative import censored_level
+
+    scene = load_scene("wall")
+    pose = sonar_frame(np.array([0.0, 0.0, -1.0]), math.pi / 2, scene.sonar.tilt_rad)   # 7.7 m from the face
+    ping = render_ping(scene, pose, PingSettings(n_beams=256, range_m=20.0, row_gain_db_per_m=1.0),
+                       rng=np.random.default_rng(4))
+    p, k = GenerativeParams(), 4
+    raw, _ = censored_level(ping.intensities, k, p, 1.0, ping.row_gains)
+    comp, _ = censored_level(compensate_row_gains(ping.intensities, ping.row_gains, 0.5).image, k, p, 1.0)
+    true = ping.level[:raw.shape[1] * k].reshape(-1, k, ping.level.shape[1]).mean(axis=1).T
+    on = true > 0.5                                        # the face's bins
+    assert on.sum() > 300
+    err_raw = np.median(np.abs(np.log(np.maximum(raw[on], 1e-6) / true[on])))
+    err_comp = np.median(np.abs(np.log(np.maximum(comp[on], 1e-6) / true[on])))
+    assert err_raw < 0.7 and err_comp > err_raw + 0.4
+    # and the elevations integrated from the face's top edge follow
+    kw = dict(params=GenerativeParams(leading="top"))
+    args = (ping.bearings_rad, ping.range_resolution_m, ping.vertical_aperture_rad)
+    s = surface_elevations(ping.intensities, *args, row_gains=ping.row_gains, **kw)
+    c = surface_elevations(compensate_row_gains(ping.intensities, ping.row_gains, 0.5).image, *args, **kw)
+    e_s, e_c = (np.nanmedian(np.abs(x.elevation_rad - _true_elevation(ping, x, [1]))) for x in (s, c))
+    assert e_s < e_c
+    with pytest.raises(ValueError, match="one finite gain > 0 per row"):
+        surface_elevations(ping.intensities, *args, row_gains=ping.row_gains[:-1], **kw)
+
+
+def test_the_carved_cloud_node_hands_the_generative_levels_the_raw_samples_and_their_row_gains(monkeypatch) -> None:
+    from msgs.geometry import Pose3D
+    from msgs.sonar import SonarPing
+    from nodes.sonar.carved_cloud import CarvedCloud
+    from tether.testing import Harness
+
+    seen = []
+    original = GenerativeVotes.integrate
+
+    def spy(self, intensities, *args, **kwargs):
+        seen.append((np.array(intensities), kwargs.get("row_gains")))
+        return original(self, intensities, *args, **kwargs)
+
+    monkeypatch.setattr(GenerativeVotes, "integrate", spy)
+    scene = load_scene("block")
+    r = render_ping(scene, scene.sonar_pose(3.0), PingSettings(n_beams=256, range_m=20.0, row_gain_db_per_m=1.0),
+                    rng=np.random.default_rng(5))
+    events = [(t, "pose", Pose3D.from_matrix(scene.sonar_pose(t), stamp_ns=int(round(t * 1e9)), frame_id="world"))
+              for t in (2.9, 3.1)]
+    events.append((3.05, "ping", SonarPing(stamp_ns=int(3e9), intensities=r.intensities,
+                                           bearings_rad=r.bearings_rad.astype(np.float32),
+                                           range_resolution_m=r.range_resolution_m, range_m=r.range_m, gamma=0.5,
+                                           vertical_aperture_rad=r.vertical_aperture_rad, row_gains=r.row_gains)))
+    with Harness(CarvedCloud, params={"bounds_m": [-8, -8, -6.5, 8, 10, 0], "seafloor_z_m": -6.0,
+                                      "generative": True}) as h:
+        h.feed(events)
+    assert not h.node.dropped and len(seen) == 1
+    img, gains = seen[0]
+    assert np.array_equal(img, r.intensities) and np.allclose(gains, r.row_gains)
