@@ -263,6 +263,20 @@ def sonar_polar(d: dict) -> list[Row]:
              f"<= {d['goal_fan1024_ms']:g} ms: {_met(d['fan1024_ms'] <= d['goal_fan1024_ms'])}")]
 
 
+def sonar_two_branch(d: dict) -> list[Row]:
+    held = [k for k in d["passes"] if k not in d["chosen_on"] and k != "demo"]
+    k = d["min_votes"]
+    return [(f"`sonar_two_branch.py` demo pass and {len(held)} check passes: two surface branches from an interior "
+             f"leading point (a lever for the completeness goal; min_votes {k} chosen on {', '.join(d['chosen_on'])})",
+             f"completeness at >= 90 % within 0.2 m (best over the evidence threshold sweep) on the demo "
+             f"{100 * d['demo_fused']:.1f} %; better on {d['held_out_better']} held-out passes, the demo among them ("
+             + ", ".join(f"{n} {100 * d['passes'][n][f'fused_{k}']:.1f}" for n in held)
+             + f" %); {d['ms_per_ping']:.1f} ms per ping for its votes alone (load average {d['load_average']:g})",
+             f"the evidence cloud alone: demo {100 * d['demo_evidence']:.1f} % ("
+             + ", ".join(f"{n} {100 * d['passes'][n]['evidence']:.1f}" for n in held) + " %)",
+             "no goal (a measured lever): not shipped, too little for its cost")]
+
+
 def sonar_carving_filter(d: dict) -> list[Row]:
     """``--fresh --fresh2``: the shipped evidence filter beside the default cloud on passes nothing was trained on."""
     rows = []
@@ -317,6 +331,9 @@ def sonar_cloud(d: dict) -> list[Row]:
                 + (f", best completeness at >= 90 % with this pass in view "
                    f"{100 * d['evidence_completeness_at_acc90_chosen_on_demo']:.1f} %"
                    if d.get("evidence_completeness_at_acc90_chosen_on_demo") is not None else "")
+                + (f" ({100 * d['evidence_completeness_at_acc90_fine_chosen_on_demo']:.1f} % at p >= "
+                   f"{d['evidence_fine_at_p']:g} in 0.025 steps)"
+                   if d.get("evidence_completeness_at_acc90_fine_chosen_on_demo") is not None else "")
                 + "; the first filter (a height feature, 15 passes, p >= 0.77, its last feature picked with this pass "
                   "in view) gave 92.1 % / 70.6 % here but 69.6 % within 0.2 m on a never-seen jacket crossed above its deck"
                 if "evidence_acc_frac_0p2" in d else "")
@@ -337,6 +354,11 @@ def sonar_cloud(d: dict) -> list[Row]:
                                      f"{100 * max(d['completeness_oracle_filter'].values()):.0f} %, and only "
                                      f"{100 * d['pinned_0p2_frac']:.0f} % of the seen surface is pinned to 0.2 m by any "
                                      f"view" if "completeness_oracle_filter" in d else "") + ")" if not ok[1] else "")
+             + (f"; the visible surface audited: {100 * d['visible_audit']['back_facing']:.1f} % of it faces away from "
+                f"every ping that hit near it; without it completeness is {100 * d['completeness_0p2_facing']:.1f} %, "
+                f"`keep: evidence` {100 * d['evidence_completeness_0p2_facing']:.1f} %, its best at >= 90 % "
+                f"{100 * d['evidence_completeness_at_acc90_fine_facing_chosen_on_demo']:.1f} % (the rule above is unchanged)"
+                if "visible_audit" in d and "evidence_completeness_0p2_facing" in d else "")
              + (f"; with `keep: evidence` >= 90 % and >= 70 %: "
                 f"{_met(d['evidence_completeness_0p2'] >= 0.7 and d['evidence_acc_frac_0p2'] >= 0.9)}"
                 if "evidence_acc_frac_0p2" in d else "")
@@ -810,6 +832,7 @@ FORMATTERS: dict[str, tuple[list[str], Callable[[dict], list[Row]]]] = {
     "nav_plan": ([], nav_plan),
     "sonar_polar": ([], sonar_polar),
     "sonar_cloud": ([], sonar_cloud),
+    "sonar_two_branch": ([], sonar_two_branch),
     "sonar_carving_filter": (["--fresh", "--fresh2"], sonar_carving_filter),
     "nav_flow": ([], nav_flow),
     "transport": ([], transport),
