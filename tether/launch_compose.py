@@ -248,7 +248,8 @@ def _arg(content: str, args: dict[str, Any], line: str) -> Any:
     if kind != "arg" or not name:
         raise ConfigError(f"{line}: unknown substitution $({content}) (the ones there are: $(arg NAME), $(dirname))")
     if name not in args:
-        raise ConfigError(f"{line}: $(arg {name}): the file declares no arg {name!r} ({_hint(name, args)})")
+        declared = set(args) - {_DIRNAME}              # $(dirname) waits among the args, but is not one
+        raise ConfigError(f"{line}: $(arg {name}): the file declares no arg {name!r} ({_hint(name, declared)})")
     return args[name]
 
 

@@ -151,7 +151,12 @@ def load_yaml(text: str | bytes, *, where: str, max_depth: int = MAX_DEPTH, max_
     """Parse one YAML document with the limits above; :class:`ConfigError` ``"WHERE:LINE: why"`` otherwise."""
     if len(text) > MAX_BYTES:
         raise ConfigError(f"{where}: {len(text)} bytes is larger than a configuration file can be ({MAX_BYTES})")
-    loader = _Loader(text, max_depth, where)
+    try:
+        loader = _Loader(text, max_depth, where)    # the reader refuses control characters here
+    except yaml.reader.ReaderError as exc:
+        line = text[:exc.position].count("\n" if isinstance(text, str) else b"\n") + 1
+        raise ConfigError(f"{where}:{line}: character {exc.character:#04x} is not allowed in YAML text "
+                          "(a control character or a byte that is not UTF-8): remove it") from None
     try:
         root = loader.get_single_node()
         if root is None:
@@ -178,11 +183,14 @@ def load_yaml_file(path: Any) -> Any:
 
     path = Path(path)
     try:
-        text = path.read_bytes()
+        with path.open("rb") as f:              # bounded: /dev/zero or a huge file is refused, not read to the end
+            text = f.read(MAX_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    if len(text) > MAX_BYTES:
+        raise ConfigError(f"{path}: larger than a configuration file can be ({MAX_BYTES} bytes)")
     try:
         decoded = text.decode("utf-8")
     except UnicodeDecodeError as exc:
