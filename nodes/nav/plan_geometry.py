@@ -263,6 +263,15 @@ def speed_profile(path_xy: np.ndarray, people_xy: np.ndarray, people_v: np.ndarr
     cost, the exchange rate the local plan trades detours at) per cell. The cheapest candidate wins; ties
     go to the faster one. So the robot slows or waits where the conflict costs more than the time, and
     goes where it does not; it is what the spatial plan does with a detour, done with time.
+
+    With the shipped weights a conflict second (4 per cell, 16 per s at 1 m/s) is cheaper than a second of progress
+    given up (the typical footprint cell, ~4.8 on hallway: ~19 per s), so the profile never waits for a conflict that
+    lasts the whole horizon: a walker head-on in the lane is driven at, and the guard stops the robot (hallway start 0,
+    t = 3.7 s: cost 11-14 going, 32 waiting). Tried against it (helper-59, bench/social_nav_quick.py, 6 starts,
+    rejected): a conflict lasting to the horizon's end once begun (people do not walk through the robot): hallway guard
+    median 0.314 -> 0.278, but the robot then waits in front of walkers who do not see it (toward, group) or cross
+    (zara03): held out closest >= DWA 23/29 -> 19/29, zara03 strict robot contacts 0 -> 2 over 5 starts; progress
+    counted only up to a candidate's first conflict: hallway guard 0.165 at start 0 but no arrival in 60 s.
     """
     if not (v_max_mps > 0 and horizon_s > 0 and step_s > 0 and cell_m > 0 and n_speeds >= 2):
         raise ValueError("speed_profile needs v_max_mps, horizon_s, step_s, cell_m > 0 and n_speeds >= 2; got "
