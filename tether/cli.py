@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
@@ -56,6 +57,16 @@ def _pairs(items: Sequence[str] | None, flag: str) -> dict[str, str]:
     return out
 
 
+def _not_an_input(output: str | None, *inputs: str, flag: str = "-o") -> None:
+    """Refuse an output file that is one of the inputs: opening it for writing would empty the input first."""
+    if not output or not Path(output).exists():
+        return
+    for src in inputs:
+        if Path(src).exists() and Path(output).samefile(src):
+            raise ConfigError(f"{flag} {output} is the input {src}: writing it would destroy the input; "
+                              "give another output file")
+
+
 # -- launch / check / graph / run -------------------------------------------------------
 def cmd_launch(args: argparse.Namespace) -> int:
     from tether.launch import load_launch, parse_launch_args, parse_overrides
@@ -105,15 +116,31 @@ def cmd_run(args: argparse.Namespace) -> int:
     from tether.runtime import NodeRuntime, RunSpec, Source
     from tether.transport import ipc_endpoint
 
+    from tether.launch import NODE_ID_RE
+    from tether.node import Tick
+
     cls = load_node_class(args.node)
     node_id = args.id or cls.__name__.lower()
+    if not NODE_ID_RE.match(node_id):
+        raise ConfigError(f"--id {node_id!r}: an id starts with a letter and uses letters, digits, '-' or '_'")
+    ports = cls.resolve_ports(cls.make_config(_params(args.param)))
     inputs = {}
     for name, topic in _pairs(args.input, "--input").items():
+        if name not in ports.inputs:
+            raise ConfigError(f"--input {name}={topic}: {args.node} has no input {name!r} "
+                              f"(inputs: {', '.join(sorted(ports.inputs)) or 'none'})")
+        want = ports.inputs[name].type.type_name()
         if topic.startswith("timer/"):
             from tether.launch import timer_period_ns
+            if ports.inputs[name].type is not Tick:
+                raise ConfigError(f"--input {name}={topic}: input {name!r} takes {want}, not a timer")
             inputs[name] = Source(timer_ns=timer_period_ns(topic))
         else:
-            inputs[name] = Source(topic=topic, endpoint=registry.find_topic(topic).endpoint)
+            found = registry.find_topic(topic)
+            if found.type_name != want:
+                raise ConfigError(f"--input {name}={topic}: input {name!r} takes {want} but {topic} "
+                                  f"publishes {found.type_name}")
+            inputs[name] = Source(topic=topic, endpoint=found.endpoint)
     endpoint = ipc_endpoint("run", node_id, uuid.uuid4().hex[:8])
     spec = RunSpec(graph=f"run-{node_id}", node_id=node_id, node=args.node, params=_params(args.param),
                    binds=[endpoint], inputs=inputs)
@@ -186,6 +213,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             raise ConfigError("--into needs --record OUT (where the node's outputs go)")
         if args.loop:
             raise ConfigError("--loop does not apply to --into (a node is run once over the log)")
+        _not_an_input(args.record, args.file, flag="--record")
         progress = _Progress()
         n = replay_into(args.file, load_node_class(args.into), _pairs(args.map, "--map"), args.record,
                         params=_params(args.param), window=window, lockstep=args.lockstep,
@@ -304,6 +332,7 @@ def cmd_log(args: argparse.Namespace) -> int:
     if args.recover:
         if not args.output:
             raise ConfigError("tether log --recover IN needs -o OUT")
+        _not_an_input(args.output, args.file)
         written, damaged, lost = recover_log(args.file, args.output)
         print(f"recovered {written} messages from {args.file} into {args.output}; {len(damaged)} damaged chunk(s)"
               + (f", {lost} messages lost" if lost >= 0 else " (the source had no statistics: losses unknown)"))
@@ -367,6 +396,7 @@ def _log_cut_merge(args: argparse.Namespace) -> int:
         raise ConfigError(f"tether log {args.file} needs the input log(s) and -o OUT")
     if args.file == "cut" and len(args.more) != 1:
         raise ConfigError("tether log cut takes one input log")
+    _not_an_input(args.output, *args.more)
     readers = [LogReader(path) for path in args.more]
     types: dict[str, str] = {}
     for reader in readers:
@@ -408,11 +438,60 @@ def _size(text: str) -> int:
     scale = units.get(text[-1:].upper(), 1)
     try:
         value = int(float(text[:-1] if scale > 1 else text) * scale)
-    except ValueError:
+    except (ValueError, OverflowError):              # int(float('inf')) overflows
         raise argparse.ArgumentTypeError(f"{text!r} is not a size like 65536, 64K or 64M") from None
     if not 1 <= value <= 1 << 40:
         raise argparse.ArgumentTypeError(f"{text!r}: a size between 1 B and 1 TiB")
     return value
+
+
+def _number(text: str, *, low: float = -math.inf, strict: bool = False, what: str = "a finite number") -> float:
+    """An option's number: finite (argparse's float takes 'nan' and 'inf'), and above ``low``."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value) or value < low or (strict and value == low):
+        raise argparse.ArgumentTypeError(f"{text!r}: give {what}")
+    return value
+
+
+def _finite(text: str) -> float:
+    return _number(text)
+
+
+def _seconds(text: str) -> float:
+    """A duration or window: seconds > 0."""
+    return _number(text, low=0.0, strict=True, what="a number of seconds > 0")
+
+
+def _positive(text: str) -> float:
+    return _number(text, low=0.0, strict=True, what="a number > 0")
+
+
+def _at_least_zero(text: str) -> float:
+    """A time from a log's start, a delay or a rate factor: >= 0."""
+    return _number(text, low=0.0, what="a number >= 0")
+
+
+def _whole(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a whole number >= {low}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    """A count of messages, states, iterations, episodes, instances: >= 1."""
+    return _whole(text, 1)
+
+
+def _natural(text: str) -> int:
+    """A count that may be 0 (0: off, or none)."""
+    return _whole(text, 0)
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -421,6 +500,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     run = importer(args.kind)
     if Path(args.file).is_dir():
         raise ConfigError(f"{args.file}: a directory, not a log file")
+    _not_an_input(args.output, args.file)
     try:
         result = run(args.file, args.output, topic=args.topic, max_bytes=args.max_bytes, skip_bad=args.skip_bad)
     except OSError as exc:                  # unreadable input, unwritable output: one line, not a traceback
@@ -436,6 +516,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from tether.export import export_foxglove
 
+    _not_an_input(args.output, args.file)
     progress = _Progress()
     n = export_foxglove(args.file, args.output, lambda k, total: progress(f"export {k}/{total} messages"))
     progress.done()
@@ -706,7 +787,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", help="the launch file (YAML)")
     p.add_argument("--arg", action="append", metavar="NAME=VALUE",
                    help="set a launch argument declared under 'args' (repeatable; VALUE read as YAML: 20, true, text)")
-    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--duration", type=_seconds, help="stop after S seconds")
     p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE",
                    help="override a node parameter (a namespaced node: NS.NODE.KEY=VALUE)")
     p.add_argument("--record", metavar="FILE", help="record the graph's topics to an MCAP log")
@@ -716,7 +797,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --record: not these (e.g. '*/rgbd'; repeatable)")
     p.add_argument("--record-max-size", type=_size, metavar="SIZE",
                    help="with --record: start a new file (RUN_1.mcap, ...) past SIZE, e.g. 500M")
-    p.add_argument("--record-max-duration", type=float, metavar="S", help="with --record: a new file every S seconds")
+    p.add_argument("--record-max-duration", type=_seconds, metavar="S", help="with --record: a new file every S seconds")
     p.add_argument("--machine", help="start only this machine's nodes")
     p.add_argument("--keys", help="CurveZMQ keystore folder of the graph (default ~/.config/tether/keys/NAME/; "
                                "see 'tether keys')")
@@ -746,30 +827,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--id", help="its id (topics are ID/OUTPUT; default: the class name in lower case)")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="a Config parameter (unknown keys are errors)")
     p.add_argument("--input", action="append", metavar="NAME=TOPIC", help="connect an input to a running topic or timer/hz/N")
-    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--duration", type=_seconds, help="stop after S seconds")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("record", help="record running topics to an MCAP log")
     p.add_argument("topics", nargs="*", help="topics to record (default: every running topic but */_stats)")
     p.add_argument("-o", "--output", required=True, help="the MCAP file to write")
-    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--duration", type=_seconds, help="stop after S seconds")
     p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was received")
     p.add_argument("--include", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
                    help="only topics matching these globs (repeatable)")
     p.add_argument("--exclude", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
                    help="not topics matching these globs (repeatable)")
     p.add_argument("--max-size", type=_size, metavar="SIZE", help="start a new file (OUT_1.mcap, ...) past SIZE, e.g. 500M")
-    p.add_argument("--max-duration", type=float, metavar="S", help="start a new file every S seconds")
+    p.add_argument("--max-duration", type=_seconds, metavar="S", help="start a new file every S seconds")
     p.set_defaults(func=cmd_record)
 
     p = sub.add_parser("replay", help="publish a log, or run a node on it (--into)")
     p.add_argument("file", help="the MCAP log")
-    p.add_argument("--rate", type=float, default=1.0, help="speed factor (0 = as fast as possible)")
-    p.add_argument("--start", type=float, default=0.0, help="seconds from the log's start")
-    p.add_argument("--end", type=float, help="seconds from the log's start")
+    p.add_argument("--rate", type=_at_least_zero, default=1.0, help="speed factor (0 = as fast as possible)")
+    p.add_argument("--start", type=_at_least_zero, default=0.0, help="seconds from the log's start")
+    p.add_argument("--end", type=_at_least_zero, help="seconds from the log's start")
     p.add_argument("--loop", action="store_true", help="start again at the end (publishing only)")
     p.add_argument("--topics", nargs="+", help="only these topics (names or globs like 'sonar/*')")
-    p.add_argument("--delay", type=float, help="seconds to let subscribers attach before playing (0.5; "
+    p.add_argument("--delay", type=_at_least_zero, help="seconds to let subscribers attach before playing (0.5; "
                    "with --wait-subscribers the most it waits, 30)")
     p.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
                    help="play once N subscribers take every replayed topic (or --delay has passed: a warning)")
@@ -784,27 +865,27 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("topic", help="list / echo / hz / bw")
     p.add_argument("action", choices=("list", "echo", "hz", "bw"), help="list topics, print messages, rate, bandwidth")
     p.add_argument("topic", nargs="?", help="the topic (not for list)")
-    p.add_argument("-n", "--count", type=int, help="echo: stop after N messages")
+    p.add_argument("-n", "--count", type=_positive_int, help="echo: stop after N messages")
     p.add_argument("--raw", action="store_true", help="echo: plain msgpack")
     p.add_argument("--all", action="store_true", help="list: include _stats topics")
-    p.add_argument("--window", type=float, default=5.0, help="hz/bw: seconds averaged")
-    p.add_argument("-w", "--window-msgs", type=int, default=0, metavar="N",
+    p.add_argument("--window", type=_seconds, default=5.0, help="hz/bw: seconds averaged")
+    p.add_argument("-w", "--window-msgs", type=_natural, default=0, metavar="N",
                    help="hz/bw: average over the last N messages instead (like ros2 topic hz -w)")
-    p.add_argument("--duration", type=float, help="hz/bw: stop after S seconds")
+    p.add_argument("--duration", type=_seconds, help="stop after S seconds")
     p.set_defaults(func=cmd_topic)
 
     p = sub.add_parser("node", help="list running nodes / show one node's counters")
     p.add_argument("action", choices=("list", "info"), help="list running nodes, or one node's statistics")
     p.add_argument("id", nargs="?", help="with info: the node id")
-    p.add_argument("--wait", type=float, default=3.0, metavar="S",
+    p.add_argument("--wait", type=_seconds, default=3.0, metavar="S",
                    help="with info: how long to wait for the node's next statistics (sent once a second; default 3)")
     p.set_defaults(func=cmd_node)
 
     p = sub.add_parser("log", help="what a log holds, whether every chunk is intact; cut and merge logs")
     p.add_argument("file", help="the MCAP log; or 'cut' (then IN) or 'merge' (then IN ...)")
     p.add_argument("more", nargs="*", help="with cut: the log to cut; with merge: the logs to merge")
-    p.add_argument("--start", type=float, default=0.0, help="with cut: seconds from the log's start")
-    p.add_argument("--end", type=float, help="with cut: seconds from the log's start")
+    p.add_argument("--start", type=_at_least_zero, default=0.0, help="with cut: seconds from the log's start")
+    p.add_argument("--end", type=_at_least_zero, help="with cut: seconds from the log's start")
     p.add_argument("--topics", nargs="+", help="with cut: only these topics (names or globs)")
     p.add_argument("--check", action="store_true", help="verify every chunk's CRC (the default; exit 1 on damage)")
     p.add_argument("--no-check", action="store_true", help="list only, do not read every chunk")
@@ -838,7 +919,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="only topics matching these globs (default: all but */_stats; repeatable)")
     p.add_argument("--exclude", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
                    help="not topics matching these globs (repeatable)")
-    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--duration", type=_seconds, help="stop after S seconds")
     p.set_defaults(func=cmd_foxglove)
 
     p = sub.add_parser("doctor", help="check the runtime directory and keystores; clean what crashed runs left")
@@ -856,8 +937,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "published, settled, deadlock, queued/handled/dropped/lost/"
                                                   "counted/has_publisher(NODE.INPUT)")
     p.add_argument("--focus", help="the topic whose message is tracked (default: read from the formula)")
-    p.add_argument("--faults", type=int, default=1, help="crashes per node the model allows (default 1; 0: none)")
-    p.add_argument("--max-states", type=int, default=1_000_000, help="stop exploring past this many states")
+    p.add_argument("--faults", type=_natural, default=1, help="crashes per node the model allows (default 1; 0: none)")
+    p.add_argument("--max-states", type=_positive_int, default=1_000_000, help="stop exploring past this many states")
     p.add_argument("-v", "--verbose", action="store_true", help="print every property, not only the failing ones")
     p.set_defaults(func=cmd_verify)
 
@@ -865,8 +946,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("images", nargs="+", help="images from one camera (sorted by name: the sequence order)")
     p.add_argument("--features", choices=("orb", "sift"), default="sift",
                    help="feature detector (default sift: about 10x more accurate than orb here; SURF is not in pip OpenCV)")
-    p.add_argument("--gap", type=int, default=2, help="match each image with the next N (default 2)")
-    p.add_argument("--principal-point", type=float, nargs=2, metavar=("CX", "CY"), help="fix the principal point")
+    p.add_argument("--gap", type=_positive_int, default=2, help="match each image with the next N (default 2)")
+    p.add_argument("--principal-point", type=_finite, nargs=2, metavar=("CX", "CY"), help="fix the principal point")
     p.add_argument("--chessboard", metavar="COLSxROWS", help="use a plane's corners (inner corners, e.g. 9x6) "
                    "as correspondences; its square size is not needed")
     p.add_argument("--no-distortion", action="store_true", help="with --chessboard: do not estimate lens distortion")
@@ -879,19 +960,19 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--env", default="sim.car_env:ReachCar", help="the simulator, module:Class (a VecSim)")
     q.add_argument("--param", action="append", metavar="KEY=VALUE", help="a scenario parameter (repeatable)")
     q.add_argument("--ppo", action="append", metavar="KEY=VALUE", help="a PPO setting, e.g. lr=1e-3 (repeatable)")
-    q.add_argument("--steps", type=float, default=1e6, help="env steps in all (all instances counted)")
-    q.add_argument("--n-envs", type=int, default=16, help="simulator instances stepped together")
+    q.add_argument("--steps", type=_finite, default=1e6, help="env steps in all (all instances counted)")
+    q.add_argument("--n-envs", type=_positive_int, default=16, help="simulator instances stepped together")
     q.add_argument("--mode", choices=("inproc", "ipc"), default="inproc", help="simulator in this process or in node processes")
-    q.add_argument("--shards", type=int, default=1, help="with --mode ipc: node processes sharing the instances")
+    q.add_argument("--shards", type=_positive_int, default=1, help="with --mode ipc: node processes sharing the instances")
     q.add_argument("--seed", type=int, default=0, help="seed of the policy and of the first episodes")
-    q.add_argument("--checkpoint-every", type=float, default=2e5, help="env steps between checkpoints")
+    q.add_argument("--checkpoint-every", type=_finite, default=2e5, help="env steps between checkpoints")
     q.add_argument("--resume", action="store_true", help="continue from the checkpoint at -o when it exists")
     q.add_argument("-o", "--out", required=True, help="checkpoint path (msgpack)")
     q = learn.add_parser("eval", help="one deterministic episode per seed; metrics at the episodes' end")
     q.add_argument("checkpoint", help="a checkpoint of tether learn train (or export)")
     q.add_argument("--env", default="sim.car_env:ReachCar", help="the simulator, module:Class (a VecSim)")
     q.add_argument("--param", action="append", metavar="KEY=VALUE", help="a scenario parameter (repeatable)")
-    q.add_argument("--episodes", type=int, default=100, help="episodes, run side by side")
+    q.add_argument("--episodes", type=_positive_int, default=100, help="episodes, run side by side")
     q.add_argument("--seed", type=int, default=10_000, help="first seed (episode i: seed + i)")
     q.add_argument("--record", metavar="FILE", help="record the episodes to an MCAP log (tether learn replay FILE)")
     q = learn.add_parser("export", help="strip optimiser state and history: a policy to deploy")
@@ -911,10 +992,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: given when every vertex has a pose, else odometry)")
     q.add_argument("--method", choices=("lm", "gn"), default="lm", help="Levenberg-Marquardt or Gauss-Newton")
     q.add_argument("--robust", choices=("huber", "cauchy", "gnc"), help="robust kernel, or gnc to reject false loop closures")
-    q.add_argument("--kernel-width", type=float, help="kernel width (Mahalanobis units; for gnc the chi2 gate)")
+    q.add_argument("--kernel-width", type=_positive, help="kernel width (Mahalanobis units; for gnc the chi2 gate)")
     q.add_argument("--anchor", type=int, help="vertex id held fixed (default: FIX lines, else the first vertex)")
-    q.add_argument("--max-iterations", type=int, default=100, help="stop after N iterations")
-    q.add_argument("--rel-tol", type=float, default=1e-10, help="stop when a step lowers chi2 by less than this fraction")
+    q.add_argument("--max-iterations", type=_positive_int, default=100, help="stop after N iterations")
+    q.add_argument("--rel-tol", type=_finite, default=1e-10, help="stop when a step lowers chi2 by less than this fraction")
     q.set_defaults(func=cmd_slam_optimize)
     for action in ap._actions:                       # an example at the end of every verb's --help
         if isinstance(action, argparse._SubParsersAction):
@@ -936,6 +1017,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         text = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"tether: error: {text}", file=sys.stderr)
+        return 2
+    except OSError as exc:       # a file the command was pointed at: a directory, unwritable, a full disk
+        if args.debug:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"tether: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable
 
-from tether.errors import DecodeError
+from tether.errors import ConfigError, DecodeError
 from tether.foxglove_bridge import Counters, FoxgloveSink
 from tether.foxglove_convert import foxglove
 from tether.log import LogReader
@@ -20,7 +20,11 @@ def export_foxglove(src: str | Path, dst: str | Path,
     total = sum(reader.info().counts.values())
     context = foxglove.Context()
     sink = FoxgloveSink(context)
-    with foxglove.open_mcap(dst, allow_overwrite=True, context=context):
+    try:
+        writer = foxglove.open_mcap(dst, allow_overwrite=True, context=context)
+    except OSError as exc:                   # its message does not name the file
+        raise ConfigError(f"{dst}: cannot write the export there: {exc.strerror or exc}") from None
+    with writer:
         for k, rec in enumerate(reader.messages(), 1):
             sink.counters.received += 1
             try:

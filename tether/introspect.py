@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from typing import Any
 
 from tether.errors import ConfigError, TetherError
+
+WAIT_NOTICE_S = 3.0          # topic echo: how long a silent topic waits before it is said to be silent
 
 
 def subscribe(topic: str) -> Any:
@@ -63,13 +66,30 @@ def cmd_topic(args: argparse.Namespace) -> int:
 def _echo(args: argparse.Namespace) -> int:
     import msgpack
 
+    from tether import registry
     from tether.codec import Codec
     from tether.message import message_type
 
     info, sock = subscribe(args.topic)
     codec, tp = Codec(), message_type(info.type_name)
-    shown = 0
+    shown, told = 0, False
+    t_end = time.monotonic() + args.duration if args.duration else None
+    next_check = time.monotonic() + WAIT_NOTICE_S
     while args.count is None or shown < args.count:
+        if t_end is not None and time.monotonic() >= t_end:
+            break
+        if not sock.poll(200):
+            # Silent: say so once, and stop when the graph publishing the topic has gone.
+            if time.monotonic() >= next_check:
+                next_check = time.monotonic() + WAIT_NOTICE_S
+                if args.topic not in registry.topics():
+                    print(f"tether: error: {args.topic}: its graph {info.graph!r} stopped", file=sys.stderr)
+                    return 1
+                if shown == 0 and not told:
+                    print(f"tether: waiting for {args.topic} ({info.type_name}, graph {info.graph!r}): nothing "
+                          "published yet (Ctrl-C to stop)", file=sys.stderr, flush=True)
+                    told = True
+            continue
         frames = sock.recv_multipart(copy=False)
         if frames[0].bytes != args.topic.encode():
             continue

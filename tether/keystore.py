@@ -17,6 +17,7 @@ import fcntl
 import json
 import logging
 import os
+import re
 import stat
 from pathlib import Path
 
@@ -27,6 +28,15 @@ from tether.transport import CurveKeys
 
 log = logging.getLogger("tether.keys")
 PEERS = "peers.json"
+NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")     # a graph or machine name, as a launch file has it
+
+
+def _name(text: str, what: str) -> str:
+    """A name that becomes a file or folder name: '../x' or 'a/b' would write outside the keystore."""
+    if not NAME_RE.match(text):
+        raise ConfigError(f"{what} {text!r}: a name is letters, digits, '-' or '_', starting with a letter "
+                          "(as in the launch file)")
+    return text
 
 
 def keys_root() -> Path:
@@ -35,7 +45,7 @@ def keys_root() -> Path:
 
 def keystore_dir(graph: str, override: str | Path | None = None) -> Path:
     """The keystore folder of ``graph`` (``override`` wins: ``--keys DIR``)."""
-    return Path(override) if override else keys_root() / graph
+    return Path(override) if override else keys_root() / _name(graph, "graph")
 
 
 def check_private(path: Path) -> None:
@@ -65,6 +75,8 @@ def init(folder: Path, machines: list[str]) -> list[str]:
     """Create a key pair per machine (missing ones only) and the allow-list; return the machines created."""
     if not machines:
         raise ConfigError("a keystore needs at least one machine")
+    for machine in machines:
+        _name(machine, "machine")
     folder.mkdir(parents=True, exist_ok=True, mode=0o700)
     peers = read_peers(folder) if (folder / PEERS).exists() else {}
     created = []

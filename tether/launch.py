@@ -375,7 +375,10 @@ def _check_wiring(where: str, launch: LaunchFile, raws: Mapping[str, Any],
 
 
 def timer_period_ns(src: str) -> int:
-    kind, value = TIMER_RE.match(src).groups()  # type: ignore[union-attr]
+    match = TIMER_RE.match(src)
+    if match is None:
+        raise ConfigError(f"timer {src!r}: expected timer/hz/N or timer/ms/N (N a positive number)")
+    kind, value = match.groups()
     hz = float(value) if kind == "hz" else (1e3 / float(value) if float(value) > 0 else 0.0)
     if not 0 < hz <= MAX_TIMER_HZ or (kind == "ms" and float(value) > 1e7):
         raise ConfigError(f"timer {src!r} must tick between every 10^7 ms and {MAX_TIMER_HZ:g} Hz")

@@ -24,7 +24,7 @@ from mcap.writer import CompressionType, Writer
 
 from tether.codec import Codec, json_schema
 from tether.errors import DecodeError
-from tether.logcheck import ChunkRef, DamagedChunk, chunk_refs, read_chunk
+from tether.logcheck import MAGIC, ChunkRef, DamagedChunk, chunk_refs, read_chunk
 from tether.message import Message, message_type
 
 log = logging.getLogger("tether.log")
@@ -166,6 +166,17 @@ class LogReader:
         self.path = Path(path)
         if not self.path.exists():
             raise FileNotFoundError(f"no log at {self.path}")
+        if not self.path.is_file():
+            what = "a directory" if self.path.is_dir() else "a device or pipe"
+            raise DecodeError(f"{self.path}: {what}, not a log file (give a tether .mcap file)")
+        try:
+            with open(self.path, "rb") as fh:
+                head = fh.read(len(MAGIC))
+        except OSError as exc:
+            raise DecodeError(f"{self.path}: cannot read: {exc.strerror}") from None
+        if not MAGIC.startswith(head):      # a shorter head is a log cut before its first record: recovered below
+            raise DecodeError(f"{self.path}: not an MCAP log (it does not start with MCAP's magic bytes; "
+                              "a foreign log goes through 'tether import')")
         self._codec = Codec()
         self.recovered = False
         self.damaged: list[DamagedChunk] = []      # chunks skipped by the last messages() pass

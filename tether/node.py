@@ -147,10 +147,15 @@ class Node:
             if where is not None:
                 raise ConfigError(f"{name}: {key}{where} must be a finite number, got {value!r}"[:300], key=str(key))
         try:
-            return msgspec.convert(params, cls.Config, strict=False)
+            config = msgspec.convert(params, cls.Config, strict=False)
         except msgspec.ValidationError as exc:
             found = re.search(r"at `\$\.([A-Za-z0-9_]+)", str(exc))
             raise ConfigError(f"{name}: {exc}", key=found.group(1) if found else "") from None
+        for key in params:       # again once converted: the text 'nan' or 'inf' (--param x=nan) becomes a float
+            where = _non_finite(msgspec.to_builtins(getattr(config, key)))
+            if where is not None:
+                raise ConfigError(f"{name}: {key}{where} must be a finite number, got {params[key]!r}"[:300], key=str(key))
+        return config
 
     @classmethod
     def is_source(cls) -> bool:

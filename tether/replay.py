@@ -251,6 +251,8 @@ def _live(reader: LogReader, node_cls: type[Node], params: Mapping[str, Any], no
     thread = threading.Thread(target=runtime.serve, daemon=True)
     thread.start()
     try:
+        if recorder.failed:          # the output could not be opened (a directory, a read-only place)
+            raise ConfigError(f"--record {out_path}: {recorder.failed}")
         pub.poll(5000, zmq.POLLIN)   # the node's subscription arrived: nothing is lost to a slow join
         count = play(reader, pub, window, threading.Event(),
                      (lambda n, rec: progress(n, total)) if progress is not None else None)

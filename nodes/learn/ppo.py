@@ -460,9 +460,18 @@ class PPO:
     @classmethod
     def load(cls, path: str | Path, *, observation_space: gymnasium.spaces.Space | None = None) -> "PPO":
         """Read a checkpoint. Given ``observation_space`` (the env's), refuse one of another shape."""
-        doc = serialization.msgpack_restore(Path(path).read_bytes())
+        if not Path(path).exists():
+            raise FileNotFoundError(f"{path}: no such checkpoint (tether learn train -o writes one)")
+        try:
+            doc = serialization.msgpack_restore(Path(path).read_bytes())
+        except (ValueError, TypeError) as exc:        # msgpack's ExtraData, FormatError, StackError ...
+            raise ValueError(f"{path}: not a tether PPO checkpoint (not msgpack: {type(exc).__name__}: {exc})") from None
         if not isinstance(doc, dict) or doc.get("format") != "tether.ppo/1":
             raise ValueError(f"{path}: not a tether PPO checkpoint (format {doc.get('format') if isinstance(doc, dict) else None!r})")
+        missing = [k for k in ("observation_space", "action_space", "config", "params", "obs_rms", "ret_rms", "key",
+                               "steps_done") if k not in doc]
+        if missing:
+            raise ValueError(f"{path}: an incomplete tether PPO checkpoint (no {', '.join(missing)})")
         obs_space, act_space = _space_from(doc["observation_space"]), _space_from(doc["action_space"])
         if observation_space is not None and tuple(observation_space.shape) != tuple(obs_space.shape):
             raise ValueError(f"{path}: the policy was trained on observations of shape {tuple(obs_space.shape)}, "

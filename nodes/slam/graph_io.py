@@ -37,8 +37,18 @@ def _info_toro(v: list[float]) -> np.ndarray:
     return np.array([[i11, i12, i13], [i12, i22, i23], [i13, i23, i33]])
 
 
+def _id(text: str) -> int:
+    """A vertex id: an integer that fits the graph's int64 ids."""
+    value = int(text)
+    if not -(1 << 63) <= value < 1 << 63:
+        raise ValueError(f"vertex id {text} does not fit 64 bits")
+    return value
+
+
 def detect_format(path: str | Path) -> str:
     """'g2o' or 'toro', from the tags in the file (not its name)."""
+    if Path(path).exists() and not Path(path).is_file():       # a directory, /dev/zero: no lines to read
+        raise GraphError(f"{path}: not a regular file (give a .g2o or TORO .graph file)")
     found = set()
     with open(path, encoding="utf-8", errors="replace") as fh:
         for line in fh:
@@ -78,7 +88,7 @@ def read_graph(path: str | Path, *, fmt: str | None = None) -> PoseGraph2D:
                 if tag == vertex_tag:
                     if len(fields) != 4:
                         raise ValueError(f"{tag} has id x y theta (4 fields), got {len(fields)}")
-                    vid = int(fields[0])
+                    vid = _id(fields[0])
                     if vid in vertices:
                         raise ValueError(f"vertex {vid} is defined twice")
                     vertices[vid] = tuple(_finite(fields[1:4]))  # type: ignore[assignment]
@@ -87,9 +97,9 @@ def read_graph(path: str | Path, *, fmt: str | None = None) -> PoseGraph2D:
                         raise ValueError(f"{tag} has i j dx dy dtheta and 6 information entries (11 fields), "
                                          f"got {len(fields)}")
                     values = _finite(fields[2:])
-                    edges.append((int(fields[0]), int(fields[1]), tuple(values[:3]), parse_info(values[3:])))  # type: ignore[arg-type]
+                    edges.append((_id(fields[0]), _id(fields[1]), tuple(values[:3]), parse_info(values[3:])))  # type: ignore[arg-type]
                 elif tag == "FIX":
-                    fixed += [int(f) for f in fields]
+                    fixed += [_id(f) for f in fields]
                 elif tag in _IGNORED or tag.startswith(("VERTEX", "EDGE")):
                     raise ValueError(f"{tag} records are not SE(2) poses; this reader takes "
                                      f"{vertex_tag} / {edge_tag} only")
