@@ -484,6 +484,14 @@ def _whole(text: str, low: int) -> int:
     return value
 
 
+def _port(text: str) -> int:
+    """A TCP port, 0 for a free one."""
+    value = _whole(text, 0)
+    if value > 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: a port is at most 65535")
+    return value
+
+
 def _positive_int(text: str) -> int:
     """A count of messages, states, iterations, episodes, instances: >= 1."""
     return _whole(text, 1)
@@ -914,7 +922,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("foxglove", help="serve the running graphs live to Foxglove (WebSocket)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
-    p.add_argument("--port", type=int, default=8765, help="WebSocket port (0: a free one)")
+    p.add_argument("--port", type=_port, default=8765, help="WebSocket port (0: a free one)")
     p.add_argument("--include", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
                    help="only topics matching these globs (default: all but */_stats; repeatable)")
     p.add_argument("--exclude", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",

@@ -179,6 +179,7 @@ class LogReader:
                               "a foreign log goes through 'tether import')")
         self._codec = Codec()
         self.recovered = False
+        self._told_truncated = False
         self.damaged: list[DamagedChunk] = []      # chunks skipped by the last messages() pass
         self._summary = None
         with open(self.path, "rb") as fh:
@@ -243,7 +244,8 @@ class LogReader:
                 if channel is None or (wanted is not None and channel.topic not in wanted):
                     continue     # not wanted, or its channel was defined in a damaged chunk
                 yield self._record(schemas.get(channel.schema_id), channel, message)
-            if truncated_at >= 0:
+            if truncated_at >= 0 and not self._told_truncated:    # once per reader: info() reads it all too
+                self._told_truncated = True
                 log.warning("%s: log ends early at byte %d; read every complete chunk before it", self.path,
                             truncated_at)
 

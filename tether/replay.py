@@ -175,6 +175,9 @@ def replay_into(log_path: str | Path, node_cls: type[Node], mapping: Mapping[str
     info = reader.info()
     config = node_cls.make_config(params)
     ports = node_cls.resolve_ports(config)
+    if not mapping:
+        raise ConfigError(f"--into needs --map INPUT=TOPIC ({node_cls.__name__}'s inputs: "
+                          f"{', '.join(sorted(ports.inputs)) or 'none'}; the log's topics: {', '.join(sorted(info.topics))})")
     for name, topic in mapping.items():
         if name not in ports.inputs:
             raise ConfigError(f"--map {name}={topic}: {node_cls.__name__} has no input {name!r} "

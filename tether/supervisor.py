@@ -190,6 +190,9 @@ class Supervisor:
         self.stop_event = threading.Event()
         self.stop_timeout_s = _stop_timeout()
         self._write_lock = threading.Lock()
+        if self.machine and not launch.machines:       # was ignored: every node started here
+            raise ConfigError(f"{launch.path}: --machine {self.machine}: the file declares no machines "
+                              "(every node runs on this one)")
         if launch.machines and self.machine not in launch.machines:
             raise ConfigError(f"{launch.path}: --machine must be one of {sorted(launch.machines)}")
         self.keystore = keystore.keystore_dir(launch.name, keys)

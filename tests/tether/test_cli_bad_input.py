@@ -111,6 +111,8 @@ def test_an_output_that_is_a_directory_is_one_line(tmp_path, capsys):
     ["verify", "missing.yaml", "--faults", "-1"],
     ["slam", "optimize", "x.g2o", "--robust", "gnc", "--kernel-width", "-1"],   # ZeroDivisionError
     ["slam", "optimize", "x.g2o", "--max-iterations", "0"],
+    ["foxglove", "--port", "-1"],                           # OverflowError from the Foxglove SDK
+    ["foxglove", "--port", "99999"],
 ])
 def test_an_option_value_out_of_its_range_is_refused_by_the_parser(argv, capsys):
     with pytest.raises(SystemExit) as info:
@@ -143,6 +145,23 @@ def test_a_parameter_given_as_the_text_nan_is_refused(tmp_path, capsys):
 def test_tether_run_refuses_wiring_the_launch_file_would_refuse(node, extra, needle, capsys, runtime_env):
     assert main(["run", f"nodes.std.demo:{node}", "--duration", "1", *extra]) == 2
     _one_error_line(capsys, needle)
+
+
+def test_a_machine_asked_of_a_file_without_machines_is_an_error(runtime_env):
+    """``tether launch counter.yaml --machine boat`` ignored --machine and started every node."""
+    from tether.launch import load_launch
+    from tether.supervisor import Supervisor
+
+    with pytest.raises(ConfigError, match="--machine boat: the file declares no machines"):
+        Supervisor(load_launch(REPO / "launch/counter.yaml"), machine="boat")
+
+
+def test_replay_into_without_a_map_says_what_to_map(tmp_path, capsys):
+    """It said '--topics  leaves none of the --map topics ()'."""
+    log = _log(tmp_path / "a.mcap")
+    assert main(["replay", str(log), "--into", "nodes.std.demo:Scale", "--record", str(tmp_path / "o.mcap"),
+                 "--lockstep"]) == 2
+    _one_error_line(capsys, "--into needs --map INPUT=TOPIC (Scale's inputs: value; the log's topics: a/value)")
 
 
 def test_a_timer_that_is_not_one_is_a_config_error():
@@ -222,3 +241,16 @@ def test_a_file_that_is_not_a_checkpoint_is_named(tmp_path, capsys):
     _one_error_line(capsys, "run.mcap: not a tether PPO checkpoint (not msgpack")
     assert main(["learn", "eval", str(tmp_path / "none.ckpt")]) == 2
     _one_error_line(capsys, "none.ckpt: no such checkpoint")
+
+
+def test_a_truncated_log_is_reported_once_per_reader(tmp_path, caplog):
+    """info() of a log without a summary reads every message, then replay reads them again: the
+    'log ends early' warning came twice."""
+    whole = _log(tmp_path / "a.mcap", n=200).read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[:len(whole) // 2])
+    reader = LogReader(cut)
+    with caplog.at_level("WARNING", logger="tether.log"):
+        reader.info()
+        list(reader.messages())
+    assert sum("log ends early" in r.getMessage() for r in caplog.records) == 1
