@@ -123,7 +123,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     node_id = args.id or cls.__name__.lower()
     if not NODE_ID_RE.match(node_id):
         raise ConfigError(f"--id {node_id!r}: an id starts with a letter and uses letters, digits, '-' or '_'")
-    ports = cls.resolve_ports(cls.make_config(_params(args.param)))
+    try:
+        ports = cls.resolve_ports(cls.make_config(_params(args.param)))
+    except TetherError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a Config or port declaration saying what is wrong (as tether check)
+        raise ConfigError(f"{args.node}: params: {type(exc).__name__}: {exc}") from exc
     inputs = {}
     for name, topic in _pairs(args.input, "--input").items():
         if name not in ports.inputs:

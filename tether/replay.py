@@ -21,7 +21,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 import msgspec
 import zmq
 
-from tether.errors import ConfigError, DecodeError
+from tether.errors import ConfigError, DecodeError, TetherError
 from tether.log import LogReader, LogRecord, LogWriter
 from tether.message import Message, message_type
 from tether.node import Node
@@ -173,8 +173,13 @@ def replay_into(log_path: str | Path, node_cls: type[Node], mapping: Mapping[str
     window = window or Window()
     reader = LogReader(log_path)
     info = reader.info()
-    config = node_cls.make_config(params)
-    ports = node_cls.resolve_ports(config)
+    try:
+        config = node_cls.make_config(params)
+        ports = node_cls.resolve_ports(config)
+    except TetherError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a Config or port declaration saying what is wrong (as tether check)
+        raise ConfigError(f"{node_cls.__module__}:{node_cls.__name__}: params: {type(exc).__name__}: {exc}") from exc
     if not mapping:
         raise ConfigError(f"--into needs --map INPUT=TOPIC ({node_cls.__name__}'s inputs: "
                           f"{', '.join(sorted(ports.inputs)) or 'none'}; the log's topics: {', '.join(sorted(info.topics))})")

@@ -16,6 +16,7 @@ from msgs.std import Float64
 from tether.cli import main
 from tether.errors import ConfigError, DecodeError
 from tether.log import LogReader, LogWriter
+from tether.node import Node
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -254,3 +255,21 @@ def test_a_truncated_log_is_reported_once_per_reader(tmp_path, caplog):
         reader.info()
         list(reader.messages())
     assert sum("log ends early" in r.getMessage() for r in caplog.records) == 1
+
+
+class BrokenPorts(Node):
+    """A node whose port declaration fails (a node author's bug, met through the command line)."""
+
+    @classmethod
+    def resolve_ports(cls, config):
+        raise RuntimeError("ports broke")
+
+
+def test_a_node_whose_ports_fail_is_one_line_as_in_tether_check(tmp_path, capsys, runtime_env):
+    """``tether check`` said 'params: RuntimeError: ports broke'; run and replay --into gave the traceback."""
+    assert main(["run", f"{__name__}:BrokenPorts", "--duration", "1"]) == 2
+    _one_error_line(capsys, "BrokenPorts: params: RuntimeError: ports broke")
+    log = _log(tmp_path / "a.mcap")
+    assert main(["replay", str(log), "--into", f"{__name__}:BrokenPorts", "--map", "value=a/value",
+                 "--record", str(tmp_path / "o.mcap"), "--lockstep"]) == 2
+    _one_error_line(capsys, "BrokenPorts: params: RuntimeError: ports broke")

@@ -195,3 +195,31 @@ def test_an_unknown_arg_hint_does_not_offer_dirname(tmp_path):
     with pytest.raises(ConfigError) as info:
         load_launch(path)
     assert "declared: none" in str(info.value), str(info.value)
+
+
+def test_command_line_overrides_of_every_file_are_a_result_or_one_line():
+    """``tether check FILE --param NODE.KEY=VALUE --arg NAME=VALUE`` with seeded keys and values
+    (the file's own parameters and args, and unknown ones), each VALUE as the shell hands it."""
+    from tether.launch import parse_launch_args, parse_overrides
+
+    rng = random.Random(7)
+    texts = ["nan", "inf", "-1", "0", "1e999", "", "[1, 2]", "{a: 1}", "x", "true", "null", "&a [*a]", "'", "[",
+             "\x7f", "9" * 40, "timer/hz/0", "$(arg x)"]
+    tally = {"ok": 0, "refused": 0}
+    for f in sorted(LAUNCH.glob("*.yaml")):
+        doc = yaml.safe_load(f.read_bytes())
+        nodes = [n for n in doc.get("nodes") or [] if isinstance(n, dict)]
+        declared = list(doc.get("args") or {})
+        for _ in range(6):
+            node = rng.choice(nodes + [{"id": "nope"}])
+            keys = list(node.get("params") or {}) + ["zzz"]
+            params = [f"{node['id']}.{rng.choice(keys)}={rng.choice(texts)}"]
+            args = [f"{rng.choice(declared + ['zzz'])}={rng.choice(texts)}"] if declared and rng.random() < 0.5 else []
+            try:
+                load_launch(f, parse_overrides(params), args=parse_launch_args(args))
+                tally["ok"] += 1
+            except ConfigError as exc:
+                text = str(exc)
+                assert text and "\n" not in text and "Traceback" not in text, (f.name, params, args, text)
+                tally["refused"] += 1
+    assert tally["refused"] > 60, tally
