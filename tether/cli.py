@@ -672,6 +672,20 @@ def cmd_learn(args: argparse.Namespace) -> int:
         unknown = sorted(set(overrides) - set(fields))
         if unknown:
             raise ConfigError(f"unknown PPO setting(s) {unknown}; known: {', '.join(fields)}")
+        for key, value in overrides.items():      # PPOConfig does not check: 'lr=abc' trained with lr 'abc'
+            kind = fields[key] if isinstance(fields[key], str) else getattr(fields[key], "__name__", "")
+            if kind == "float" and isinstance(value, str):     # YAML 1.1 reads 1e-3 (no dot) as text
+                try:
+                    value = overrides[key] = float(value)
+                except ValueError:
+                    pass
+            number = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            ok = {"int": isinstance(value, int) and number, "float": number, "bool": isinstance(value, bool),
+                  "str": isinstance(value, str)}.get(kind, isinstance(value, list) and all(
+                      isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value) and bool(value))
+            if not ok:
+                want = {"int": "a whole number", "float": "a finite number", "bool": "true or false", "str": "text"}
+                raise ConfigError(f"--ppo {key}={value!r}: give {want.get(kind, 'a list of layer widths like [64, 64]')}")
         if "hidden" in overrides:
             overrides["hidden"] = tuple(overrides["hidden"])
         agent = train(args.env, args.out, steps=int(args.steps), n_envs=args.n_envs, params=_learn_params(args.param),
@@ -973,12 +987,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--env", default="sim.car_env:ReachCar", help="the simulator, module:Class (a VecSim)")
     q.add_argument("--param", action="append", metavar="KEY=VALUE", help="a scenario parameter (repeatable)")
     q.add_argument("--ppo", action="append", metavar="KEY=VALUE", help="a PPO setting, e.g. lr=1e-3 (repeatable)")
-    q.add_argument("--steps", type=_finite, default=1e6, help="env steps in all (all instances counted)")
+    q.add_argument("--steps", type=_positive, default=1e6, help="env steps in all (all instances counted)")
     q.add_argument("--n-envs", type=_positive_int, default=16, help="simulator instances stepped together")
     q.add_argument("--mode", choices=("inproc", "ipc"), default="inproc", help="simulator in this process or in node processes")
     q.add_argument("--shards", type=_positive_int, default=1, help="with --mode ipc: node processes sharing the instances")
     q.add_argument("--seed", type=int, default=0, help="seed of the policy and of the first episodes")
-    q.add_argument("--checkpoint-every", type=_finite, default=2e5, help="env steps between checkpoints")
+    q.add_argument("--checkpoint-every", type=_positive, default=2e5, help="env steps between checkpoints")
     q.add_argument("--resume", action="store_true", help="continue from the checkpoint at -o when it exists")
     q.add_argument("-o", "--out", required=True, help="checkpoint path (msgpack)")
     q = learn.add_parser("eval", help="one deterministic episode per seed; metrics at the episodes' end")

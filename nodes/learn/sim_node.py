@@ -36,7 +36,10 @@ def load_sim(path: str, n: int = 1, *, max_steps: int = 0, params: dict[str, Any
     if not name or not module.startswith(SIM_PACKAGES):
         raise ConfigError(f"sim {path!r}: give 'module:Class' with the module under {' or '.join(SIM_PACKAGES)}",
                           key="sim")
-    cls = getattr(importlib.import_module(module), name, None)
+    try:
+        cls = getattr(importlib.import_module(module), name, None)
+    except ImportError as exc:        # a mistyped module: one line, not a traceback
+        raise ConfigError(f"sim {path!r}: cannot import {module!r}: {exc}", key="sim") from None
     if not (isinstance(cls, type) and issubclass(cls, VecSim)):
         raise ConfigError(f"sim {path!r} is not a VecSim subclass", key="sim")
     return cls(n, max_steps=max_steps, **(params or {}))

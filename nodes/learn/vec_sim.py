@@ -14,6 +14,7 @@ No bus, no clock, no messages here: :mod:`nodes.learn.sim_node` puts a VecSim on
 from __future__ import annotations
 
 import abc
+import inspect
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -62,6 +63,12 @@ class VecSim(abc.ABC):
         self.max_steps = int(max_steps or self.MAX_STEPS)
         self.steps = np.zeros(self.n, np.int64)
         self.rngs = [np.random.default_rng() for _ in range(self.n)]
+        known = inspect.signature(self.configure).parameters
+        if not any(p.kind is p.VAR_KEYWORD for p in known.values()):     # a name of the user's: say which
+            unknown = sorted(set(params) - set(known))
+            if unknown:
+                raise ValueError(f"{type(self).__name__}: unknown scenario parameter(s) {unknown} "
+                                 f"(known: {', '.join(known) or 'none'})")
         self.configure(**params)
 
     # -- scenario (override) ------------------------------------------------------------

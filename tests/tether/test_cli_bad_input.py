@@ -273,3 +273,25 @@ def test_a_node_whose_ports_fail_is_one_line_as_in_tether_check(tmp_path, capsys
     assert main(["replay", str(log), "--into", f"{__name__}:BrokenPorts", "--map", "value=a/value",
                  "--record", str(tmp_path / "o.mcap"), "--lockstep"]) == 2
     _one_error_line(capsys, "BrokenPorts: params: RuntimeError: ports broke")
+
+
+def test_learn_train_refuses_settings_it_cannot_use(tmp_path, capsys):
+    """A mistyped --env module was a ModuleNotFoundError traceback, an unknown --param a TypeError
+    traceback; '--ppo lr=abc' and '--steps -5' trained (0 steps) and exited 0."""
+    pytest.importorskip("jax")
+    from nodes.learn.sim_node import load_sim
+
+    with pytest.raises(ConfigError, match="cannot import 'sim.no_such_env'"):
+        load_sim("sim.no_such_env:X")
+    with pytest.raises(ValueError, match=r"ReachCar: unknown scenario parameter\(s\) \['nope'\] \(known: min_range_m"):
+        load_sim("sim.car_env:ReachCar", params={"nope": 1})
+    out = str(tmp_path / "p.ckpt")
+    for setting, needle in [("lr=abc", "--ppo lr='abc': give a finite number"), ("lr=.nan", "give a finite number"),
+                            ("n_steps=2.5", "give a whole number"), ("hidden=[64, 0]", "layer widths")]:
+        assert main(["learn", "train", "--ppo", setting, "--steps", "10", "-o", out]) == 2, setting
+        _one_error_line(capsys, needle)
+    assert main(["learn", "train", "--param", "nope=1", "--steps", "10", "-o", out]) == 2
+    _one_error_line(capsys, "unknown scenario parameter(s) ['nope']")
+    with pytest.raises(SystemExit):
+        main(["learn", "train", "--steps", "-5", "-o", out])
+    assert not Path(out).exists()
