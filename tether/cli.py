@@ -497,6 +497,14 @@ def _port(text: str) -> int:
     return value
 
 
+def _board(text: str) -> tuple[int, int]:
+    """``9x6`` -> (9, 6): a chessboard's inner corners, at least 3 each way (OpenCV's minimum)."""
+    cols, sep, rows = text.lower().partition("x")
+    if not (sep and cols.isdigit() and rows.isdigit() and int(cols) >= 3 and int(rows) >= 3):
+        raise argparse.ArgumentTypeError(f"{text!r}: give the inner corners as COLSxROWS, each at least 3 (e.g. 9x6)")
+    return int(cols), int(rows)
+
+
 def _positive_int(text: str) -> int:
     """A count of messages, states, iterations, episodes, instances: >= 1."""
     return _whole(text, 1)
@@ -622,7 +630,7 @@ def cmd_selfcal(args: argparse.Namespace) -> int:
 
     images = read_images(sorted(args.images))
     if args.chessboard:
-        cols, rows = (int(v) for v in args.chessboard.lower().split("x"))
+        cols, rows = args.chessboard
         cal, extra = calibrate_chessboard(images, (cols, rows), distortion=not args.no_distortion)
     else:
         pp = tuple(args.principal_point) if args.principal_point else None
@@ -975,7 +983,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="feature detector (default sift: about 10x more accurate than orb here; SURF is not in pip OpenCV)")
     p.add_argument("--gap", type=_positive_int, default=2, help="match each image with the next N (default 2)")
     p.add_argument("--principal-point", type=_finite, nargs=2, metavar=("CX", "CY"), help="fix the principal point")
-    p.add_argument("--chessboard", metavar="COLSxROWS", help="use a plane's corners (inner corners, e.g. 9x6) "
+    p.add_argument("--chessboard", type=_board, metavar="COLSxROWS", help="use a plane's corners (inner corners, e.g. 9x6) "
                    "as correspondences; its square size is not needed")
     p.add_argument("--no-distortion", action="store_true", help="with --chessboard: do not estimate lens distortion")
     p.add_argument("--json", action="store_true", help="print one JSON object")

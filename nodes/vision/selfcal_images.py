@@ -57,7 +57,10 @@ def chessboard_views(images: list[np.ndarray], pattern: tuple[int, int]) -> tupl
     views, used = [], []
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
     for k, im in enumerate(images):
-        found, corners = cv2.findChessboardCorners(im, pattern, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        try:
+            found, corners = cv2.findChessboardCorners(im, pattern, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        except cv2.error:         # an image too small for OpenCV's thresholds holds no board: counted as not found
+            found = False
         if not found:
             continue
         corners = cv2.cornerSubPix(im, corners, (11, 11), (-1, -1), crit)

@@ -112,6 +112,8 @@ def test_an_output_that_is_a_directory_is_one_line(tmp_path, capsys):
     ["verify", "missing.yaml", "--faults", "-1"],
     ["slam", "optimize", "x.g2o", "--robust", "gnc", "--kernel-width", "-1"],   # ZeroDivisionError
     ["slam", "optimize", "x.g2o", "--max-iterations", "0"],
+    ["selfcal", "a.png", "--chessboard", "2x5"],            # cv2.error traceback from findChessboardCorners
+    ["selfcal", "a.png", "--chessboard", "abc"],            # "invalid literal for int() with base 10: 'abc'"
     ["foxglove", "--port", "-1"],                           # OverflowError from the Foxglove SDK
     ["foxglove", "--port", "99999"],
 ])
@@ -295,3 +297,15 @@ def test_learn_train_refuses_settings_it_cannot_use(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["learn", "train", "--steps", "-5", "-o", out])
     assert not Path(out).exists()
+
+
+def test_a_chessboard_search_on_a_tiny_image_is_not_found_not_a_traceback(tmp_path, capsys):
+    """OpenCV's adaptive threshold asserts on an 8x8 image: a cv2.error traceback."""
+    cv2 = pytest.importorskip("cv2")
+    import numpy as np
+
+    paths = [tmp_path / f"{k}.png" for k in range(3)]
+    for path in paths:
+        cv2.imwrite(str(path), np.zeros((8, 8), np.uint8))
+    assert main(["selfcal", *map(str, paths), "--chessboard", "9x6"]) == 2
+    _one_error_line(capsys, "the 9x6 pattern was found in 0 images")
