@@ -543,7 +543,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     progress.done()
     print(f"exported {n.converted} messages to {args.output} as {n.logged} Foxglove messages (images, clouds, "
           f"poses, grids in Foxglove's schemas; the rest JSON)" + (f"; {n.errors} dropped" if n.errors else ""))
-    return 0
+    return _nothing_done(n.converted, args, f"nothing exported from {args.file}")
 
 
 def cmd_foxglove(args: argparse.Namespace) -> int:
@@ -945,6 +945,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("format", choices=("foxglove",), help="the target tool")
     p.add_argument("file", help="the tether MCAP log")
     p.add_argument("-o", "--output", required=True, help="the MCAP file to write")
+    p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was exported")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("foxglove", help="serve the running graphs live to Foxglove (WebSocket)")

@@ -309,3 +309,12 @@ def test_a_chessboard_search_on_a_tiny_image_is_not_found_not_a_traceback(tmp_pa
         cv2.imwrite(str(path), np.zeros((8, 8), np.uint8))
     assert main(["selfcal", *map(str, paths), "--chessboard", "9x6"]) == 2
     _one_error_line(capsys, "the 9x6 pattern was found in 0 images")
+
+
+def test_exporting_nothing_is_not_success(tmp_path, capsys):
+    """A log cut inside its header exported 0 messages and exited 0 (replay and record say so)."""
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(_log(tmp_path / "a.mcap").read_bytes()[:8])
+    assert main(["export", "foxglove", str(cut), "-o", str(tmp_path / "e.mcap")]) == 1
+    assert "nothing exported from" in capsys.readouterr().err
+    assert main(["export", "foxglove", str(cut), "-o", str(tmp_path / "e.mcap"), "--allow-empty"]) == 0
