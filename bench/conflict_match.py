@@ -1,4 +1,4 @@
-"""Conflict price by feature-expectation matching with the planner in the loop (nodes/nav/irl_match.py).
+"""Conflict price by feature-expectation matching with the planner in the loop (sim/irl_match.py).
 
     python bench/conflict_match.py [--json] [--walkers 24] [--prices 6] [--window 8] [--heldout-walkers 20]
 
@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from nodes.nav.irl_cost import DEFAULT_WEIGHTS, load_weights  # noqa: E402
-from nodes.nav.irl_match import (bootstrap_prices, human_encounters, loso_prices, match_price,  # noqa: E402
+from sim.irl_match import (bootstrap_prices, human_encounters, loso_prices, match_price,  # noqa: E402
                                  pick_walks, replace_walker, weights_with_price)
 from sim.pedestrian_data import load_tracks  # noqa: E402
 

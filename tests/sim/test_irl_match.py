@@ -1,11 +1,11 @@
-"""Feature-expectation matching of the conflict price with the planner in the loop (nodes.nav.irl_match)."""
+"""Feature-expectation matching of the conflict price with the planner in the loop (sim.irl_match)."""
 import json
 
 import numpy as np
 import pytest
 
 from nodes.nav.irl_cost import DEFAULT_WEIGHTS
-from nodes.nav.irl_match import (ENCOUNTER_M, Walk, bootstrap_prices, human_encounters, loso_prices, match_price,
+from sim.irl_match import (ENCOUNTER_M, Walk, bootstrap_prices, human_encounters, loso_prices, match_price,
                                  pick_walks, replace_walker, weights_with_price)
 from sim.pedestrian_data import Tracks
 
