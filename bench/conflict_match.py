@@ -36,8 +36,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from nodes.nav.irl_cost import DEFAULT_WEIGHTS, load_weights  # noqa: E402
-from sim.irl_match import (bootstrap_prices, human_encounters, loso_prices, match_price,  # noqa: E402
-                                 pick_walks, replace_walker, weights_with_price)
+from sim.irl_match import (bootstrap_prices, crowd_drift, human_among_reactive, human_encounters,  # noqa: E402
+                           loso_prices, match_price, pick_walks, replace_walker, weights_with_price)
 from sim.pedestrian_data import load_tracks  # noqa: E402
 
 TRAIN = ["biwi_eth", "biwi_hotel", "uni_examples"]
@@ -162,6 +162,68 @@ def matched(sets: dict, prices: list[float], key: str, n_boot: int, seed: int) -
                                      for s in TRAIN}}
 
 
+def crowd_kwargs(items: list[str]) -> dict:
+    """``--crowd KEY=VALUE`` items -> ReactiveCrowd keywords; ``force.KEY`` goes to its SocialForce."""
+    from sim.crowd_scenes import SocialForce
+
+    kw, force = {}, {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"conflict_match: --crowd takes KEY=VALUE (e.g. lookahead_s=0.5, force.keep_right=0), "
+                             f"got {item!r}")
+        (force if key.startswith("force.") else kw)[key.removeprefix("force.")] = float(value)
+    return {**kw, "force": SocialForce(**force)} if force else kw
+
+
+def _boot_ci(x: np.ndarray, n_boot: int, seed: int) -> list[float]:
+    rng = np.random.default_rng(seed)
+    means = np.array([x[rng.integers(0, len(x), len(x))].mean(0) for _ in range(n_boot)])
+    return [round(float(v), 5) for v in np.percentile(means, [2.5, 97.5], axis=0).ravel()]
+
+
+def validate(names: list[str], n: int, window_s: float, crowd: dict, seed: int, n_boot: int) -> dict:
+    """The reactive crowd's check (before it is used to learn anything): per walker, his encounter rate among
+    the others replayed (recorded) and among the others reactive while he walks his recorded track exactly
+    (``human_among_reactive``), with walker-bootstrap 95 % intervals of both means and of their paired
+    difference; the others' drift from their recorded tracks over the window with nobody in his place
+    (``crowd_drift``) and with him there (m, median / p90 over agents and ticks)."""
+    out = {}
+    pooled_rec, pooled_re, pooled_d0 = [], [], []
+    for name in names:
+        tracks = load_tracks(name)
+        walks = pick_walks(tracks, n, seed=seed, window_s=window_s)
+        rec, re, close, d0, d1 = [], [], [], [], []
+        for j, walk in enumerate(walks):
+            h = human_encounters(tracks, walk)
+            r, d = human_among_reactive(tracks, walk, **crowd)
+            rec.append(h.rate)
+            re.append(r.rate)
+            close.append((h.closest_m, r.closest_m))
+            d1.append(d)
+            d0.append(crowd_drift(tracks, walk, **crowd))
+        rec, re, close = np.array(rec), np.array(re), np.array(close)
+        d0c, d1c = np.concatenate(d0), np.concatenate(d1)
+        pooled_rec.append(rec), pooled_re.append(re), pooled_d0.append(d0c)
+        out[name] = _validation_row(rec, re, close, d0c, d1c, n_boot, seed)
+        _say(f"validate {name}: {out[name]}")
+    out["pooled"] = _validation_row(np.concatenate(pooled_rec), np.concatenate(pooled_re), None,
+                                    np.concatenate(pooled_d0), None, n_boot, seed)
+    return out
+
+
+def _validation_row(rec, re, close, d0, d1, n_boot: int, seed: int) -> dict:
+    row = {"walkers": len(rec), "rate_recorded": round(float(rec.mean()), 5), "rate_reactive": round(float(re.mean()), 5),
+           "rate_recorded_95": _boot_ci(rec, n_boot, seed), "rate_reactive_95": _boot_ci(re, n_boot, seed),
+           "diff_reactive_minus_recorded_95": _boot_ci(re - rec, n_boot, seed),
+           "walkers_with_encounters": [int((rec > 0).sum()), int((re > 0).sum())],
+           "drift_alone_m": [round(float(np.median(d0)), 3), round(float(np.percentile(d0, 90)), 3)]}
+    if close is not None:
+        row["closest_m_median"] = [round(float(v), 3) for v in np.median(close, axis=0)]
+        row["drift_with_walker_m"] = [round(float(np.median(d1)), 3), round(float(np.percentile(d1, 90)), 3)]
+    return row
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true")
@@ -174,8 +236,19 @@ def main() -> None:
     ap.add_argument("--boot", type=int, default=1000)
     ap.add_argument("--from", dest="source", default="",
                     help="re-summarise and re-plot a saved out/conflict_match.json (its per-walker rows) without running")
+    ap.add_argument("--crowd", action="append", default=[],
+                    help="ReactiveCrowd keyword KEY=VALUE (force.KEY for its SocialForce), e.g. lookahead_s=0.5")
+    ap.add_argument("--validate", action="store_true",
+                    help="only check the reactive crowd on the training sets (the walker back among reactive others)")
+    ap.add_argument("--validate-sets", nargs="*", default=TRAIN)
     args = ap.parse_args()
     t0 = time.perf_counter()
+    crowd = crowd_kwargs(args.crowd)
+    if args.validate:
+        res = validate(args.validate_sets, args.walkers, args.window, crowd, args.seed, args.boot)
+        out = {"crowd": args.crowd, "validation": res, "secs": round(time.perf_counter() - t0, 1)}
+        print(json.dumps(out) if args.json else "\n".join(f"{k}: {v}" for k, v in res.items()))
+        return
     step_cost = load_weights().step_cost
     prices = [float(p) for p in np.round(np.geomspace(0.05, args.max_ratio, args.prices) * step_cost, 4)]
     if args.source:

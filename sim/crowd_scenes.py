@@ -345,14 +345,26 @@ class Walkers:
         self.present = self.start_s <= 0.0
         self.static = self.speed == 0
 
-    def step(self, t_s: float, dt: float, robot: tuple[float, ...] | None) -> None:
-        """Advance from ``t_s`` by ``dt``; ``robot`` = (x, y, vx, vy, radius) when pedestrians should avoid it."""
+    def step(self, t_s: float, dt: float, robot: tuple[float, ...] | None, *, goals: np.ndarray | None = None,
+             v0: np.ndarray | None = None) -> None:
+        """Advance from ``t_s`` by ``dt``; ``robot`` = (x, y, vx, vy, radius) when pedestrians should avoid it.
+
+        ``goals`` (N, 2) m, optional: where each pedestrian heads this step instead of its current waypoint (a
+        moving waypoint, e.g. a recorded track ahead; the waypoints are then not advanced); ``v0`` (N,) m/s,
+        optional: each one's desired speed this step (default: its own, as set by the scene)."""
         self.t_s = t_s + dt
         self.present |= self.start_s <= self.t_s
+        if v0 is not None:
+            self.v0 = np.asarray(v0, float).reshape(len(self.ids))
         moving = self.present & ~self.static
         if not moving.any():
             return
-        goal = np.array([p.waypoints[k] for p, k in zip(self.scene.pedestrians, self.target)]).reshape(-1, 2)
+        if goals is None:
+            goal = np.array([p.waypoints[k] for p, k in zip(self.scene.pedestrians, self.target)]).reshape(-1, 2)
+        else:
+            goal = np.asarray(goals, float).reshape(-1, 2)
+            if goal.shape != self.xy.shape:
+                raise ValueError(f"goals must be one (x, y) per pedestrian, {self.xy.shape}, got {goal.shape}")
         if self.scene.pedestrian_model == "linear":
             to_goal = goal - self.xy
             dist = np.linalg.norm(to_goal, axis=1, keepdims=True)
@@ -373,7 +385,8 @@ class Walkers:
             vel *= np.minimum(1.0, cap / np.maximum(norm, 1e-9))[:, None]
         self.vel = np.where(moving[:, None], vel, 0.0)
         self.xy = self._push_out_of_walls(self.xy + self.vel * dt)
-        self._advance_waypoints(moving)
+        if goals is None:
+            self._advance_waypoints(moving)
 
     def _push_out_of_walls(self, xy: np.ndarray) -> np.ndarray:
         """Hard constraint: a body never overlaps a wall or a pillar (the force alone can overshoot)."""

@@ -148,6 +148,140 @@ def human_encounters(tracks, walk: Walk, *, dt_s: float = 1.0 / 15.0) -> Encount
     return tally.result(walk.duration_s, True, xy)
 
 
+class ReactiveCrowd:
+    """The walkers of ``tracks`` (but ``exclude``) from data time ``t0_s`` as social-force agents.
+
+    ``sim.crowd_scenes.Walkers`` steps them with ``force`` (``SocialForce``: each other and the
+    agent in the replaced walker's place repel them; no walls, the data sets have no maps). Each
+    gapless stretch of a track (:meth:`Tracks.segments`) that overlaps ``[t0_s, t0_s + span_s]``
+    is one agent, reported under the walker's id: it appears where and how fast the walker was at
+    the window start (or when first seen), heads for its **recorded position** ``lookahead_s``
+    ahead (a moving waypoint) at the speed that would get it there on time, capped at
+    ``force.max_speed_factor`` x the stretch's fastest recorded speed, and leaves when its recorded
+    stretch ends. With nobody pushing, an agent on its track keeps to it; pushed off, it is drawn
+    back. ``radius_m``: body radius of the agents (m); ``substep_s``: the longest force step (s).
+    Same interface as ``Tracks.state_at`` through :meth:`state`; advance with :meth:`step`."""
+
+    def __init__(self, tracks, t0_s: float, span_s: float, *, exclude: tuple[int, ...] = (),
+                 force=None, lookahead_s: float = 1.0, radius_m: float = 0.3, substep_s: float = 1.0 / 30.0) -> None:
+        from sim.crowd_scenes import PedestrianSpec, Scene, SocialForce, Walkers
+
+        if not (lookahead_s > 0 and radius_m > 0 and substep_s > 0 and span_s > 0):
+            raise ValueError(f"lookahead_s, radius_m, substep_s and span_s must be > 0, got {lookahead_s}, "
+                             f"{radius_m}, {substep_s}, {span_s}")
+        self.t0_s, self.span_s, self.lookahead_s, self.substep_s = float(t0_s), float(span_s), lookahead_s, substep_s
+        skip = {int(i) for i in exclude}
+        pids, stretches, specs = [], [], []
+        for i, pid in enumerate(tracks.ids):
+            if int(pid) in skip:
+                continue
+            for t, xy in tracks.segments(i):
+                if t[-1] < t0_s or t[0] > t0_s + span_s or len(t) < 2:
+                    continue
+                a = max(float(t[0]), t0_s)
+                fastest = float(np.max(np.hypot(*np.diff(xy, axis=0).T) / np.diff(t)))
+                specs.append(PedestrianSpec(id=len(specs), waypoints=self._at(t, xy, a)[None], radius_m=radius_m,
+                                            speed_mps=max(fastest, 0.1), start_s=a - t0_s))
+                pids.append(int(pid))
+                stretches.append((t, xy))
+        self.pids, self.stretches = np.array(pids, np.int64), stretches
+        self.end_s = np.array([t[-1] - t0_s for t, _ in stretches])
+        scene = Scene(name=f"{tracks.name}@{t0_s:g}", pedestrians=tuple(specs), pedestrian_model="social_force")
+        self.walkers = Walkers(scene, force=force if force is not None else SocialForce())
+        self.t_s = 0.0
+        self.walkers.present[:] = False               # Walkers starts them still: _enter gives their recorded velocity
+        self._enter(0.0)
+
+    @staticmethod
+    def _at(t: np.ndarray, xy: np.ndarray, when: float) -> np.ndarray:
+        return np.array([np.interp(when, t, xy[:, 0]), np.interp(when, t, xy[:, 1])])
+
+    def _vel(self, k: int, when: float) -> np.ndarray:
+        t, xy = self.stretches[k]
+        j = int(np.clip(np.searchsorted(t, when, side="right") - 1, 0, len(t) - 2))
+        return (xy[j + 1] - xy[j]) / (t[j + 1] - t[j])
+
+    def _enter(self, upto_s: float) -> None:
+        """Agents appearing by ``upto_s`` (s since t0) start at their recorded velocity."""
+        w = self.walkers
+        new = ~w.present & (w.start_s <= upto_s + 1e-9)
+        for k in np.flatnonzero(new):
+            w.vel[k] = self._vel(int(k), self.t0_s + w.start_s[k])
+        w.present |= new
+
+    def recorded(self, k: int, t_s: float) -> np.ndarray:
+        """Where agent ``k`` was recorded at ``t_s`` (s since t0; clamped to its stretch), (2,) m."""
+        t, xy = self.stretches[k]
+        return self._at(t, xy, self.t0_s + t_s)
+
+    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Agents present now: ids (M,), positions (M, 2) m, velocities (M, 2) m/s."""
+        p = self.walkers.present & (self.end_s >= self.t_s - 1e-9)
+        return self.pids[p], self.walkers.xy[p].copy(), self.walkers.vel[p].copy()
+
+    def drift(self) -> np.ndarray:
+        """Distance (M,) m of each present agent from where it was recorded now."""
+        p = np.flatnonzero(self.walkers.present & (self.end_s >= self.t_s - 1e-9))
+        if not len(p):
+            return np.zeros(0)
+        rec = np.array([self.recorded(int(k), self.t_s) for k in p])
+        return np.hypot(*(self.walkers.xy[p] - rec).T)
+
+    def step(self, dt_s: float, robot: tuple[float, ...] | None = None) -> None:
+        """Advance ``dt_s`` seconds; ``robot`` = (x, y, vx, vy, radius) of whoever is in the replaced walker's
+        place (m, m/s; ``None``: nobody), held over the sub-steps."""
+        w = self.walkers
+        n = max(1, int(np.ceil(dt_s / self.substep_s - 1e-9)))
+        h = dt_s / n
+        for _ in range(n):
+            self._enter(self.t_s + h)
+            goals, v0 = w.xy.copy(), np.zeros(len(self.pids))
+            for k in np.flatnonzero(w.present):
+                ahead = min(self.lookahead_s, max(self.end_s[k] - self.t_s, h))
+                goals[k] = self.recorded(int(k), self.t_s + ahead)
+                v0[k] = min(np.hypot(*(goals[k] - w.xy[k])) / ahead, w.force.max_speed_factor * w.speed[k])
+            if len(self.pids):
+                w.step(self.t_s, h, robot, goals=goals, v0=v0)
+            self.t_s += h
+            gone = w.present & (self.end_s < self.t_s - 1e-9)
+            w.present &= ~gone
+            w.start_s[gone] = np.inf                  # Walkers.step would bring them back
+            w.vel[gone] = 0.0
+
+
+def human_among_reactive(tracks, walk: Walk, *, dt_s: float = 1.0 / 15.0, robot_radius_m: float = 0.35,
+                         **crowd) -> tuple[Encounters, np.ndarray]:
+    """The demonstrator walking its recorded track exactly (not reacting) among the others as a
+    :class:`ReactiveCrowd` (``crowd``: its keywords) that sees him as it would see the robot (the
+    ``robot`` agent of the social force, ``robot_radius_m``). The check of the reactive crowd: if it
+    is calibrated, his encounter feature here agrees with :func:`human_encounters` (the recorded crowd).
+    Returns his :class:`Encounters` and the others' drift from their recorded positions (m, one entry
+    per agent and tick)."""
+    tt = np.arange(walk.t_s[0], walk.t_s[-1] + 1e-9, dt_s)
+    xy = np.column_stack([np.interp(tt, walk.t_s, walk.xy_m[:, 0]), np.interp(tt, walk.t_s, walk.xy_m[:, 1])])
+    own = np.gradient(xy, dt_s, axis=0) if len(xy) > 1 else np.zeros_like(xy)
+    rc = ReactiveCrowd(tracks, float(walk.t_s[0]), walk.duration_s + dt_s, exclude=(walk.pid,), **crowd)
+    tally, drift = _Tally({walk.pid, *walk.companions}), []
+    for p, v in zip(xy, own):
+        tally.add(p, v, *rc.state())
+        drift.append(rc.drift())
+        rc.step(dt_s, (float(p[0]), float(p[1]), float(v[0]), float(v[1]), robot_radius_m))
+    return tally.result(walk.duration_s, True, xy), np.concatenate(drift) if drift else np.zeros(0)
+
+
+def crowd_drift(tracks, walk: Walk, *, span_s: float | None = None, dt_s: float = 1.0 / 15.0, **crowd) -> np.ndarray:
+    """How far the others of ``walk`` (a :class:`ReactiveCrowd`, ``crowd`` its keywords) drift from their
+    recorded positions with nobody in the walker's place: distances (m), one per agent and tick over
+    ``span_s`` (default the walk's duration) from the walk's start."""
+    span = walk.duration_s if span_s is None else float(span_s)
+    rc = ReactiveCrowd(tracks, float(walk.t_s[0]), span + dt_s, exclude=(walk.pid,), **crowd)
+    out = []
+    for _ in range(int(round(span / dt_s)) + 1):
+        out.append(rc.drift())
+        rc.step(dt_s, None)
+    return np.concatenate(out) if out else np.zeros(0)
+
+
 def weights_with_price(src: str | Path, price: float, dst: str | Path) -> Path:
     """Copy the weights file ``src`` to ``dst`` with its ``conflict`` weight set to ``price`` (cost units, as
     the step cost). Raises ValueError when ``src`` has no conflict feature (learn one with conflict on)."""
@@ -165,8 +299,13 @@ def weights_with_price(src: str | Path, price: float, dst: str | Path) -> Path:
 def replace_walker(tracks, walk: Walk, weights_path: str | Path, *, dt_s: float = 1.0 / 15.0,
                    timeout_factor: float = 2.5, slack_s: float = 8.0, goal_tol_m: float = 0.5,
                    fov_deg: float = 130.0, range_m: float = 8.0, planner_params: dict | None = None,
-                   seed: int = 0) -> Encounters:
+                   seed: int = 0, reactive: dict | None = None) -> Encounters:
     """Drive the planner node from ``walk``'s start to its goal among the other walkers replayed.
+
+    ``reactive``: ``None`` replays the others as recorded (they never make way for the robot); a dict
+    (:class:`ReactiveCrowd`'s keywords, ``{}`` for its defaults) makes them a reactive crowd seeded from
+    their tracks, which sees the robot (its disc, ``RobotLimits.radius_m``) as :func:`human_among_reactive`
+    sees the demonstrator.
 
     The robot (``sim.crowd.RobotLimits``, unicycle) starts at the walker's first position facing
     its first step; the episode ends at the goal (``goal_tol_m``) or after ``timeout_factor`` x
@@ -205,8 +344,10 @@ def replace_walker(tracks, walk: Walk, weights_path: str | Path, *, dt_s: float 
     pose, twist, limits = (float(walk.xy_m[0, 0]), float(walk.xy_m[0, 1]), float(heading)), (0.0, 0.0), RobotLimits()
     tally, path = _Tally({walk.pid, *walk.companions}), []
     max_s, t, cmd, reached = timeout_factor * walk.duration_s + slack_s, 0.0, (0.0, 0.0), False
+    crowd = None if reactive is None else ReactiveCrowd(tracks, float(walk.t_s[0]), max_s + dt_s,
+                                                         exclude=(walk.pid,), **reactive)
     while t <= max_s:
-        ids, pos, vel = tracks.state_at(float(walk.t_s[0] + t))
+        ids, pos, vel = tracks.state_at(float(walk.t_s[0] + t)) if crowd is None else crowd.state()
         tally.add(np.array(pose[:2]), twist[0] * np.array([np.cos(pose[2]), np.sin(pose[2])]), ids, pos, vel)
         path.append(pose[:2])
         if np.hypot(pose[0] - goal_xy[0], pose[1] - goal_xy[1]) <= goal_tol_m:
@@ -234,6 +375,9 @@ def replace_walker(tracks, walk: Walk, weights_path: str | Path, *, dt_s: float 
         if cmds:
             cmd = (cmds[-1].vx_mps, cmds[-1].wz_radps)
         pose, twist = unicycle_step(pose, twist, cmd, dt_s, limits)
+        if crowd is not None:
+            crowd.step(dt_s, (pose[0], pose[1], twist[0] * np.cos(pose[2]), twist[0] * np.sin(pose[2]),
+                              limits.radius_m))
         t += dt_s
     return tally.result(t if reached else max_s, reached, np.array(path))
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from nodes.nav.irl_cost import DEFAULT_WEIGHTS
-from sim.irl_match import (ENCOUNTER_M, Walk, bootstrap_prices, human_encounters, loso_prices, match_price,
-                                 pick_walks, replace_walker, weights_with_price)
+from sim.irl_match import (ENCOUNTER_M, ReactiveCrowd, Walk, bootstrap_prices, crowd_drift, human_among_reactive,
+                           human_encounters, loso_prices, match_price, pick_walks, replace_walker, weights_with_price)
 from sim.pedestrian_data import Tracks
 
 CROSS_T = 4.6          # the crosser is on the robot's line (x = 4) when a robot driving straight at 1 m/s gets there
@@ -111,3 +111,116 @@ def test_weights_with_price_says_what_to_do(tmp_path):
         weights_with_price(bare, 1.0, tmp_path / "x.json")
     with pytest.raises(ValueError, match="finite"):
         weights_with_price(DEFAULT_WEIGHTS, -1.0, tmp_path / "x.json")
+
+
+# --- the reactive crowd (ReactiveCrowd: the others as social-force agents seeded from their tracks) ---
+
+def _line(pid_speed_y: list[tuple[int, float, float]], t_end: float = 12.0, x0: float = 0.0) -> Tracks:
+    """Walkers going +x along y = const at constant speeds, sampled every 0.4 s."""
+    t = np.arange(0.0, t_end + 1e-9, 0.4)
+    ids = np.array([p for p, _, _ in pid_speed_y])
+    xy = tuple(np.column_stack([x0 + v * t, np.full(len(t), y)]) for _, v, y in pid_speed_y)
+    return Tracks("line", ids, tuple(t for _ in ids), xy, 0.4, 1.0)
+
+
+def _closest_to(crowd, point, pid, dt=1 / 15, n=150, robot=None):
+    out, drift = np.inf, []
+    for _ in range(n):
+        ids, pos, _ = crowd.state()
+        if pid in ids:
+            out = min(out, float(np.hypot(*(pos[list(ids).index(pid)] - point))))
+        drift.append(crowd.drift())
+        crowd.step(dt, robot)
+    return out, np.concatenate(drift)
+
+
+def test_a_reactive_walker_steps_aside_from_a_robot_standing_on_its_path_a_replayed_one_walks_through_it():
+    tracks = _line([(7, 1.0, 0.0)])                     # walker 7 walks x = t along y = 0 ...
+    robot = (4.0, 0.0, 0.0, 0.0, 0.35)                   # ... where a robot stands at x = 4
+    replayed = min(float(np.hypot(*(tracks.state_at(t)[1][0] - robot[:2]))) for t in np.arange(0, 10, 1 / 15))
+    assert replayed < 0.05                               # the recording walks through it
+    crowd = ReactiveCrowd(tracks, 0.0, 10.0)
+    closest, _ = _closest_to(crowd, np.array(robot[:2]), 7, robot=robot)
+    assert closest > 0.5                                 # the reactive walker makes way
+    nobody, drift = _closest_to(ReactiveCrowd(tracks, 0.0, 10.0), np.array(robot[:2]), 7)
+    assert nobody < 0.1 and drift.max() < 0.05          # with nobody there it keeps to its track
+    back = ReactiveCrowd(tracks, 0.0, 11.0)
+    _closest_to(back, np.array(robot[:2]), 7, n=75, robot=robot)     # past the robot by t = 5 s ...
+    _closest_to(back, np.array(robot[:2]), 7, n=60)
+    assert back.drift().max() < 0.2                     # ... and back on its track 4 s later
+
+
+def test_reactive_walkers_start_as_recorded_leave_when_their_track_ends_and_a_gap_is_two_agents():
+    t = np.arange(0.0, 10.01, 0.4)
+    a = np.column_stack([1.2 * t, np.zeros(len(t))])
+    late = t >= 2.0                                           # walker 2 first seen at 2 s, last at 6 s
+    seen = (t >= 2.0) & (t <= 6.0)
+    b = np.column_stack([np.zeros(len(t)), 5.0 + 0.8 * t])
+    gap = (t < 3.0) | (t > 6.5)                               # walker 3 out of sight 3-6.5 s
+    c = np.column_stack([-5.0 + 0.5 * t, np.full(len(t), 10.0)])
+    tracks = Tracks("enter", np.array([1, 2, 3]), (t, t[seen], t[gap]), (a, b[seen], c[gap]), 0.4, 1.0)
+    crowd = ReactiveCrowd(tracks, 1.0, 8.0)
+    ids, pos, vel = crowd.state()
+    assert sorted(ids) == [1, 3]
+    assert np.allclose(pos[list(ids).index(1)], [1.2, 0.0]) and np.allclose(vel[list(ids).index(1)], [1.2, 0.0])
+    seen_at = {}
+    for _ in range(int(7.5 * 15)):
+        crowd.step(1 / 15)
+        ids, pos, vel = crowd.state()
+        for i in ids:
+            seen_at.setdefault(int(i), []).append(round(crowd.t_s + 1.0, 3))
+    assert 1.95 <= min(seen_at[2]) <= 2.1 and 5.9 <= max(seen_at[2]) <= 6.1     # data time, as recorded
+    t3 = np.array(seen_at[3])
+    assert not np.any((t3 > 3.1) & (t3 < 6.4))                                    # absent in its gap
+    assert len(crowd.pids) == 4 and list(crowd.pids).count(3) == 2                # one agent per stretch
+    assert late.any()
+
+
+def test_the_reactive_crowd_is_seeded():
+    tracks = _line([(1, 1.0, 0.0), (2, 1.2, 0.7), (3, 0.9, -0.6)])
+    runs = []
+    for _ in range(2):
+        crowd = ReactiveCrowd(tracks, 0.5, 6.0)
+        for _ in range(60):
+            crowd.step(1 / 15, (3.0, 0.2, 0.0, 0.0, 0.35))
+        runs.append(crowd.state()[1])
+    assert np.array_equal(runs[0], runs[1])
+    with pytest.raises(ValueError, match="must be > 0"):
+        ReactiveCrowd(tracks, 0.0, 5.0, lookahead_s=0.0)
+
+
+def test_a_demonstrator_walking_into_a_reactive_walker_is_avoided_by_it():
+    t = np.arange(0.0, 10.01, 0.4)
+    demo = np.column_stack([t, np.zeros(len(t))])                # 0 -> 10 m along y = 0
+    other = np.column_stack([10.0 - t, np.full(len(t), 0.1)])    # head-on, 0.1 m off his line
+    tracks = Tracks("headon", np.array([1, 2]), (t, t), (demo, other), 0.4, 1.0)
+    walk = Walk("headon", 1, t, demo)
+    recorded = human_encounters(tracks, walk)
+    reactive, drift = human_among_reactive(tracks, walk)
+    assert recorded.rate > 0 and recorded.closest_m < 0.2
+    assert reactive.rate == 0.0 and reactive.closest_m >= ENCOUNTER_M
+    assert drift.max() > ENCOUNTER_M
+    alone = crowd_drift(tracks, walk)
+    assert alone.max() < 0.05                                   # with nobody in his place it walks as recorded
+
+
+def test_real_reactive_crowd_follows_its_tracks_with_nobody_in_the_walkers_place():
+    from sim.pedestrian_data import load_tracks
+    try:
+        tracks = load_tracks("biwi_hotel")
+    except FileNotFoundError:
+        pytest.skip("ETH/UCY tracks not in ../shared/data/pedestrians")
+    walks = pick_walks(tracks, 6, seed=1)
+    drift = np.concatenate([crowd_drift(tracks, w) for w in walks])
+    assert len(drift) > 100
+    assert np.median(drift) < 0.3 and np.percentile(drift, 90) < 0.8
+
+
+def test_the_planner_among_reactive_walkers_meets_fewer_than_among_replayed_ones(price_files):
+    tracks = _crossing(demonstrator_waits=False)        # a cheap conflict: the planner drives into the crosser ...
+    walk = Walk("synth", 1, tracks.t_s[0], tracks.xy_m[0])
+    replayed = replace_walker(tracks, walk, price_files[0.1])
+    reactive = replace_walker(tracks, walk, price_files[0.1], reactive={})
+    assert replayed.rate > 0
+    assert reactive.rate < replayed.rate and reactive.closest_m > replayed.closest_m    # ... who makes way
+    assert reactive.reached
