@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from tether.errors import ConfigError, TetherError
+from tether.paths import check_writable
 from tether.runner import LOG_FORMAT
 
 log = logging.getLogger("tether")
@@ -76,6 +77,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
     sup = Supervisor(launch, machine=args.machine, record=args.record,
                      record_topics=_flat(args.record_topics), record_exclude=_flat(args.record_exclude), keys=args.keys,
                      record_max_bytes=args.record_max_size or 0, record_max_duration_s=args.record_max_duration or 0.0)
+    for warning in launch.warnings:
+        log.warning("%s", warning)
     names = ", ".join(c.id for c in sup.children)
     log.info("launching %s (%s)%s", launch.name, names, f" for {args.duration:g} s" if args.duration else "")
     return sup.run(args.duration)
@@ -93,12 +96,20 @@ def cmd_check(args: argparse.Namespace) -> int:
             files += found
         else:
             files.append(item)
+    warned = 0
     for path in files:
         launch = load_launch(path, parse_overrides(args.param), args=parse_launch_args(args.arg))
+        for warning in launch.warnings:
+            print(f"tether: warning: {warning}", file=sys.stderr)
+        warned += len(launch.warnings)
         unconnected = [f"{n.id}.{name}" for n in launch.nodes for name in n.ports.inputs
                        if name not in n.inputs and name not in n.ports.timers]
         print(f"{path}: ok ({len(launch.nodes)} nodes, {len(launch.edges())} connections"
-              + (f"; unconnected inputs: {', '.join(unconnected)}" if unconnected else "") + ")")
+              + (f"; unconnected inputs: {', '.join(unconnected)}" if unconnected else "")
+              + (f"; {len(launch.warnings)} warning(s)" if launch.warnings else "") + ")")
+    if warned and args.strict:
+        print(f"tether: error: {warned} warning(s) with --strict", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -173,6 +184,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     import fnmatch
 
+    check_writable(args.output, "-o")
     available = registry.topics()
     wanted = args.topics or [t for t in available if not t.endswith("/_stats")]
     missing = [t for t in wanted if t not in available]
@@ -422,6 +434,14 @@ def _log_cut_merge(args: argparse.Namespace) -> int:
                                  publish_time_ns=rec.publish_time_ns, sequence=rec.sequence)
             written += 1
     print(f"wrote {written} messages to {args.output}")
+    damage = [f"{r.path}: " + ", ".join(
+        ([f"{len(r.damaged)} damaged chunk(s)"] if r.damaged else [])
+        + ([f"unreadable from byte {r.truncated_at}"] if r.truncated_at >= 0 else []))
+        for r in readers if r.damaged or r.truncated_at >= 0]
+    if damage and not args.skip_bad:     # the output lacks their messages: not a success to script on
+        print(f"tether: error: {'; '.join(damage)}: {args.output} was written without their messages "
+              "(--skip-bad to accept)", file=sys.stderr)
+        return 1
     return _nothing_done(written, args, f"the {args.file} selected no message")
 
 
@@ -696,10 +716,18 @@ def cmd_learn(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--ppo {key}={value!r}: give {want.get(kind, 'a list of layer widths like [64, 64]')}")
         if "hidden" in overrides:
             overrides["hidden"] = tuple(overrides["hidden"])
+        config = PPOConfig(**overrides)
+        rollout = config.n_steps * args.n_envs     # PPO updates on whole rollouts: fewer steps train nothing
+        if args.steps < rollout:
+            raise ConfigError(f"--steps {args.steps:g} is less than one PPO rollout (n_steps {config.n_steps} x "
+                              f"--n-envs {args.n_envs} = {rollout} env steps): give --steps {rollout} or more, "
+                              "or a smaller --n-envs / --ppo n_steps")
         agent = train(args.env, args.out, steps=int(args.steps), n_envs=args.n_envs, params=_learn_params(args.param),
-                      config=PPOConfig(**overrides), seed=args.seed, mode=args.mode, shards=args.shards,
+                      config=config, seed=args.seed, mode=args.mode, shards=args.shards,
                       resume=args.resume, checkpoint_every=int(args.checkpoint_every), progress=print)
-        print(f"wrote {args.out} ({agent.steps_done} steps) and {Path(args.out).with_suffix('.png')}")
+        short = (f": --steps {args.steps:g} rounded down to whole rollouts of {rollout}"
+                 if agent.steps_done < args.steps else "")
+        print(f"wrote {args.out} ({agent.steps_done} steps{short}) and {Path(args.out).with_suffix('.png')}")
         return 0
     if args.learn_cmd == "eval":
         agent = PPO.load(args.checkpoint)
@@ -849,6 +877,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("files", nargs="+", help="launch files, or directories of them")
     p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE", help="check with this override")
     p.add_argument("--arg", action="append", metavar="NAME=VALUE", help="check with this launch argument")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 1 on a warning too (an input wired to its own node's output)")
     p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("graph", help="print a pipeline's graph (text or Graphviz dot)")
@@ -926,6 +956,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-check", action="store_true", help="list only, do not read every chunk")
     p.add_argument("--recover", action="store_true", help="copy every readable message into -o OUT")
     p.add_argument("-o", "--output", help="with --recover, cut or merge: the new log")
+    p.add_argument("--skip-bad", action="store_true",
+                   help="with cut or merge: skip damaged chunks of an input and exit 0 (without it, what is "
+                        "readable is written and the exit is 1)")
     p.set_defaults(func=cmd_log)
 
     p = sub.add_parser("import", help="convert a foreign log (oculus, candump, ...) to a tether log")

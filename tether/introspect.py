@@ -8,7 +8,7 @@ from typing import Any
 
 from tether.errors import ConfigError, TetherError
 
-WAIT_NOTICE_S = 3.0          # topic echo: how long a silent topic waits before it is said to be silent
+WAIT_NOTICE_S = 3.0          # topic echo/hz/bw: how long a silent topic waits before it is said to be silent
 
 
 def subscribe(topic: str) -> Any:
@@ -63,36 +63,55 @@ def cmd_topic(args: argparse.Namespace) -> int:
     return _rate(args)
 
 
+class _Silence:
+    """A subscriber's watch over a silent topic: says once, after :data:`WAIT_NOTICE_S`, that
+    nothing came yet, and sees (every :data:`WAIT_NOTICE_S` of silence) whether the graph
+    publishing it has stopped, so that echo, hz and bw do not wait for ever on a dead topic."""
+
+    def __init__(self, topic: str, info: Any) -> None:
+        self.topic, self.info = topic, info
+        self.heard = False
+        self._told = False
+        self._next = time.monotonic() + WAIT_NOTICE_S
+
+    def quiet(self) -> bool:
+        """Called when a poll found nothing: False once the topic's graph has stopped (said on stderr)."""
+        from tether import registry
+
+        if time.monotonic() < self._next:
+            return True
+        self._next = time.monotonic() + WAIT_NOTICE_S
+        if self.topic not in registry.topics():
+            print(f"tether: error: {self.topic}: its graph {self.info.graph!r} stopped", file=sys.stderr)
+            return False
+        if not self.heard and not self._told:
+            print(f"tether: waiting for {self.topic} ({self.info.type_name}, graph {self.info.graph!r}): nothing "
+                  "published yet (Ctrl-C to stop)", file=sys.stderr, flush=True)
+            self._told = True
+        return True
+
+
 def _echo(args: argparse.Namespace) -> int:
     import msgpack
 
-    from tether import registry
     from tether.codec import Codec
     from tether.message import message_type
 
     info, sock = subscribe(args.topic)
     codec, tp = Codec(), message_type(info.type_name)
-    shown, told = 0, False
+    shown, silence = 0, _Silence(args.topic, info)
     t_end = time.monotonic() + args.duration if args.duration else None
-    next_check = time.monotonic() + WAIT_NOTICE_S
     while args.count is None or shown < args.count:
         if t_end is not None and time.monotonic() >= t_end:
             break
         if not sock.poll(200):
-            # Silent: say so once, and stop when the graph publishing the topic has gone.
-            if time.monotonic() >= next_check:
-                next_check = time.monotonic() + WAIT_NOTICE_S
-                if args.topic not in registry.topics():
-                    print(f"tether: error: {args.topic}: its graph {info.graph!r} stopped", file=sys.stderr)
-                    return 1
-                if shown == 0 and not told:
-                    print(f"tether: waiting for {args.topic} ({info.type_name}, graph {info.graph!r}): nothing "
-                          "published yet (Ctrl-C to stop)", file=sys.stderr, flush=True)
-                    told = True
+            if not silence.quiet():
+                return 1
             continue
         frames = sock.recv_multipart(copy=False)
         if frames[0].bytes != args.topic.encode():
             continue
+        silence.heard = True
         if args.raw:
             print(msgpack.unpackb(frames[1].bytes, raw=False, strict_map_key=False))
         else:
@@ -106,7 +125,10 @@ def _echo(args: argparse.Namespace) -> int:
 
 
 def _rate(args: argparse.Namespace) -> int:
-    """hz/bw from the publisher's seq and stamps, so a slow terminal never under-reports."""
+    """hz/bw from the publisher's seq and stamps, so a slow terminal never under-reports.
+
+    A report line each second once a message has come (before, a silent topic is said to be
+    waited for, once); ends when the topic's graph stops (exit 1) or after ``--duration``."""
     import msgspec
 
     class Head(msgspec.Struct):
@@ -115,6 +137,7 @@ def _rate(args: argparse.Namespace) -> int:
 
     head_decoder = msgspec.msgpack.Decoder(Head)
     info, sock = subscribe(args.topic)
+    silence = _Silence(args.topic, info)
     samples: list[tuple[float, int, int, int]] = []   # (receive time, stamp, seq, bytes)
     t_end = time.monotonic() + args.duration if args.duration else None
     next_report = time.monotonic() + 1.0
@@ -124,12 +147,16 @@ def _rate(args: argparse.Namespace) -> int:
             if frames[0].bytes == args.topic.encode():
                 h = head_decoder.decode(frames[1].buffer)
                 samples.append((time.monotonic(), h.stamp_ns, h.seq, sum(len(f.buffer) for f in frames)))
+                silence.heard = True
+        elif not silence.quiet():
+            return 1
         now = time.monotonic()
         if now >= next_report:
             next_report = now + 1.0
             samples = [s for s in samples if now - s[0] <= args.window][-args.window_msgs:] if args.window_msgs \
                 else [s for s in samples if now - s[0] <= args.window]
-            print(rate_line(args.action, samples), flush=True)
+            if silence.heard:
+                print(rate_line(args.action, samples), flush=True)
     return 0
 
 

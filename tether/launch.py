@@ -89,6 +89,9 @@ class LaunchFile:
     nodes: list[NodeEntry]
     machines: dict[str, Machine]
     links: list[tuple[frozenset[str], LinkModel]] = field(default_factory=list)
+    #: what is allowed but likely a mistake, one line each naming the file and line (``tether check``
+    #: prints them; ``--strict`` makes them errors)
+    warnings: list[str] = field(default_factory=list)
 
     def link_between(self, a: NodeEntry, b: NodeEntry) -> LinkModel | None:
         """The link model a message from node ``a`` to node ``b`` crosses (by node id or machine), if any."""
@@ -372,6 +375,22 @@ def _check_wiring(where: str, launch: LaunchFile, raws: Mapping[str, Any],
             if out_type is not port.type:
                 raise ConfigError(f"{at}: input {name!r} takes {port.type.type_name()} but {src} "
                                   f"publishes {out_type.type_name()}")
+            if src_id == entry.id:
+                launch.warnings.append(_self_loop(at, entry, name, src))
+
+
+def _self_loop(at: str, entry: NodeEntry, name: str, src: str) -> str:
+    """The warning for an input wired to its own node's output.
+
+    Allowed (the runtime delivers it, as ROS 2 delivers a node's own topic to its own
+    subscription), but a Tether topic has one publisher: the input gets back only what the
+    node published itself, which it already had. Usually a mistyped source; with no other
+    input, timer or ``run()`` to start it, the node can never publish at all."""
+    others = [n for n, s in entry.inputs.items() if n != name and s.partition("/")[0] != entry.id]
+    starts = others or entry.ports.timers or (entry.cls is not None and entry.cls.run is not Node.run)
+    return (f"{at}: input {name!r} takes the node's own output {src}: it gets back only what {entry.id!r} "
+            "publishes itself" + ("" if starts else ", and nothing else starts the node: it never publishes")
+            + " (meant as feedback: keep it; else wire another node's output)")
 
 
 def timer_period_ns(src: str) -> int:

@@ -26,6 +26,7 @@ from tether.codec import Codec, json_schema
 from tether.errors import DecodeError
 from tether.logcheck import MAGIC, ChunkRef, DamagedChunk, chunk_refs, read_chunk
 from tether.message import Message, message_type
+from tether.paths import not_regular
 
 log = logging.getLogger("tether.log")
 
@@ -166,8 +167,8 @@ class LogReader:
         self.path = Path(path)
         if not self.path.exists():
             raise FileNotFoundError(f"no log at {self.path}")
-        if not self.path.is_file():
-            what = "a directory" if self.path.is_dir() else "a device or pipe"
+        what = not_regular(self.path)
+        if what:
             raise DecodeError(f"{self.path}: {what}, not a log file (give a tether .mcap file)")
         try:
             with open(self.path, "rb") as fh:
@@ -181,6 +182,7 @@ class LogReader:
         self.recovered = False
         self._told_truncated = False
         self.damaged: list[DamagedChunk] = []      # chunks skipped by the last messages() pass
+        self.truncated_at = -1                      # the byte the last messages() pass could read no further from
         self._summary = None
         with open(self.path, "rb") as fh:
             try:
@@ -217,6 +219,7 @@ class LogReader:
         self.damaged = []
         with open(self.path, "rb") as fh:
             refs, indexed, truncated_at = chunk_refs(fh)
+            self.truncated_at = truncated_at
             schemas: dict[int, Schema] = dict(self._summary.schemas) if indexed and self._summary else {}
             channels: dict[int, Channel] = dict(self._summary.channels) if indexed and self._summary else {}
             if indexed:   # with the summary's channels known, chunks outside the window need not be read

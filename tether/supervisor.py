@@ -26,6 +26,7 @@ import msgspec
 
 from tether import forked, keystore, registry
 from tether.launch import TIMER_RE, LaunchFile, plan
+from tether.paths import check_writable
 from tether.record import READY_TEXT
 from tether.errors import ConfigError
 from tether.runtime import RunSpec
@@ -195,6 +196,8 @@ class Supervisor:
                               "(every node runs on this one)")
         if launch.machines and self.machine not in launch.machines:
             raise ConfigError(f"{launch.path}: --machine must be one of {sorted(launch.machines)}")
+        if record:                    # found at the run's end otherwise: every node started and stopped for nothing
+            check_writable(record, "--record")
         self.keystore = keystore.keystore_dir(launch.name, keys)
         curve = keystore.ensure(self.keystore, list(launch.machines), self.machine) if launch.machines else None
         self.curve = curve

@@ -21,6 +21,7 @@ import yaml
 from yaml.nodes import MappingNode, Node, SequenceNode
 
 from tether.errors import ConfigError
+from tether.paths import not_regular
 
 MAX_DEPTH = 64
 MAX_NODES = 100_000                 # after alias expansion
@@ -182,6 +183,9 @@ def load_yaml_file(path: Any) -> Any:
     from pathlib import Path
 
     path = Path(path)
+    what = not_regular(path)
+    if what:                                    # a FIFO without a writer blocks open() for ever
+        raise ConfigError(f"{path}: {what}, not a configuration file (give a .yaml file)")
     try:
         with path.open("rb") as f:              # bounded: /dev/zero or a huge file is refused, not read to the end
             text = f.read(MAX_BYTES + 1)

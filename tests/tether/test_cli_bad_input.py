@@ -16,7 +16,7 @@ from msgs.std import Float64
 from tether.cli import main
 from tether.errors import ConfigError, DecodeError
 from tether.log import LogReader, LogWriter
-from tether.node import Node
+from tether.node import Node, Tick
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -292,7 +292,7 @@ def test_learn_train_refuses_settings_it_cannot_use(tmp_path, capsys):
                             ("n_steps=2.5", "give a whole number"), ("hidden=[64, 0]", "layer widths")]:
         assert main(["learn", "train", "--ppo", setting, "--steps", "10", "-o", out]) == 2, setting
         _one_error_line(capsys, needle)
-    assert main(["learn", "train", "--param", "nope=1", "--steps", "10", "-o", out]) == 2
+    assert main(["learn", "train", "--param", "nope=1", "--steps", "4096", "-o", out]) == 2
     _one_error_line(capsys, "unknown scenario parameter(s) ['nope']")
     with pytest.raises(SystemExit):
         main(["learn", "train", "--steps", "-5", "-o", out])
@@ -318,3 +318,150 @@ def test_exporting_nothing_is_not_success(tmp_path, capsys):
     assert main(["export", "foxglove", str(cut), "-o", str(tmp_path / "e.mcap")]) == 1
     assert "nothing exported from" in capsys.readouterr().err
     assert main(["export", "foxglove", str(cut), "-o", str(tmp_path / "e.mcap"), "--allow-empty"]) == 0
+
+
+# -- second pass (helper-64) -------------------------------------------------------------------
+class Feedback(Node):
+    """A node that takes its own output back (a loop meant as feedback: its timer starts it)."""
+
+    inputs = {"tick": Tick, "value": Float64}
+    outputs = {"value": Float64}
+
+    def on_tick(self, tick: Tick) -> dict[str, Float64]:
+        return {"value": Float64(data=1.0)}
+
+    def on_value(self, msg: Float64) -> None:
+        pass
+
+
+def test_an_input_wired_to_its_own_node_is_a_warning_and_strict_refuses_it(tmp_path, capsys):
+    """``inputs: {value: scale/value}`` on node scale was accepted silently: a Tether topic has one
+    publisher, so the input gets back only what the node published (here never: nothing starts it)."""
+    dead = tmp_path / "dead.yaml"
+    dead.write_text("name: x\nnodes:\n  - id: scale\n    node: nodes.std.demo:Scale\n    inputs: {value: scale/value}\n")
+    assert main(["check", str(dead)]) == 0
+    err = capsys.readouterr().err
+    assert "tether: warning: " in err and "dead.yaml:5: node 'scale': input 'value' takes the node's own output " \
+        "scale/value" in err and "nothing else starts the node: it never publishes" in err, err
+    assert main(["check", "--strict", str(dead)]) == 1
+    _one_error_line(capsys, "1 warning(s) with --strict")
+    loop = tmp_path / "loop.yaml"
+    loop.write_text(f"name: x\nnodes:\n  - id: fb\n    node: {__name__}:Feedback\n"
+                    "    inputs: {tick: timer/hz/5, value: fb/value}\n")
+    assert main(["check", str(loop)]) == 0
+    err = capsys.readouterr().err
+    assert "takes the node's own output fb/value" in err and "never publishes" not in err, err
+    assert main(["check", "--strict", str(REPO / "launch/counter.yaml")]) == 0     # no warning: no error
+
+
+def test_a_record_file_that_cannot_be_written_is_refused_before_anything_starts(tmp_path):
+    """``tether launch f.yaml --record DIR`` ran the whole graph, then said the recorder failed."""
+    from tether.launch import load_launch
+    from tether.supervisor import Supervisor
+
+    launch = load_launch(REPO / "launch/counter.yaml")
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("x")
+    for target, needle in [(tmp_path, "a directory, not a file to write"),
+                           (a_file / "run.mcap", "notes.txt is not a folder")]:
+        with pytest.raises(ConfigError, match=f"^--record {target}: .*{needle}"):
+            Supervisor(launch, record=str(target))
+    Supervisor(launch, record=str(tmp_path / "new" / "run.mcap"))      # a folder still to be made is fine
+    assert a_file.read_text() == "x" and list(tmp_path.iterdir()) == [a_file]    # nothing left behind
+
+
+@pytest.mark.parametrize("action", ["hz", "bw"])
+def test_topic_hz_and_bw_of_a_silent_topic_say_so_and_end_with_their_graph(action, monkeypatch, capsys):
+    """Both printed 'no messages yet' each second for ever, also after the graph had stopped."""
+    import zmq
+
+    from tether import introspect, registry
+    from tether.registry import TopicInfo
+
+    info = TopicInfo(topic="a/value", type_name="std.Float64", endpoint="ipc:///nonexistent/x", graph="g")
+    sock = zmq.Context.instance().socket(zmq.SUB)
+    monkeypatch.setattr(introspect, "subscribe", lambda topic: (info, sock))
+    monkeypatch.setattr(introspect, "WAIT_NOTICE_S", 0.2)
+    listed = [{"a/value": info}]
+    monkeypatch.setattr(registry, "topics", lambda: listed[-1])
+    args = argparse.Namespace(action=action, topic="a/value", window=5.0, window_msgs=0, duration=None)
+    result: list[int] = []
+    worker = threading.Thread(target=lambda: result.append(introspect._rate(args)), daemon=True)
+    worker.start()
+    worker.join(0.8)
+    assert worker.is_alive()                            # still waiting while the graph runs ...
+    listed.append({})                                   # ... which then stops
+    worker.join(5.0)
+    assert result == [1]
+    out, err = capsys.readouterr()
+    assert "waiting for a/value (std.Float64, graph 'g'): nothing published yet" in err
+    assert "a/value: its graph 'g' stopped" in err and out == ""
+    args.duration, listed[-1] = 0.3, {"a/value": info}     # --duration bounds a silent one too
+    assert introspect._rate(args) == 0
+    sock.close(linger=0)
+
+
+def test_learn_train_with_fewer_steps_than_one_rollout_is_an_error(tmp_path, capsys):
+    """``--steps 10`` trained nothing (PPO updates on whole rollouts of n_steps x n_envs = 4096),
+    wrote no checkpoint, and said 'wrote p.ckpt (0 steps)' with exit 0."""
+    pytest.importorskip("jax")
+    out = tmp_path / "p.ckpt"
+    assert main(["learn", "train", "--steps", "10", "-o", str(out)]) == 2
+    _one_error_line(capsys, "--steps 10 is less than one PPO rollout (n_steps 256 x --n-envs 16 = 4096 env steps)")
+    assert main(["learn", "train", "--steps", "100", "--n-envs", "2", "--ppo", "n_steps=64", "-o", str(out)]) == 2
+    _one_error_line(capsys, "= 128 env steps")
+    assert not out.exists()
+
+
+def _damaged(tmp_path: Path) -> tuple[Path, Path]:
+    """A log with its first chunks' bytes flipped, and one cut in the middle (a killed recorder's)."""
+    good = tmp_path / "good.mcap"
+    with LogWriter(good, chunk_size=2000) as w:
+        for i in range(300):
+            w.write("a/value", Float64(data=float(i)), log_time_ns=1_000_000_000 + i * 10_000_000)
+    data = bytearray(good.read_bytes())
+    (tmp_path / "cut.mcap").write_bytes(data[:len(data) // 2])
+    for k in range(400, 2000, 97):
+        data[k] ^= 0x55
+    (tmp_path / "flipped.mcap").write_bytes(data)
+    return tmp_path / "flipped.mcap", tmp_path / "cut.mcap"
+
+
+def test_merging_or_cutting_a_damaged_log_is_not_success_without_skip_bad(tmp_path, capsys):
+    """``tether log merge`` logged 'skipping damaged chunk' errors, wrote the rest and exited 0."""
+    flipped, cut = _damaged(tmp_path)
+    out = str(tmp_path / "m.mcap")
+    assert main(["log", "merge", str(flipped), str(cut), "-o", out]) == 1
+    _one_error_line(capsys, "flipped.mcap: 3 damaged chunk(s); ", "cut.mcap: unreadable from byte ",
+                    "m.mcap was written without their messages (--skip-bad to accept)")
+    written = sum(1 for _ in LogReader(out).messages())
+    assert 0 < written < 600                            # what was readable is kept
+    assert main(["log", "merge", str(flipped), str(cut), "-o", out, "--skip-bad"]) == 0
+    assert main(["log", "cut", str(flipped), "-o", out]) == 1
+    _one_error_line(capsys, "flipped.mcap: 3 damaged chunk(s)")
+    assert main(["log", "cut", str(flipped), "-o", out, "--end", "100", "--skip-bad"]) == 0
+    assert main(["log", "merge", str(tmp_path / "good.mcap"), "-o", out]) == 0
+
+
+def test_a_fifo_given_as_a_launch_file_is_refused_not_waited_on(tmp_path, capsys):
+    """``tether check pipe.yaml`` on a FIFO with no writer blocked in open() for ever; /dev/zero was read
+    up to the size bound. Refused before opening, as a log or a pose graph is."""
+    import os
+
+    if not hasattr(os, "mkfifo"):
+        pytest.skip("no FIFOs here")
+    fifo = tmp_path / "pipe.yaml"
+    os.mkfifo(fifo)
+    result: list[int] = []
+    worker = threading.Thread(target=lambda: result.append(main(["check", str(fifo)])), daemon=True)
+    worker.start()
+    worker.join(5.0)
+    if worker.is_alive():                               # unblock the old code's open() so the thread ends
+        os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        pytest.fail("tether check blocked on a FIFO")
+    assert result == [2]
+    _one_error_line(capsys, "pipe.yaml: a device or pipe, not a configuration file")
+    inc = tmp_path / "inc.yaml"                         # an include of it too
+    inc.write_text(f"name: x\nnodes: []\ninclude: [{{file: {fifo}}}]\n")
+    assert main(["check", str(inc)]) == 2
+    _one_error_line(capsys, "pipe.yaml")
