@@ -54,16 +54,21 @@ def _row(e) -> dict:
             "rate_self": e.rate_self, "count_self": e.count_self}
 
 
-def run_set(name: str, n: int, prices: list[float], files: dict[float, Path], window_s: float, seed: int) -> dict:
-    """Per walker of one data set: the walker's own feature and the planner's at each price."""
+def run_set(name: str, n: int, prices: list[float], files: dict[float, Path], window_s: float, seed: int,
+            reactive: dict | None = None) -> dict:
+    """Per walker of one data set: the walker's own feature and the planner's at each price; ``reactive``
+    (ReactiveCrowd keywords): the others react (and the walker's own feature among them is kept too,
+    ``human_reactive``), ``None``: they are replayed."""
     tracks = load_tracks(name)
     walks = pick_walks(tracks, n, seed=seed, window_s=window_s)
     rows = []
     for j, walk in enumerate(walks):
         h = human_encounters(tracks, walk)
         row = {"pid": walk.pid, "human": _row(h), "planner": {}}
+        if reactive is not None:
+            row["human_reactive"] = _row(human_among_reactive(tracks, walk, **reactive)[0])
         for p in prices:
-            r = replace_walker(tracks, walk, files[p], seed=seed + j)
+            r = replace_walker(tracks, walk, files[p], seed=seed + j, reactive=reactive)
             row["planner"][repr(p)] = _row(r)
         rows.append(row)
         _say(f"{name} {j + 1}/{len(walks)} walker {walk.pid}: human {h.rate:.3f}, planner "
@@ -71,10 +76,11 @@ def run_set(name: str, n: int, prices: list[float], files: dict[float, Path], wi
     return {"walkers": rows}
 
 
-def _matrix(sets: dict, names: list[str], prices: list[float], key: str = "rate") -> tuple[np.ndarray, np.ndarray]:
+def _matrix(sets: dict, names: list[str], prices: list[float], key: str = "rate",
+            who: str = "human") -> tuple[np.ndarray, np.ndarray]:
     rows = [r for s in names for r in sets[s]["walkers"]]
     return (np.array([[r["planner"][repr(p)][key] for p in prices] for r in rows]),
-            np.array([r["human"][key] for r in rows]))
+            np.array([r[who][key] for r in rows]))
 
 
 def plot(prices: list[float], sets: dict, learnt: float, step_cost: float, filename: str = "conflict_match.png") -> Path:
@@ -112,7 +118,8 @@ def plot(prices: list[float], sets: dict, learnt: float, step_cost: float, filen
     return out
 
 
-def heldout(name: str, n: int, prices: dict[str, float], window_s: float, seed: int, tmp: Path) -> dict:
+def heldout(name: str, n: int, prices: dict[str, float], window_s: float, seed: int, tmp: Path,
+            reactive: dict | None = None) -> dict:
     """Per held-out walker: the walker's feature and the planner's at each named price."""
     tracks = load_tracks(name)
     walks = pick_walks(tracks, n, seed=seed, window_s=window_s)
@@ -121,7 +128,7 @@ def heldout(name: str, n: int, prices: dict[str, float], window_s: float, seed: 
     for j, walk in enumerate(walks):
         out["human"].append(_row(human_encounters(tracks, walk)))
         for k in prices:
-            out[k].append(_row(replace_walker(tracks, walk, files[k], seed=seed + j)))
+            out[k].append(_row(replace_walker(tracks, walk, files[k], seed=seed + j, reactive=reactive)))
         _say(f"held out {name} {j + 1}/{len(walks)}: human {out['human'][-1]['rate']:.3f} "
              + " ".join(f"{k} {out[k][-1]['rate']:.3f}" for k in prices))
     return out
@@ -145,19 +152,20 @@ def held_summary(out: dict) -> dict:
     return summ
 
 
-def matched(sets: dict, prices: list[float], key: str, n_boot: int, seed: int) -> dict:
-    """The price matched on feature ``key`` over all training walkers, its bootstrap 95 % and LOSO prices."""
-    planner, human = _matrix(sets, TRAIN, prices, key)
+def matched(sets: dict, prices: list[float], key: str, n_boot: int, seed: int, who: str = "human") -> dict:
+    """The price matched on feature ``key`` over all training walkers, its bootstrap 95 % and LOSO prices;
+    ``who``: the walkers' feature among the recorded crowd ("human") or among the reactive one ("human_reactive")."""
+    planner, human = _matrix(sets, TRAIN, prices, key, who)
     m = match_price(prices, planner.mean(0), float(human.mean()))
     boot = bootstrap_prices(prices, planner, human, n_boot=n_boot, seed=seed)
-    loso = loso_prices(prices, {s: _matrix(sets, [s], prices, key) for s in TRAIN})
+    loso = loso_prices(prices, {s: _matrix(sets, [s], prices, key, who) for s in TRAIN})
     return {"price": round(m.price, 4), "censored": m.censored,
             "bootstrap_95": [round(float(v), 4) for v in np.percentile(boot, [2.5, 97.5])],
             "bootstrap_censored_frac": round(float(np.mean((boot <= prices[0]) | (boot >= prices[-1]))), 3),
             "loso": {k: {"price": round(v.price, 4), "censored": v.censored} for k, v in loso.items()},
             "train_human": round(float(human.mean()), 4),
             "train_planner": [round(float(v), 4) for v in planner.mean(0)],
-            "train_human_by_set": {s: round(float(_matrix(sets, [s], prices, key)[1].mean()), 4) for s in TRAIN},
+            "train_human_by_set": {s: round(float(_matrix(sets, [s], prices, key, who)[1].mean()), 4) for s in TRAIN},
             "train_planner_by_set": {s: [round(float(v), 4) for v in _matrix(sets, [s], prices, key)[0].mean(0)]
                                      for s in TRAIN}}
 
@@ -241,9 +249,13 @@ def main() -> None:
     ap.add_argument("--validate", action="store_true",
                     help="only check the reactive crowd on the training sets (the walker back among reactive others)")
     ap.add_argument("--validate-sets", nargs="*", default=TRAIN)
+    ap.add_argument("--reactive", action="store_true",
+                    help="the other walkers react (ReactiveCrowd with --crowd), instead of being replayed")
     args = ap.parse_args()
     t0 = time.perf_counter()
     crowd = crowd_kwargs(args.crowd)
+    reactive = crowd if args.reactive else None
+    stem = "conflict_match_reactive" if args.reactive else "conflict_match"
     if args.validate:
         res = validate(args.validate_sets, args.walkers, args.window, crowd, args.seed, args.boot)
         out = {"crowd": args.crowd, "validation": res, "secs": round(time.perf_counter() - t0, 1)}
@@ -259,15 +271,16 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp_name:
             tmp = Path(tmp_name)
             files = {p: weights_with_price(DEFAULT_WEIGHTS, p, tmp / f"w_{i}.json") for i, p in enumerate(prices)}
-            sets = {name: run_set(name, args.walkers, prices, files, args.window, args.seed) for name in TRAIN}
+            sets = {name: run_set(name, args.walkers, prices, files, args.window, args.seed, reactive)
+                    for name in TRAIN}
             m = matched(sets, prices, "rate", args.boot, args.seed)
             _say(f"matched {m['price']:.4g} ({m['censored'] or 'inside the grid'}); LOSO {m['loso']}")
             held_rows = {name: heldout(name, args.heldout_walkers, {"learnt": m["price"], "hand_set": HAND_SET},
-                                       args.window, args.seed, tmp) for name in HELD_OUT}
+                                       args.window, args.seed, tmp, reactive) for name in HELD_OUT}
         window_s, secs = args.window, round(time.perf_counter() - t0, 1)
     m = matched(sets, prices, "rate", args.boot, args.seed)
     held = {k: held_summary(v) for k, v in held_rows.items()}
-    png = plot(prices, sets, m["price"], step_cost)
+    png = plot(prices, sets, m["price"], step_cost, f"{stem}.png")
     out = {
         "learnt_price": m["price"], "learnt_censored": m["censored"],
         "learnt_ratio_to_step_cost": round(m["price"] / step_cost, 4), "step_cost": step_cost,
@@ -286,11 +299,16 @@ def main() -> None:
                              "the robot, while the recorded walker's neighbours did make way for him",
                      **{key: matched(sets, prices, key, args.boot, args.seed)
                         for key in ("count", "rate_self", "count_self")}},
+        "sensitivity_walkers_among_reactive": ({"note": "the same match against the walkers' own rate among the "
+                                                         "reactive crowd (human_among_reactive) instead of the recording",
+                                                 **matched(sets, prices, "rate", args.boot, args.seed, "human_reactive")}
+                                               if "human_reactive" in sets[TRAIN[0]]["walkers"][0] else None),
         "walkers": {s: len(sets[s]["walkers"]) for s in TRAIN}, "window_s": window_s,
+        "crowd": "reactive " + " ".join(args.crowd) if args.reactive else "replayed",
         "plot": str(png.relative_to(ROOT)), "secs": secs,
     }
     if not args.source:
-        (ROOT / "out" / "conflict_match.json").write_text(json.dumps({**out, "train": sets, "heldout_walkers": held_rows}))
+        (ROOT / "out" / f"{stem}.json").write_text(json.dumps({**out, "train": sets, "heldout_walkers": held_rows}))
     if args.json:
         print(json.dumps(out))
         return

@@ -28,6 +28,10 @@ import numpy as np
 ENCOUNTER_M = 0.5          # centre distance of an encounter (m)
 COMPANION_M = 1.5          # a walker this near at the start ...
 COMPANION_MPS = 0.5        # ... at a velocity this close is a companion (left out of the feature)
+# ReactiveCrowd's social force: the bench's SocialForce but a milder keep-right side step, chosen (with the 1 s
+# look-ahead) on the training sets biwi_eth, biwi_hotel, uni_examples so that a walker put back on his recorded
+# track among the reactive others meets them as often as he met them recorded (bench/conflict_match.py --validate)
+CROWD_FORCE = {"keep_right": 1.0}
 
 
 @dataclass(frozen=True)
@@ -151,7 +155,7 @@ def human_encounters(tracks, walk: Walk, *, dt_s: float = 1.0 / 15.0) -> Encount
 class ReactiveCrowd:
     """The walkers of ``tracks`` (but ``exclude``) from data time ``t0_s`` as social-force agents.
 
-    ``sim.crowd_scenes.Walkers`` steps them with ``force`` (``SocialForce``: each other and the
+    ``sim.crowd_scenes.Walkers`` steps them with ``force`` (``SocialForce``, default ``CROWD_FORCE``: each other and the
     agent in the replaced walker's place repel them; no walls, the data sets have no maps). Each
     gapless stretch of a track (:meth:`Tracks.segments`) that overlaps ``[t0_s, t0_s + span_s]``
     is one agent, reported under the walker's id: it appears where and how fast the walker was at
@@ -187,7 +191,7 @@ class ReactiveCrowd:
         self.pids, self.stretches = np.array(pids, np.int64), stretches
         self.end_s = np.array([t[-1] - t0_s for t, _ in stretches])
         scene = Scene(name=f"{tracks.name}@{t0_s:g}", pedestrians=tuple(specs), pedestrian_model="social_force")
-        self.walkers = Walkers(scene, force=force if force is not None else SocialForce())
+        self.walkers = Walkers(scene, force=force if force is not None else SocialForce(**CROWD_FORCE))
         self.t_s = 0.0
         self.walkers.present[:] = False               # Walkers starts them still: _enter gives their recorded velocity
         self._enter(0.0)

@@ -144,10 +144,11 @@ def test_a_reactive_walker_steps_aside_from_a_robot_standing_on_its_path_a_repla
     assert closest > 0.5                                 # the reactive walker makes way
     nobody, drift = _closest_to(ReactiveCrowd(tracks, 0.0, 10.0), np.array(robot[:2]), 7)
     assert nobody < 0.1 and drift.max() < 0.05          # with nobody there it keeps to its track
-    back = ReactiveCrowd(tracks, 0.0, 11.0)
-    _closest_to(back, np.array(robot[:2]), 7, n=75, robot=robot)     # past the robot by t = 5 s ...
-    _closest_to(back, np.array(robot[:2]), 7, n=60)
-    assert back.drift().max() < 0.2                     # ... and back on its track 4 s later
+    back = ReactiveCrowd(_line([(7, 1.0, 0.0)], t_end=16.0), 0.0, 15.0)
+    _closest_to(back, np.array(robot[:2]), 7, n=75, robot=robot)     # held up by the robot until t = 5 s ...
+    late = back.drift().max()
+    _closest_to(back, np.array(robot[:2]), 7, n=120)
+    assert late > 1.0 and back.drift().max() < 0.1      # ... it catches up with its recorded track 8 s later
 
 
 def test_reactive_walkers_start_as_recorded_leave_when_their_track_ends_and_a_gap_is_two_agents():
@@ -216,11 +217,11 @@ def test_real_reactive_crowd_follows_its_tracks_with_nobody_in_the_walkers_place
     assert np.median(drift) < 0.3 and np.percentile(drift, 90) < 0.8
 
 
-def test_the_planner_among_reactive_walkers_meets_fewer_than_among_replayed_ones(price_files):
+def test_a_reactive_crosser_keeps_farther_from_the_planner_than_a_replayed_one(price_files):
     tracks = _crossing(demonstrator_waits=False)        # a cheap conflict: the planner drives into the crosser ...
     walk = Walk("synth", 1, tracks.t_s[0], tracks.xy_m[0])
     replayed = replace_walker(tracks, walk, price_files[0.1])
     reactive = replace_walker(tracks, walk, price_files[0.1], reactive={})
-    assert replayed.rate > 0
-    assert reactive.rate < replayed.rate and reactive.closest_m > replayed.closest_m    # ... who makes way
+    assert replayed.rate > 0 and replayed.closest_m < 0.15
+    assert reactive.closest_m > replayed.closest_m + 0.15                 # ... who makes some way
     assert reactive.reached
