@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from tether.errors import ConfigError, TetherError
-from tether.paths import check_writable
+from tether.paths import check_writable, not_regular
 from tether.runner import LOG_FORMAT
 
 log = logging.getLogger("tether")
@@ -58,9 +58,22 @@ def _pairs(items: Sequence[str] | None, flag: str) -> dict[str, str]:
     return out
 
 
-def _not_an_input(output: str | None, *inputs: str, flag: str = "-o") -> None:
-    """Refuse an output file that is one of the inputs: opening it for writing would empty the input first."""
-    if not output or not Path(output).exists():
+def _regular_input(path: str, what: str) -> None:
+    """Refuse an input that is not a regular file before opening it: a FIFO without a writer blocks
+    the open for ever, /dev/zero is read for ever (as :class:`tether.log.LogReader` refuses them)."""
+    kind = not_regular(path)
+    if kind:
+        raise ConfigError(f"{path}: {kind}, not {what}")
+
+
+def _check_output(output: str | None, *inputs: str, flag: str = "-o") -> None:
+    """Before any work: refuse an output that cannot be written (:func:`tether.paths.check_writable`:
+    found at the end of the work otherwise), or that is one of the inputs (opening it for writing
+    would empty the input first)."""
+    if not output:
+        return
+    check_writable(output, flag)
+    if not Path(output).exists():
         return
     for src in inputs:
         if Path(src).exists() and Path(output).samefile(src):
@@ -73,7 +86,16 @@ def cmd_launch(args: argparse.Namespace) -> int:
     from tether.launch import load_launch, parse_launch_args, parse_overrides
     from tether.supervisor import Supervisor
 
+    if not args.record:                  # they were ignored: the run went unrecorded
+        given = [flag for flag, value in (("--record-topics", args.record_topics), ("--record-exclude",
+                 args.record_exclude), ("--record-max-size", args.record_max_size),
+                 ("--record-max-duration", args.record_max_duration)) if value]
+        if given:
+            raise ConfigError(f"{', '.join(given)} without --record FILE: nothing would be recorded")
     launch = load_launch(args.file, parse_overrides(args.param), args=parse_launch_args(args.arg))
+    if args.keys and not launch.machines:     # ignored: a graph on one machine talks over ipc, without keys
+        raise ConfigError(f"{args.file}: --keys {args.keys}: the file declares no machines (keys secure the "
+                          "links between machines)")
     sup = Supervisor(launch, machine=args.machine, record=args.record,
                      record_topics=_flat(args.record_topics), record_exclude=_flat(args.record_exclude), keys=args.keys,
                      record_max_bytes=args.record_max_size or 0, record_max_duration_s=args.record_max_duration or 0.0)
@@ -131,7 +153,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from tether.node import Tick
 
     cls = load_node_class(args.node)
-    node_id = args.id or cls.__name__.lower()
+    node_id = cls.__name__.lower() if args.id is None else args.id
     if not NODE_ID_RE.match(node_id):
         raise ConfigError(f"--id {node_id!r}: an id starts with a letter and uses letters, digits, '-' or '_'")
     try:
@@ -184,7 +206,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     import fnmatch
 
-    check_writable(args.output, "-o")
+    _check_output(args.output)
     available = registry.topics()
     wanted = args.topics or [t for t in available if not t.endswith("/_stats")]
     missing = [t for t in wanted if t not in available]
@@ -230,7 +252,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             raise ConfigError("--into needs --record OUT (where the node's outputs go)")
         if args.loop:
             raise ConfigError("--loop does not apply to --into (a node is run once over the log)")
-        _not_an_input(args.record, args.file, flag="--record")
+        _check_output(args.record, args.file, flag="--record")
         progress = _Progress()
         n = replay_into(args.file, load_node_class(args.into), _pairs(args.map, "--map"), args.record,
                         params=_params(args.param), window=window, lockstep=args.lockstep,
@@ -271,6 +293,20 @@ def _nothing_done(count: int, args: argparse.Namespace, why: str) -> int:
     if count > 0 or getattr(args, "allow_empty", False):
         return 0
     print(f"tether: warning: {why} (--allow-empty to accept)", file=sys.stderr)
+    return 1
+
+
+def _damaged(readers: Sequence[Any], args: argparse.Namespace) -> int:
+    """An output written from damaged inputs lacks their messages: one error line and exit 1, unless --skip-bad.
+    Read after the readers' last pass (their ``damaged`` chunks and ``truncated_at``)."""
+    damage = [f"{r.path}: " + ", ".join(
+        ([f"{len(r.damaged)} damaged chunk(s)"] if r.damaged else [])
+        + ([f"unreadable from byte {r.truncated_at}"] if r.truncated_at >= 0 else []))
+        for r in readers if r.damaged or r.truncated_at >= 0]
+    if not damage or args.skip_bad:
+        return 0
+    print(f"tether: error: {'; '.join(damage)}: {args.output} was written without their messages "
+          "(--skip-bad to accept)", file=sys.stderr)
     return 1
 
 
@@ -349,7 +385,7 @@ def cmd_log(args: argparse.Namespace) -> int:
     if args.recover:
         if not args.output:
             raise ConfigError("tether log --recover IN needs -o OUT")
-        _not_an_input(args.output, args.file)
+        _check_output(args.output, args.file)
         written, damaged, lost = recover_log(args.file, args.output)
         print(f"recovered {written} messages from {args.file} into {args.output}; {len(damaged)} damaged chunk(s)"
               + (f", {lost} messages lost" if lost >= 0 else " (the source had no statistics: losses unknown)"))
@@ -413,7 +449,13 @@ def _log_cut_merge(args: argparse.Namespace) -> int:
         raise ConfigError(f"tether log {args.file} needs the input log(s) and -o OUT")
     if args.file == "cut" and len(args.more) != 1:
         raise ConfigError("tether log cut takes one input log")
-    _not_an_input(args.output, *args.more)
+    for k, path in enumerate(args.more):       # a glob overlapping a name: every message written twice
+        twin = next((other for other in args.more[:k] if Path(other).exists() and Path(path).exists()
+                     and Path(other).samefile(path)), None)
+        if twin is not None:
+            raise ConfigError(f"{path} is given twice" + (f" (as {twin})" if twin != path else "")
+                              + ": each message would be written twice")
+    _check_output(args.output, *args.more)
     readers = [LogReader(path) for path in args.more]
     types: dict[str, str] = {}
     for reader in readers:
@@ -434,15 +476,14 @@ def _log_cut_merge(args: argparse.Namespace) -> int:
                                  publish_time_ns=rec.publish_time_ns, sequence=rec.sequence)
             written += 1
     print(f"wrote {written} messages to {args.output}")
-    damage = [f"{r.path}: " + ", ".join(
-        ([f"{len(r.damaged)} damaged chunk(s)"] if r.damaged else [])
-        + ([f"unreadable from byte {r.truncated_at}"] if r.truncated_at >= 0 else []))
-        for r in readers if r.damaged or r.truncated_at >= 0]
-    if damage and not args.skip_bad:     # the output lacks their messages: not a success to script on
-        print(f"tether: error: {'; '.join(damage)}: {args.output} was written without their messages "
-              "(--skip-bad to accept)", file=sys.stderr)
-        return 1
-    return _nothing_done(written, args, f"the {args.file} selected no message")
+    return _damaged(readers, args) or _nothing_done(written, args, f"the {args.file} selected no message")
+
+
+def _path(text: str) -> str:
+    """A file or folder named on the command line: not empty (Path('') is the current folder)."""
+    if not text:
+        raise argparse.ArgumentTypeError("'': give a path")
+    return text
 
 
 def _patterns(text: str) -> list[str]:
@@ -539,9 +580,8 @@ def cmd_import(args: argparse.Namespace) -> int:
     from tether.imports import importer
 
     run = importer(args.kind)
-    if Path(args.file).is_dir():
-        raise ConfigError(f"{args.file}: a directory, not a log file")
-    _not_an_input(args.output, args.file)
+    _regular_input(args.file, "a log file")
+    _check_output(args.output, args.file)
     try:
         result = run(args.file, args.output, topic=args.topic, max_bytes=args.max_bytes, skip_bad=args.skip_bad)
     except OSError as exc:                  # unreadable input, unwritable output: one line, not a traceback
@@ -556,14 +596,16 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     from tether.export import export_foxglove
+    from tether.log import LogReader
 
-    _not_an_input(args.output, args.file)
+    _check_output(args.output, args.file)
     progress = _Progress()
-    n = export_foxglove(args.file, args.output, lambda k, total: progress(f"export {k}/{total} messages"))
+    reader = LogReader(args.file)
+    n = export_foxglove(reader, args.output, lambda k, total: progress(f"export {k}/{total} messages"))
     progress.done()
     print(f"exported {n.converted} messages to {args.output} as {n.logged} Foxglove messages (images, clouds, "
           f"poses, grids in Foxglove's schemas; the rest JSON)" + (f"; {n.errors} dropped" if n.errors else ""))
-    return _nothing_done(n.converted, args, f"nothing exported from {args.file}")
+    return _damaged([reader], args) or _nothing_done(n.converted, args, f"nothing exported from {args.file}")
 
 
 def cmd_foxglove(args: argparse.Namespace) -> int:
@@ -592,6 +634,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
     from nodes.verify.kripke import StateBoundExceeded
     from tether.launch import load_launch
 
+    if args.focus and not args.ctl:           # it was ignored: the default properties choose their own topics
+        raise ConfigError("--focus applies to --ctl formulas (the default properties track every subscribed topic)")
     spec = spec_from_launch(load_launch(args.file))
     checks = ([(args.focus if args.focus else focus_of(spec, f), f) for f in args.ctl] if args.ctl
               else default_properties(spec))
@@ -614,6 +658,7 @@ def cmd_slam_optimize(args: argparse.Namespace) -> int:
     from nodes.slam.graph_io import read_graph, write_graph
     from nodes.slam.pose_graph import GraphError, check_graph, chi2, optimize
 
+    _check_output(args.output, args.file)
     try:
         graph = read_graph(args.file)
         found = check_graph(graph)
@@ -648,6 +693,8 @@ def cmd_selfcal(args: argparse.Namespace) -> int:
 
     from nodes.vision.selfcal_images import calibrate_chessboard, calibrate_images, read_images
 
+    for path in args.images:
+        _regular_input(path, "an image")
     images = read_images(sorted(args.images))
     if args.chessboard:
         cols, rows = args.chessboard
@@ -684,39 +731,63 @@ def _learn_params(items: list[str] | None) -> dict[str, Any]:
     return out
 
 
-def cmd_learn(args: argparse.Namespace) -> int:
-    """Train, evaluate, export or replay PPO policies on Tether simulators (``nodes.learn``)."""
+#: PPO settings' ranges (what PPO itself would take without complaint but cannot learn with:
+#: lr=-1 climbs the loss, gamma=2 discounts nothing away, n_steps=0 divides by zero)
+PPO_RANGES: dict[str, tuple[str, Any]] = {
+    "n_steps": ("> 0", lambda v: v > 0), "epochs": ("> 0", lambda v: v > 0),
+    "minibatches": ("> 0", lambda v: v > 0), "gamma": ("in [0, 1]", lambda v: 0 <= v <= 1),
+    "gae_lambda": ("in [0, 1]", lambda v: 0 <= v <= 1), "clip": ("> 0", lambda v: v > 0),
+    "lr": ("> 0", lambda v: v > 0), "ent_coef": (">= 0", lambda v: v >= 0), "vf_coef": (">= 0", lambda v: v >= 0),
+    "max_grad_norm": ("> 0", lambda v: v > 0), "obs_clip": ("> 0", lambda v: v > 0),
+    "target_kl": (">= 0 (0: off)", lambda v: v >= 0), "squash": ("'clip' or 'tanh'", lambda v: v in ("clip", "tanh")),
+}
+
+
+def _ppo_config(items: list[str] | None) -> Any:
+    """``--ppo KEY=VALUE`` settings checked against PPOConfig's field types and :data:`PPO_RANGES`."""
     import dataclasses
 
+    from nodes.learn.ppo import PPOConfig
+
+    fields = {f.name: f.type for f in dataclasses.fields(PPOConfig)}
+    overrides = _learn_params(items)
+    unknown = sorted(set(overrides) - set(fields))
+    if unknown:
+        raise ConfigError(f"unknown PPO setting(s) {unknown}; known: {', '.join(fields)}")
+    for key, value in overrides.items():      # PPOConfig does not check: 'lr=abc' trained with lr 'abc'
+        kind = fields[key] if isinstance(fields[key], str) else getattr(fields[key], "__name__", "")
+        if kind == "float" and isinstance(value, str):     # YAML 1.1 reads 1e-3 (no dot) as text
+            try:
+                value = overrides[key] = float(value)
+            except ValueError:
+                pass
+        number = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        ok = {"int": isinstance(value, int) and number, "float": number, "bool": isinstance(value, bool),
+              "str": isinstance(value, str)}.get(kind, isinstance(value, list) and all(
+                  isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value) and bool(value))
+        if not ok:
+            want = {"int": "a whole number", "float": "a finite number", "bool": "true or false", "str": "text"}
+            raise ConfigError(f"--ppo {key}={value!r}: give {want.get(kind, 'a list of layer widths like [64, 64]')}")
+        if key in PPO_RANGES and not PPO_RANGES[key][1](value):
+            raise ConfigError(f"--ppo {key}={value!r}: give a value {PPO_RANGES[key][0]}")
+    if "hidden" in overrides:
+        overrides["hidden"] = tuple(overrides["hidden"])
+    return PPOConfig(**overrides)
+
+
+def cmd_learn(args: argparse.Namespace) -> int:
+    """Train, evaluate, export or replay PPO policies on Tether simulators (``nodes.learn``)."""
     from nodes.learn.bus_env import replay_log
-    from nodes.learn.ppo import PPO, PPOConfig
+    from nodes.learn.ppo import PPO
     from nodes.learn.train import evaluate, export, report_json, train
 
     logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)   # "no TPU" is not news on a CPU
 
     if args.learn_cmd == "train":
-        fields = {f.name: f.type for f in dataclasses.fields(PPOConfig)}
-        overrides = _learn_params(args.ppo)
-        unknown = sorted(set(overrides) - set(fields))
-        if unknown:
-            raise ConfigError(f"unknown PPO setting(s) {unknown}; known: {', '.join(fields)}")
-        for key, value in overrides.items():      # PPOConfig does not check: 'lr=abc' trained with lr 'abc'
-            kind = fields[key] if isinstance(fields[key], str) else getattr(fields[key], "__name__", "")
-            if kind == "float" and isinstance(value, str):     # YAML 1.1 reads 1e-3 (no dot) as text
-                try:
-                    value = overrides[key] = float(value)
-                except ValueError:
-                    pass
-            number = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-            ok = {"int": isinstance(value, int) and number, "float": number, "bool": isinstance(value, bool),
-                  "str": isinstance(value, str)}.get(kind, isinstance(value, list) and all(
-                      isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value) and bool(value))
-            if not ok:
-                want = {"int": "a whole number", "float": "a finite number", "bool": "true or false", "str": "text"}
-                raise ConfigError(f"--ppo {key}={value!r}: give {want.get(kind, 'a list of layer widths like [64, 64]')}")
-        if "hidden" in overrides:
-            overrides["hidden"] = tuple(overrides["hidden"])
-        config = PPOConfig(**overrides)
+        _check_output(args.out)                  # with --resume, -o is read and written again: allowed
+        if args.resume:
+            _regular_input(args.out, "a checkpoint")
+        config = _ppo_config(args.ppo)
         rollout = config.n_steps * args.n_envs     # PPO updates on whole rollouts: fewer steps train nothing
         if args.steps < rollout:
             raise ConfigError(f"--steps {args.steps:g} is less than one PPO rollout (n_steps {config.n_steps} x "
@@ -730,12 +801,16 @@ def cmd_learn(args: argparse.Namespace) -> int:
         print(f"wrote {args.out} ({agent.steps_done} steps{short}) and {Path(args.out).with_suffix('.png')}")
         return 0
     if args.learn_cmd == "eval":
+        _regular_input(args.checkpoint, "a checkpoint")
+        _check_output(args.record, args.checkpoint, flag="--record")
         agent = PPO.load(args.checkpoint)
         report = evaluate(agent, args.env, episodes=args.episodes, seed=args.seed, params=_learn_params(args.param),
                           record=args.record)
         print(report_json(report))
         return 0
     if args.learn_cmd == "export":
+        _regular_input(args.checkpoint, "a checkpoint")
+        _check_output(args.out, args.checkpoint)
         size = export(args.checkpoint, args.out)
         print(f"wrote {args.out} ({size} bytes: policy and normaliser, no optimiser state)")
         return 0
@@ -847,13 +922,13 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run a launch file: its nodes, and those of the files it includes (ids "
                                    "'NS.NODE', topics 'NS.NODE/OUTPUT'). --arg NAME=VALUE sets one of the file's "
                                    "'args' (used as $(arg NAME)); an arg the file does not declare is an error.")
-    p.add_argument("file", help="the launch file (YAML)")
+    p.add_argument("file", type=_path, help="the launch file (YAML)")
     p.add_argument("--arg", action="append", metavar="NAME=VALUE",
                    help="set a launch argument declared under 'args' (repeatable; VALUE read as YAML: 20, true, text)")
     p.add_argument("--duration", type=_seconds, help="stop after S seconds")
     p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE",
                    help="override a node parameter (a namespaced node: NS.NODE.KEY=VALUE)")
-    p.add_argument("--record", metavar="FILE", help="record the graph's topics to an MCAP log")
+    p.add_argument("--record", metavar="FILE", type=_path, help="record the graph's topics to an MCAP log")
     p.add_argument("--record-topics", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
                    help="with --record: only these (e.g. 'sim/*,nav/pose'; repeatable)")
     p.add_argument("--record-exclude", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
@@ -862,7 +937,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --record: start a new file (RUN_1.mcap, ...) past SIZE, e.g. 500M")
     p.add_argument("--record-max-duration", type=_seconds, metavar="S", help="with --record: a new file every S seconds")
     p.add_argument("--machine", help="start only this machine's nodes")
-    p.add_argument("--keys", help="CurveZMQ keystore folder of the graph (default ~/.config/tether/keys/NAME/; "
+    p.add_argument("--keys", type=_path, help="CurveZMQ keystore folder of the graph (default ~/.config/tether/keys/NAME/; "
                                "see 'tether keys')")
     p.set_defaults(func=cmd_launch)
 
@@ -870,11 +945,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("action", choices=("init", "list"), help="init: create missing key pairs; list: show them")
     p.add_argument("graph", help="the graph's name (its launch file's 'name')")
     p.add_argument("--machines", help="with init: comma-separated machine names, e.g. boat,shore")
-    p.add_argument("--keys", help="keystore folder (default ~/.config/tether/keys/GRAPH/)")
+    p.add_argument("--keys", type=_path, help="keystore folder (default ~/.config/tether/keys/GRAPH/)")
     p.set_defaults(func=cmd_keys)
 
     p = sub.add_parser("check", help="validate pipeline files without starting anything")
-    p.add_argument("files", nargs="+", help="launch files, or directories of them")
+    p.add_argument("files", nargs="+", type=_path, help="launch files, or directories of them")
     p.add_argument("--param", action="append", metavar="NODE.KEY=VALUE", help="check with this override")
     p.add_argument("--arg", action="append", metavar="NAME=VALUE", help="check with this launch argument")
     p.add_argument("--strict", action="store_true",
@@ -882,7 +957,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("graph", help="print a pipeline's graph (text or Graphviz dot)")
-    p.add_argument("file", help="the launch file (YAML)")
+    p.add_argument("file", type=_path, help="the launch file (YAML)")
     p.add_argument("--format", choices=("text", "dot"), default="text", help="text listing or Graphviz dot")
     p.add_argument("--arg", action="append", metavar="NAME=VALUE", help="a launch argument (see launch --help)")
     p.set_defaults(func=cmd_graph)
@@ -897,7 +972,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("record", help="record running topics to an MCAP log")
     p.add_argument("topics", nargs="*", help="topics to record (default: every running topic but */_stats)")
-    p.add_argument("-o", "--output", required=True, help="the MCAP file to write")
+    p.add_argument("-o", "--output", required=True, type=_path, help="the MCAP file to write")
     p.add_argument("--duration", type=_seconds, help="stop after S seconds")
     p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was received")
     p.add_argument("--include", action="append", type=_patterns, metavar="PATTERN[,PATTERN]",
@@ -909,7 +984,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_record)
 
     p = sub.add_parser("replay", help="publish a log, or run a node on it (--into)")
-    p.add_argument("file", help="the MCAP log")
+    p.add_argument("file", type=_path, help="the MCAP log")
     p.add_argument("--rate", type=_at_least_zero, default=1.0, help="speed factor (0 = as fast as possible)")
     p.add_argument("--start", type=_at_least_zero, default=0.0, help="seconds from the log's start")
     p.add_argument("--end", type=_at_least_zero, help="seconds from the log's start")
@@ -923,7 +998,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--map", action="append", metavar="INPUT=TOPIC", help="with --into: feed INPUT from TOPIC")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="with --into: a Config parameter")
     p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was replayed")
-    p.add_argument("--record", metavar="OUT", help="with --into: where the node's outputs go")
+    p.add_argument("--record", metavar="OUT", type=_path, help="with --into: where the node's outputs go")
     p.add_argument("--lockstep", action="store_true", help="with --into: deterministic, as fast as the node goes")
     p.set_defaults(func=cmd_replay)
 
@@ -947,25 +1022,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_node)
 
     p = sub.add_parser("log", help="what a log holds, whether every chunk is intact; cut and merge logs")
-    p.add_argument("file", help="the MCAP log; or 'cut' (then IN) or 'merge' (then IN ...)")
-    p.add_argument("more", nargs="*", help="with cut: the log to cut; with merge: the logs to merge")
+    p.add_argument("file", type=_path, help="the MCAP log; or 'cut' (then IN) or 'merge' (then IN ...)")
+    p.add_argument("more", nargs="*", type=_path, help="with cut: the log to cut; with merge: the logs to merge")
     p.add_argument("--start", type=_at_least_zero, default=0.0, help="with cut: seconds from the log's start")
     p.add_argument("--end", type=_at_least_zero, help="with cut: seconds from the log's start")
     p.add_argument("--topics", nargs="+", help="with cut: only these topics (names or globs)")
-    p.add_argument("--check", action="store_true", help="verify every chunk's CRC (the default; exit 1 on damage)")
-    p.add_argument("--no-check", action="store_true", help="list only, do not read every chunk")
+    checks = p.add_mutually_exclusive_group()
+    checks.add_argument("--check", action="store_true", help="verify every chunk's CRC (the default; exit 1 on damage)")
+    checks.add_argument("--no-check", action="store_true", help="list only, do not read every chunk")
     p.add_argument("--recover", action="store_true", help="copy every readable message into -o OUT")
-    p.add_argument("-o", "--output", help="with --recover, cut or merge: the new log")
+    p.add_argument("-o", "--output", type=_path, help="with --recover, cut or merge: the new log")
     p.add_argument("--skip-bad", action="store_true",
                    help="with cut or merge: skip damaged chunks of an input and exit 0 (without it, what is "
                         "readable is written and the exit is 1)")
+    p.add_argument("--allow-empty", action="store_true", help="with cut or merge: exit 0 even when no message is written")
     p.set_defaults(func=cmd_log)
 
     p = sub.add_parser("import", help="convert a foreign log (oculus, candump, ...) to a tether log")
     p.add_argument("kind", help="the foreign format: an importer registered by entry point (tether.importers); "
                                 "this project's: oculus, candump")
-    p.add_argument("file", help="the foreign log")
-    p.add_argument("-o", "--output", required=True, help="the tether MCAP log to write")
+    p.add_argument("file", type=_path, help="the foreign log")
+    p.add_argument("-o", "--output", required=True, type=_path, help="the tether MCAP log to write")
     p.add_argument("--topic", help="topic to write (default sonar/ping or can/frame)")
     p.add_argument("--max-bytes", type=_size, default=None,
                    help="the most one record may take once decompressed (e.g. 64M; default 64 MiB)")
@@ -976,9 +1053,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export", help="export a log for other tools")
     p.add_argument("format", choices=("foxglove",), help="the target tool")
-    p.add_argument("file", help="the tether MCAP log")
-    p.add_argument("-o", "--output", required=True, help="the MCAP file to write")
+    p.add_argument("file", type=_path, help="the tether MCAP log")
+    p.add_argument("-o", "--output", required=True, type=_path, help="the MCAP file to write")
     p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was exported")
+    p.add_argument("--skip-bad", action="store_true",
+                   help="skip damaged chunks of the log and exit 0 (without it, the rest is exported and the exit is 1)")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("foxglove", help="serve the running graphs live to Foxglove (WebSocket)")
@@ -1001,7 +1080,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "deadlock, every input has a publisher.",
                        epilog="example: tether verify launch/counter.yaml --ctl "
                               "'AG (published -> AF (handled(scale.value) | counted(scale.value)))'")
-    p.add_argument("file", help="the launch file")
+    p.add_argument("file", type=_path, help="the launch file")
     p.add_argument("--ctl", action="append", help="a CTL formula (repeatable); propositions: up(NODE), dead(NODE), "
                                                   "published, settled, deadlock, queued/handled/dropped/lost/"
                                                   "counted/has_publisher(NODE.INPUT)")
@@ -1012,7 +1091,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("selfcal", help="a camera's intrinsics from its images alone (no calibration target)")
-    p.add_argument("images", nargs="+", help="images from one camera (sorted by name: the sequence order)")
+    p.add_argument("images", nargs="+", type=_path, help="images from one camera (sorted by name: the sequence order)")
     p.add_argument("--features", choices=("orb", "sift"), default="sift",
                    help="feature detector (default sift: about 10x more accurate than orb here; SURF is not in pip OpenCV)")
     p.add_argument("--gap", type=_positive_int, default=2, help="match each image with the next N (default 2)")
@@ -1036,26 +1115,26 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--seed", type=int, default=0, help="seed of the policy and of the first episodes")
     q.add_argument("--checkpoint-every", type=_positive, default=2e5, help="env steps between checkpoints")
     q.add_argument("--resume", action="store_true", help="continue from the checkpoint at -o when it exists")
-    q.add_argument("-o", "--out", required=True, help="checkpoint path (msgpack)")
+    q.add_argument("-o", "--out", required=True, type=_path, help="checkpoint path (msgpack)")
     q = learn.add_parser("eval", help="one deterministic episode per seed; metrics at the episodes' end")
-    q.add_argument("checkpoint", help="a checkpoint of tether learn train (or export)")
+    q.add_argument("checkpoint", type=_path, help="a checkpoint of tether learn train (or export)")
     q.add_argument("--env", default="sim.car_env:ReachCar", help="the simulator, module:Class (a VecSim)")
     q.add_argument("--param", action="append", metavar="KEY=VALUE", help="a scenario parameter (repeatable)")
     q.add_argument("--episodes", type=_positive_int, default=100, help="episodes, run side by side")
     q.add_argument("--seed", type=int, default=10_000, help="first seed (episode i: seed + i)")
-    q.add_argument("--record", metavar="FILE", help="record the episodes to an MCAP log (tether learn replay FILE)")
+    q.add_argument("--record", metavar="FILE", type=_path, help="record the episodes to an MCAP log (tether learn replay FILE)")
     q = learn.add_parser("export", help="strip optimiser state and history: a policy to deploy")
-    q.add_argument("checkpoint", help="a checkpoint of tether learn train")
-    q.add_argument("out", help="where the policy goes")
+    q.add_argument("checkpoint", type=_path, help="a checkpoint of tether learn train")
+    q.add_argument("out", type=_path, help="where the policy goes")
     q = learn.add_parser("replay", help="re-run a recorded environment log and check it bit for bit")
-    q.add_argument("log", help="an MCAP log written by tether learn eval --record (or BusVecEnv(record=...))")
+    q.add_argument("log", type=_path, help="an MCAP log written by tether learn eval --record (or BusVecEnv(record=...))")
     p.set_defaults(func=cmd_learn)
 
     p = sub.add_parser("slam", help="pose-graph tools")
     slam = p.add_subparsers(dest="slam_cmd", required=True)
     q = slam.add_parser("optimize", help="optimise a g2o / TORO SE(2) pose graph")
-    q.add_argument("file", help="input graph (.g2o, or TORO .graph; the format is read from its tags)")
-    q.add_argument("-o", "--output", help="write the optimised graph here (.graph = TORO, else g2o)")
+    q.add_argument("file", type=_path, help="input graph (.g2o, or TORO .graph; the format is read from its tags)")
+    q.add_argument("-o", "--output", type=_path, help="write the optimised graph here (.graph = TORO, else g2o)")
     q.add_argument("--initial", choices=("given", "odometry", "chordal"),
                    help="start from the file's vertices, the odometry chain, or a chordal relaxation "
                         "(default: given when every vertex has a pose, else odometry)")
@@ -1064,7 +1143,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--kernel-width", type=_positive, help="kernel width (Mahalanobis units; for gnc the chi2 gate)")
     q.add_argument("--anchor", type=int, help="vertex id held fixed (default: FIX lines, else the first vertex)")
     q.add_argument("--max-iterations", type=_positive_int, default=100, help="stop after N iterations")
-    q.add_argument("--rel-tol", type=_finite, default=1e-10, help="stop when a step lowers chi2 by less than this fraction")
+    q.add_argument("--rel-tol", type=_at_least_zero, default=1e-10, help="stop when a step lowers chi2 by less than this fraction")
     q.set_defaults(func=cmd_slam_optimize)
     for action in ap._actions:                       # an example at the end of every verb's --help
         if isinstance(action, argparse._SubParsersAction):

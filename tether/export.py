@@ -12,11 +12,12 @@ from tether.log import LogReader
 from tether.message import message_type
 
 
-def export_foxglove(src: str | Path, dst: str | Path,
+def export_foxglove(src: str | Path | LogReader, dst: str | Path,
                     progress: Callable[[int, int], None] | None = None) -> Counters:
-    """Rewrite ``src`` into ``dst`` with Foxglove's schemas (images, clouds, poses, grids) and
+    """Rewrite ``src`` (a log, or its open reader: its ``damaged`` and ``truncated_at`` then tell
+    what was skipped) into ``dst`` with Foxglove's schemas (images, clouds, poses, grids) and
     JSON for the rest; log times are kept. Returns the counters (``converted``, ``errors``, ...)."""
-    reader = LogReader(src)
+    reader = src if isinstance(src, LogReader) else LogReader(src)
     total = sum(reader.info().counts.values())
     context = foxglove.Context()
     sink = FoxgloveSink(context)

@@ -49,6 +49,9 @@ def cmd_topic(args: argparse.Namespace) -> int:
     from tether import registry
 
     if args.action == "list":
+        if args.topic:                       # 'tether topic list a/b' listed every topic, as if filtered
+            raise ConfigError(f"tether topic list takes no TOPIC (got {args.topic!r}); 'tether topic echo "
+                              f"{args.topic}' shows one")
         found = registry.topics()
         if not found:
             print("no graph is running")

@@ -28,14 +28,21 @@ def not_regular(path: str | Path) -> str:
 
 def check_writable(path: str | Path, flag: str) -> None:
     """Raise :class:`ConfigError` (``'FLAG PATH: why'``) unless ``path`` can be created or
-    overwritten as a file: not a directory, device or pipe; its folder exists or can be made
-    (writers make it); the folder takes a new file. Nothing is left behind: an existing file
+    overwritten as a file: not a directory, FIFO or block device (a character device such as
+    ``/dev/null`` is accepted); its folder exists or can be made (writers make it); the folder
+    takes a new file. Nothing is left behind: an existing file
     is opened for appending without writing, a probe file in the folder is removed."""
     p = Path(path)
     what = not_regular(p)
+    if what == "a directory":
+        raise ConfigError(f"{flag} {path}: a directory, not a file to write (give a file name, e.g. {p / 'run.mcap'})")
     if what:
-        hint = f" (give a file name, e.g. {p / 'run.mcap'})" if what == "a directory" else ""
-        raise ConfigError(f"{flag} {path}: {what}, not a file to write{hint}")
+        mode = os.stat(p).st_mode
+        if stat.S_ISCHR(mode):                 # /dev/null: a run whose output is discarded
+            return
+        why = ("a FIFO: opening it waits for a reader" if stat.S_ISFIFO(mode) else
+               "a block device: writing would overwrite the disk" if stat.S_ISBLK(mode) else "a socket")
+        raise ConfigError(f"{flag} {path}: {why} (give a regular file)")
     folder = p.parent
     while not folder.exists() and folder != folder.parent:    # the writer makes the missing folders
         folder = folder.parent

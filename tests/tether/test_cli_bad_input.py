@@ -87,13 +87,14 @@ def test_writing_over_the_input_is_refused_and_the_input_survives(tmp_path, caps
 
 
 def test_an_output_that_is_a_directory_is_one_line(tmp_path, capsys):
-    """``-o DIR`` was an IsADirectoryError traceback (log cut) or a Rust error naming no file (export)."""
+    """``-o DIR`` was an IsADirectoryError traceback (log cut) or a Rust error naming no file (export);
+    now refused before reading the input (:func:`tether.paths.check_writable`)."""
     log = _log(tmp_path / "a.mcap")
     (tmp_path / "out").mkdir()
     assert main(["log", "cut", str(log), "-o", str(tmp_path / "out")]) == 2
-    _one_error_line(capsys, "out: Is a directory")
+    _one_error_line(capsys, "out: a directory, not a file to write")
     assert main(["export", "foxglove", str(log), "-o", str(tmp_path / "out")]) == 2
-    _one_error_line(capsys, "out: cannot write the export there")
+    _one_error_line(capsys, "out: a directory, not a file to write")
 
 
 # -- option values -----------------------------------------------------------------------------
@@ -465,3 +466,129 @@ def test_a_fifo_given_as_a_launch_file_is_refused_not_waited_on(tmp_path, capsys
     inc.write_text(f"name: x\nnodes: []\ninclude: [{{file: {fifo}}}]\n")
     assert main(["check", str(inc)]) == 2
     _one_error_line(capsys, "pipe.yaml")
+
+
+# -- found by mutating every verb's arguments (helper-64) ---------------------------------------
+def _within(argv: list[str], fifo: Path, seconds: float = 5.0) -> int:
+    """main(argv) on a thread; a call still blocked on ``fifo`` after ``seconds`` fails the test
+    (the FIFO is then opened for writing once, so the old code's blocked open returns)."""
+    import os
+
+    result: list[int] = []
+    worker = threading.Thread(target=lambda: result.append(main(argv)), daemon=True)
+    worker.start()
+    worker.join(seconds)
+    if worker.is_alive():
+        os.close(os.open(fifo, os.O_RDWR | os.O_NONBLOCK))
+        pytest.fail(f"{argv} blocked on a FIFO")
+    return result[0]
+
+
+@pytest.mark.parametrize("verb, needle", [
+    (["import", "candump", "FIFO", "-o", "OUT"], "a device or pipe, not a log file"),        # blocked in open()
+    (["selfcal", "FIFO", "FIFO"], "a device or pipe, not an image"),                         # blocked in imread
+    (["learn", "eval", "FIFO"], "a device or pipe, not a checkpoint"),                       # blocked; /dev/zero read for ever
+    (["learn", "export", "FIFO", "OUT"], "a device or pipe, not a checkpoint"),
+])
+def test_a_fifo_input_is_refused_by_every_verb_that_reads_a_file(verb, needle, tmp_path, capsys):
+    import os
+
+    if not hasattr(os, "mkfifo"):
+        pytest.skip("no FIFOs here")
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    argv = [str(fifo) if a == "FIFO" else str(tmp_path / "out") if a == "OUT" else a for a in verb]
+    assert _within(argv, fifo) == 2
+    _one_error_line(capsys, f"{fifo}: {needle}")
+
+
+def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, capsys, monkeypatch):
+    """learn train -o DIR trained a whole chunk before its save failed; a FIFO as -o blocked the
+    writer's open(); slam optimize and learn export wrote over their input."""
+    import os
+
+    import nodes.learn.train as train_module
+
+    monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained before checking -o"))
+    assert main(["learn", "train", "--steps", "4096", "-o", str(tmp_path)]) == 2
+    _one_error_line(capsys, f"-o {tmp_path}: a directory, not a file to write")
+    if hasattr(os, "mkfifo"):
+        os.mkfifo(tmp_path / "pipe")
+        log = _log(tmp_path / "a.mcap")
+        assert _within(["log", "cut", str(log), "-o", str(tmp_path / "pipe")], tmp_path / "pipe") == 2
+        _one_error_line(capsys, "pipe: a FIFO: opening it waits for a reader")
+    graph = tmp_path / "g.g2o"
+    graph.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    before = graph.read_text()
+    assert main(["slam", "optimize", str(graph), "-o", str(graph)]) == 2
+    _one_error_line(capsys, "is the input")
+    assert graph.read_text() == before
+    ckpt = tmp_path / "p.ckpt"
+    ckpt.write_bytes(b"\x80")
+    assert main(["learn", "export", str(ckpt), str(ckpt)]) == 2        # would strip its optimiser state
+    _one_error_line(capsys, "is the input")
+
+
+@pytest.mark.parametrize("setting", ["lr=-1", "gamma=2", "gae_lambda=-0.1", "n_steps=0", "minibatches=0",
+                                     "epochs=-1", "clip=0", "max_grad_norm=0", "squash=sigmoid"])
+def test_a_ppo_setting_out_of_its_range_is_refused(setting, tmp_path, capsys, monkeypatch):
+    """lr=-1 and gamma=2 trained (exit 0); n_steps=0 and minibatches=0 were ZeroDivisionError
+    tracebacks, epochs=-1 a JAX traceback, n_steps=-1 'negative dimensions are not allowed'."""
+    pytest.importorskip("jax")
+    import nodes.learn.train as train_module
+
+    monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained with " + setting))
+    assert main(["learn", "train", "--ppo", setting, "--steps", "1e6", "-o", str(tmp_path / "p.ckpt")]) == 2
+    _one_error_line(capsys, f"--ppo {setting.split('=')[0]}=", "give a value")
+
+
+def test_exporting_a_damaged_log_is_not_success_without_skip_bad(tmp_path, capsys):
+    """The readable rest was exported with exit 0, as log merge did."""
+    flipped, cut = _damaged(tmp_path)
+    out = str(tmp_path / "e.mcap")
+    assert main(["export", "foxglove", str(flipped), "-o", out]) == 1
+    _one_error_line(capsys, "flipped.mcap: 3 damaged chunk(s)", "(--skip-bad to accept)")
+    assert main(["export", "foxglove", str(cut), "-o", out, "--skip-bad"]) == 0
+
+
+def test_options_that_were_silently_ignored_are_errors(tmp_path, capsys, runtime_env):
+    """Each of these ran (or listed) as if the option had not been given, with exit 0."""
+    log = _log(tmp_path / "a.mcap")
+    counter = str(REPO / "launch/counter.yaml")
+    cases = [
+        (["launch", counter, "--record-topics", "counter/*", "--duration", "1"], "--record-topics without --record"),
+        (["launch", counter, "--record-max-size", "1M", "--duration", "1"], "--record-max-size without --record"),
+        (["launch", counter, "--keys", str(tmp_path), "--duration", "1"], "the file declares no machines"),
+        (["run", "nodes.std.demo:Counter", "--id", "", "--duration", "1"], "--id ''"),   # ran as 'counter'
+        (["topic", "list", "a/value"], "tether topic list takes no TOPIC"),                # listed every topic
+        (["log", "merge", str(log), str(tmp_path / "." / "a.mcap"), "-o", str(tmp_path / "m.mcap")],
+         "is given twice"),                                                             # every message twice
+        (["verify", counter, "--focus", "nope"], "--focus applies to --ctl formulas"),
+    ]
+    for argv, needle in cases:
+        assert main(argv) == 2, argv
+        _one_error_line(capsys, needle)
+
+
+@pytest.mark.parametrize("argv", [
+    ["check", ""],                                    # '': a directory with no .yaml launch file in it
+    ["log", ""],                                      # '.: a directory, not a log file'
+    ["record", "-o", ""],
+    ["export", "foxglove", "x.mcap", "-o", ""],
+    ["log", "x.mcap", "--check", "--no-check"],       # --no-check won silently
+    ["slam", "optimize", "x.g2o", "--rel-tol", "-1"],
+])
+def test_an_empty_path_or_contradictory_flags_are_refused_by_the_parser(argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: argument" in err and "Traceback" not in err
+
+
+def test_the_allow_empty_that_log_cut_points_to_exists(tmp_path, capsys):
+    """'the cut selected no message (--allow-empty to accept)': tether log had no --allow-empty."""
+    log = _log(tmp_path / "a.mcap")
+    assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--start", "100"]) == 1
+    assert "--allow-empty to accept" in capsys.readouterr().err
+    assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--start", "100", "--allow-empty"]) == 0
