@@ -75,10 +75,10 @@ def _check_output(output: str | None, *inputs: str, flag: str = "-o") -> None:
     check_writable(output, flag)
     if not Path(output).exists():
         return
+    at = f"{flag} {output}" if flag else output
     for src in inputs:
         if Path(src).exists() and Path(output).samefile(src):
-            raise ConfigError(f"{flag} {output} is the input {src}: writing it would destroy the input; "
-                              "give another output file")
+            raise ConfigError(f"{at} is the input {src}: writing it would destroy the input; give another output file")
 
 
 # -- launch / check / graph / run -------------------------------------------------------
@@ -486,6 +486,16 @@ def _path(text: str) -> str:
     return text
 
 
+def _topic(text: str) -> str:
+    """A topic to write: NODE/OUTPUT as a graph's (an import with --topic '' wrote a log no graph could name)."""
+    from tether.launch import TOPIC_RE
+
+    if not TOPIC_RE.match(text):
+        raise argparse.ArgumentTypeError(f"{text!r}: a topic is NODE/OUTPUT, e.g. sonar/ping (letters, digits, "
+                                         "'-' or '_')")
+    return text
+
+
 def _patterns(text: str) -> list[str]:
     """``'a/*,b/c'`` -> ['a/*', 'b/c'] (an option value that cannot swallow the next argument)."""
     items = [t.strip() for t in text.split(",") if t.strip()]
@@ -511,13 +521,19 @@ def _size(text: str) -> int:
     return value
 
 
-def _number(text: str, *, low: float = -math.inf, strict: bool = False, what: str = "a finite number") -> float:
-    """An option's number: finite (argparse's float takes 'nan' and 'inf'), and above ``low``."""
+#: the longest time an option takes (about 31 years): 1e308 s overflowed timers, time_t and
+#: nanosecond log times (OverflowError tracebacks from run --duration, replay --start/--delay)
+MAX_SECONDS = 1e9
+
+
+def _number(text: str, *, low: float = -math.inf, strict: bool = False, high: float = math.inf,
+            what: str = "a finite number") -> float:
+    """An option's number: finite (argparse's float takes 'nan' and 'inf'), above ``low``, at most ``high``."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value) or value < low or (strict and value == low):
+    if not math.isfinite(value) or value < low or (strict and value == low) or value > high:
         raise argparse.ArgumentTypeError(f"{text!r}: give {what}")
     return value
 
@@ -527,8 +543,13 @@ def _finite(text: str) -> float:
 
 
 def _seconds(text: str) -> float:
-    """A duration or window: seconds > 0."""
-    return _number(text, low=0.0, strict=True, what="a number of seconds > 0")
+    """A duration or window: seconds in (0, MAX_SECONDS]."""
+    return _number(text, low=0.0, strict=True, high=MAX_SECONDS, what=f"a number of seconds > 0 (at most {MAX_SECONDS:g})")
+
+
+def _offset(text: str) -> float:
+    """A time from a log's start, or a delay: seconds in [0, MAX_SECONDS]."""
+    return _number(text, low=0.0, high=MAX_SECONDS, what=f"a number of seconds >= 0 (at most {MAX_SECONDS:g})")
 
 
 def _positive(text: str) -> float:
@@ -536,7 +557,7 @@ def _positive(text: str) -> float:
 
 
 def _at_least_zero(text: str) -> float:
-    """A time from a log's start, a delay or a rate factor: >= 0."""
+    """A rate factor or a tolerance: >= 0."""
     return _number(text, low=0.0, what="a number >= 0")
 
 
@@ -569,6 +590,14 @@ def _board(text: str) -> tuple[int, int]:
 def _positive_int(text: str) -> int:
     """A count of messages, states, iterations, episodes, instances: >= 1."""
     return _whole(text, 1)
+
+
+def _seed(text: str) -> int:
+    """A seed: a whole number in [0, 2**32) (gymnasium refuses a negative one, numpy a huge one)."""
+    value = _whole(text, 0)
+    if value >= 1 << 32:
+        raise argparse.ArgumentTypeError(f"{text!r}: a seed is below 2**32")
+    return value
 
 
 def _natural(text: str) -> int:
@@ -731,15 +760,18 @@ def _learn_params(items: list[str] | None) -> dict[str, Any]:
     return out
 
 
+_POSITIVE = ("a value > 0", lambda v: v > 0)
+_AT_LEAST_0 = ("a value >= 0", lambda v: v >= 0)
+_FRACTION = ("a value in [0, 1]", lambda v: 0 <= v <= 1)
 #: PPO settings' ranges (what PPO itself would take without complaint but cannot learn with:
 #: lr=-1 climbs the loss, gamma=2 discounts nothing away, n_steps=0 divides by zero)
 PPO_RANGES: dict[str, tuple[str, Any]] = {
-    "n_steps": ("> 0", lambda v: v > 0), "epochs": ("> 0", lambda v: v > 0),
-    "minibatches": ("> 0", lambda v: v > 0), "gamma": ("in [0, 1]", lambda v: 0 <= v <= 1),
-    "gae_lambda": ("in [0, 1]", lambda v: 0 <= v <= 1), "clip": ("> 0", lambda v: v > 0),
-    "lr": ("> 0", lambda v: v > 0), "ent_coef": (">= 0", lambda v: v >= 0), "vf_coef": (">= 0", lambda v: v >= 0),
-    "max_grad_norm": ("> 0", lambda v: v > 0), "obs_clip": ("> 0", lambda v: v > 0),
-    "target_kl": (">= 0 (0: off)", lambda v: v >= 0), "squash": ("'clip' or 'tanh'", lambda v: v in ("clip", "tanh")),
+    "n_steps": _POSITIVE, "epochs": _POSITIVE, "minibatches": _POSITIVE, "clip": _POSITIVE, "lr": _POSITIVE,
+    "max_grad_norm": _POSITIVE, "obs_clip": _POSITIVE, "gamma": _FRACTION, "gae_lambda": _FRACTION,
+    "ent_coef": _AT_LEAST_0, "vf_coef": _AT_LEAST_0, "target_kl": ("a value >= 0 (0: off)", lambda v: v >= 0),
+    "squash": ("'clip' or 'tanh'", lambda v: v in ("clip", "tanh")),
+    # [100000, 100000] asked JAX for 40 GB and died in a traceback
+    "hidden": ("1 to 8 layer widths, each at most 4096", lambda v: len(v) <= 8 and max(v) <= 4096),
 }
 
 
@@ -769,7 +801,7 @@ def _ppo_config(items: list[str] | None) -> Any:
             want = {"int": "a whole number", "float": "a finite number", "bool": "true or false", "str": "text"}
             raise ConfigError(f"--ppo {key}={value!r}: give {want.get(kind, 'a list of layer widths like [64, 64]')}")
         if key in PPO_RANGES and not PPO_RANGES[key][1](value):
-            raise ConfigError(f"--ppo {key}={value!r}: give a value {PPO_RANGES[key][0]}")
+            raise ConfigError(f"--ppo {key}={value!r}: give {PPO_RANGES[key][0]}")
     if "hidden" in overrides:
         overrides["hidden"] = tuple(overrides["hidden"])
     return PPOConfig(**overrides)
@@ -810,7 +842,7 @@ def cmd_learn(args: argparse.Namespace) -> int:
         return 0
     if args.learn_cmd == "export":
         _regular_input(args.checkpoint, "a checkpoint")
-        _check_output(args.out, args.checkpoint)
+        _check_output(args.out, args.checkpoint, flag="")
         size = export(args.checkpoint, args.out)
         print(f"wrote {args.out} ({size} bytes: policy and normaliser, no optimiser state)")
         return 0
@@ -986,11 +1018,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("replay", help="publish a log, or run a node on it (--into)")
     p.add_argument("file", type=_path, help="the MCAP log")
     p.add_argument("--rate", type=_at_least_zero, default=1.0, help="speed factor (0 = as fast as possible)")
-    p.add_argument("--start", type=_at_least_zero, default=0.0, help="seconds from the log's start")
-    p.add_argument("--end", type=_at_least_zero, help="seconds from the log's start")
+    p.add_argument("--start", type=_offset, default=0.0, help="seconds from the log's start")
+    p.add_argument("--end", type=_offset, help="seconds from the log's start")
     p.add_argument("--loop", action="store_true", help="start again at the end (publishing only)")
     p.add_argument("--topics", nargs="+", help="only these topics (names or globs like 'sonar/*')")
-    p.add_argument("--delay", type=_at_least_zero, help="seconds to let subscribers attach before playing (0.5; "
+    p.add_argument("--delay", type=_offset, help="seconds to let subscribers attach before playing (0.5; "
                    "with --wait-subscribers the most it waits, 30)")
     p.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
                    help="play once N subscribers take every replayed topic (or --delay has passed: a warning)")
@@ -1024,8 +1056,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("log", help="what a log holds, whether every chunk is intact; cut and merge logs")
     p.add_argument("file", type=_path, help="the MCAP log; or 'cut' (then IN) or 'merge' (then IN ...)")
     p.add_argument("more", nargs="*", type=_path, help="with cut: the log to cut; with merge: the logs to merge")
-    p.add_argument("--start", type=_at_least_zero, default=0.0, help="with cut: seconds from the log's start")
-    p.add_argument("--end", type=_at_least_zero, help="with cut: seconds from the log's start")
+    p.add_argument("--start", type=_offset, default=0.0, help="with cut: seconds from the log's start")
+    p.add_argument("--end", type=_offset, help="with cut: seconds from the log's start")
     p.add_argument("--topics", nargs="+", help="with cut: only these topics (names or globs)")
     checks = p.add_mutually_exclusive_group()
     checks.add_argument("--check", action="store_true", help="verify every chunk's CRC (the default; exit 1 on damage)")
@@ -1043,7 +1075,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 "this project's: oculus, candump")
     p.add_argument("file", type=_path, help="the foreign log")
     p.add_argument("-o", "--output", required=True, type=_path, help="the tether MCAP log to write")
-    p.add_argument("--topic", help="topic to write (default sonar/ping or can/frame)")
+    p.add_argument("--topic", type=_topic, help="topic to write (default sonar/ping or can/frame)")
     p.add_argument("--max-bytes", type=_size, default=None,
                    help="the most one record may take once decompressed (e.g. 64M; default 64 MiB)")
     p.add_argument("--skip-bad", action="store_true",
@@ -1112,7 +1144,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--n-envs", type=_positive_int, default=16, help="simulator instances stepped together")
     q.add_argument("--mode", choices=("inproc", "ipc"), default="inproc", help="simulator in this process or in node processes")
     q.add_argument("--shards", type=_positive_int, default=1, help="with --mode ipc: node processes sharing the instances")
-    q.add_argument("--seed", type=int, default=0, help="seed of the policy and of the first episodes")
+    q.add_argument("--seed", type=_seed, default=0, help="seed of the policy and of the first episodes")
     q.add_argument("--checkpoint-every", type=_positive, default=2e5, help="env steps between checkpoints")
     q.add_argument("--resume", action="store_true", help="continue from the checkpoint at -o when it exists")
     q.add_argument("-o", "--out", required=True, type=_path, help="checkpoint path (msgpack)")
@@ -1121,7 +1153,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--env", default="sim.car_env:ReachCar", help="the simulator, module:Class (a VecSim)")
     q.add_argument("--param", action="append", metavar="KEY=VALUE", help="a scenario parameter (repeatable)")
     q.add_argument("--episodes", type=_positive_int, default=100, help="episodes, run side by side")
-    q.add_argument("--seed", type=int, default=10_000, help="first seed (episode i: seed + i)")
+    q.add_argument("--seed", type=_seed, default=10_000, help="first seed (episode i: seed + i)")
     q.add_argument("--record", metavar="FILE", type=_path, help="record the episodes to an MCAP log (tether learn replay FILE)")
     q = learn.add_parser("export", help="strip optimiser state and history: a policy to deploy")
     q.add_argument("checkpoint", type=_path, help="a checkpoint of tether learn train")

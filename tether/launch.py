@@ -46,6 +46,7 @@ from tether.yamlsafe import Located, load_yaml
 
 ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 NODE_ID_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*(\.[A-Za-z][A-Za-z0-9_\-]*)*$")   # ns.ns.id
+TOPIC_RE = re.compile(NODE_ID_RE.pattern[:-1] + r"/[A-Za-z_][A-Za-z0-9_\-]*$")             # ns.id/output
 TIMER_RE = re.compile(r"^timer/(hz|ms)/([0-9]*\.?[0-9]+)$")
 RESTART_POLICIES = ("never", "on-failure")
 NODE_KEYS = {"id", "node", "params", "inputs", "restart", "max_restarts", "machine", "env", "remap", "params_file",

@@ -27,27 +27,28 @@ def not_regular(path: str | Path) -> str:
 
 
 def check_writable(path: str | Path, flag: str) -> None:
-    """Raise :class:`ConfigError` (``'FLAG PATH: why'``) unless ``path`` can be created or
+    """Raise :class:`ConfigError` (``'FLAG PATH: why'``; ``'PATH: why'`` when ``flag`` is empty) unless ``path`` can be created or
     overwritten as a file: not a directory, FIFO or block device (a character device such as
     ``/dev/null`` is accepted); its folder exists or can be made (writers make it); the folder
     takes a new file. Nothing is left behind: an existing file
     is opened for appending without writing, a probe file in the folder is removed."""
     p = Path(path)
+    at = f"{flag} {path}" if flag else str(path)
     what = not_regular(p)
     if what == "a directory":
-        raise ConfigError(f"{flag} {path}: a directory, not a file to write (give a file name, e.g. {p / 'run.mcap'})")
+        raise ConfigError(f"{at}: a directory, not a file to write (give a file name, e.g. {p / 'run.mcap'})")
     if what:
         mode = os.stat(p).st_mode
         if stat.S_ISCHR(mode):                 # /dev/null: a run whose output is discarded
             return
         why = ("a FIFO: opening it waits for a reader" if stat.S_ISFIFO(mode) else
                "a block device: writing would overwrite the disk" if stat.S_ISBLK(mode) else "a socket")
-        raise ConfigError(f"{flag} {path}: {why} (give a regular file)")
+        raise ConfigError(f"{at}: {why} (give a regular file)")
     folder = p.parent
     while not folder.exists() and folder != folder.parent:    # the writer makes the missing folders
         folder = folder.parent
     if not folder.is_dir():
-        raise ConfigError(f"{flag} {path}: {folder} is not a folder")
+        raise ConfigError(f"{at}: {folder} is not a folder")
     try:
         if p.exists():
             with open(p, "ab"):
@@ -56,4 +57,4 @@ def check_writable(path: str | Path, flag: str) -> None:
             with tempfile.TemporaryFile(dir=folder):
                 pass
     except OSError as exc:
-        raise ConfigError(f"{flag} {path}: cannot write there: {exc.strerror}") from None
+        raise ConfigError(f"{at}: cannot write there: {exc.strerror}") from None

@@ -51,7 +51,8 @@ def select_topics(topics: Iterable[str], patterns: Sequence[str] | None, *, what
     """The topics named by ``patterns`` (exact names or globs like ``sonar/*``); all when none.
 
     One filter for the ``replay`` verb, ``replay --into`` and the Player node alike; a
-    filter that selects nothing is an error listing what the log has.
+    filter that selects nothing is an error listing what the log has, and so is an exact
+    name the log lacks (a typo beside a good name was dropped silently).
     """
     names = sorted(topics)
     if not patterns:
@@ -59,6 +60,9 @@ def select_topics(topics: Iterable[str], patterns: Sequence[str] | None, *, what
     chosen = [t for t in names if any(fnmatch.fnmatchcase(t, p) for p in patterns)]
     if not chosen:
         raise ConfigError(f"{what} {' '.join(patterns)} selects none of the log's topics: {', '.join(names) or 'none'}")
+    missing = [p for p in patterns if not any(c in p for c in "*?[") and p not in names]
+    if missing:
+        raise ConfigError(f"{what}: the log has no topic {', '.join(missing)} (its topics: {', '.join(names)})")
     return chosen
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import abc
 import inspect
+import numbers
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -33,6 +34,28 @@ class Batch:
     truncated: np.ndarray      # (N,) bool
     metrics: np.ndarray        # (N, M): scenario figures before autoreset
     sim_time_s: np.ndarray     # (N,): each instance's time in its (possibly new) episode
+
+
+def _number_param(sim: str, key: str, value: Any, annotation: Any) -> Any:
+    """A scenario parameter declared ``float`` or ``int``: a number of that kind (text such as '1e-3'
+    or 'nan', which YAML 1.1 reads as strings, becomes one; configure() judges its range). Raises
+    ValueError naming the parameter ('nan' from the command line reached configure() as text: a
+    TypeError traceback)."""
+    kind = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", "")
+    if kind not in ("float", "int"):
+        return value
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise ValueError(f"{sim}: parameter {key}={value!r}: give a number") from None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{sim}: parameter {key}={value!r}: give a number")
+    if kind == "int":
+        if not (np.isfinite(value) and value == int(value)):
+            raise ValueError(f"{sim}: parameter {key}={value!r}: give a whole number")
+        return int(value)
+    return value
 
 
 class VecSim(abc.ABC):
@@ -69,7 +92,8 @@ class VecSim(abc.ABC):
             if unknown:
                 raise ValueError(f"{type(self).__name__}: unknown scenario parameter(s) {unknown} "
                                  f"(known: {', '.join(known) or 'none'})")
-        self.configure(**params)
+        self.configure(**{key: _number_param(type(self).__name__, key, value, known[key].annotation)
+                          if key in known else value for key, value in params.items()})
 
     # -- scenario (override) ------------------------------------------------------------
     def configure(self, **params: Any) -> None:

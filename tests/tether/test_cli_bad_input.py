@@ -530,16 +530,18 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, c
 
 
 @pytest.mark.parametrize("setting", ["lr=-1", "gamma=2", "gae_lambda=-0.1", "n_steps=0", "minibatches=0",
-                                     "epochs=-1", "clip=0", "max_grad_norm=0", "squash=sigmoid"])
+                                     "epochs=-1", "clip=0", "max_grad_norm=0", "squash=sigmoid",
+                                     "hidden=[100000, 100000]"])
 def test_a_ppo_setting_out_of_its_range_is_refused(setting, tmp_path, capsys, monkeypatch):
     """lr=-1 and gamma=2 trained (exit 0); n_steps=0 and minibatches=0 were ZeroDivisionError
-    tracebacks, epochs=-1 a JAX traceback, n_steps=-1 'negative dimensions are not allowed'."""
+    tracebacks, epochs=-1 a JAX traceback (hidden=[100000, 100000] too: 40 GB asked of JAX),
+    n_steps=-1 'negative dimensions are not allowed'."""
     pytest.importorskip("jax")
     import nodes.learn.train as train_module
 
     monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained with " + setting))
     assert main(["learn", "train", "--ppo", setting, "--steps", "1e6", "-o", str(tmp_path / "p.ckpt")]) == 2
-    _one_error_line(capsys, f"--ppo {setting.split('=')[0]}=", "give a value")
+    _one_error_line(capsys, f"--ppo {setting.split('=')[0]}=", ": give ")
 
 
 def test_exporting_a_damaged_log_is_not_success_without_skip_bad(tmp_path, capsys):
@@ -592,3 +594,47 @@ def test_the_allow_empty_that_log_cut_points_to_exists(tmp_path, capsys):
     assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--start", "100"]) == 1
     assert "--allow-empty to accept" in capsys.readouterr().err
     assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--start", "100", "--allow-empty"]) == 0
+
+
+@pytest.mark.parametrize("argv", [
+    ["learn", "train", "--seed", "-1", "-o", "p.ckpt"],           # gymnasium.error.Error traceback
+    ["learn", "eval", "p.ckpt", "--seed", "99999999999999999999"],  # OverflowError traceback
+    ["replay", "x.mcap", "--start", "1e308"],                     # 'cannot convert float infinity to integer'
+    ["replay", "x.mcap", "--delay", "1e308"],                     # 'timestamp out of range for platform time_t'
+    ["log", "cut", "x.mcap", "-o", "y.mcap", "--end", "1e308"],
+    ["run", "nodes.std.demo:Counter", "--duration", "1e308"],     # OverflowError from threading.Timer
+    ["import", "candump", "c.log", "-o", "o.mcap", "--topic", ""],    # wrote a log on the topic ''
+    ["import", "candump", "c.log", "-o", "o.mcap", "--topic", "a b"],
+])
+def test_huge_seeds_and_times_and_nameless_topics_are_refused_by_the_parser(argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: argument" in err and "Traceback" not in err
+
+
+def test_a_scenario_parameter_that_is_not_a_number_is_named(tmp_path, capsys):
+    """``--param max_range_m=nan`` reached ReachCar.configure as the text 'nan': a TypeError traceback
+    ('<=' not supported between 'float' and 'str')."""
+    pytest.importorskip("gymnasium")
+    from nodes.learn.sim_node import load_sim
+
+    for value in ("abc", True, [1]):
+        with pytest.raises(ValueError, match="ReachCar: parameter max_range_m=.*: give a number"):
+            load_sim("sim.car_env:ReachCar", params={"max_range_m": value})
+    with pytest.raises(ValueError, match=r"need 0 <= min_range_m <= max_range_m, got 0.3, nan"):   # configure's range
+        load_sim("sim.car_env:ReachCar", params={"max_range_m": "nan"})
+    assert load_sim("sim.car_env:ReachCar", params={"max_range_m": "2"}).ranges_m == (0.3, 2.0)   # YAML's '1e-3' text
+
+
+def test_a_topic_name_the_log_lacks_is_an_error_beside_a_good_one(tmp_path, capsys, runtime_env):
+    """``--topics 'a/*' a/valeu``: the typo was dropped silently and the rest replayed."""
+    from tether.replay import select_topics
+
+    with pytest.raises(ConfigError, match="the log has no topic a/valeu"):
+        select_topics(["a/value", "b/value"], ["a/*", "a/valeu"])
+    assert select_topics(["a/value", "b/value"], ["a/*", "c/*"]) == ["a/value"]     # a glob may match nothing
+    log = _log(tmp_path / "a.mcap")
+    assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--topics", "a/value", "a/valeu"]) == 2
+    _one_error_line(capsys, "--topics: the log has no topic a/valeu (its topics: a/value)")
