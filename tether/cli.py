@@ -101,6 +101,10 @@ def cmd_launch(args: argparse.Namespace) -> int:
                      record_max_bytes=args.record_max_size or 0, record_max_duration_s=args.record_max_duration or 0.0)
     for warning in launch.warnings:
         log.warning("%s", warning)
+    from tether import registry
+
+    registry.check_free([f"{c.id}/{out}" for c in sup.children for out in [*launch.node(c.id).ports.outputs, "_stats"]],
+                        f"graph {launch.name!r}")
     names = ", ".join(c.id for c in sup.children)
     log.info("launching %s (%s)%s", launch.name, names, f" for {args.duration:g} s" if args.duration else "")
     return sup.run(args.duration)
@@ -179,6 +183,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--input {name}={topic}: input {name!r} takes {want} but {topic} "
                                   f"publishes {found.type_name}")
             inputs[name] = Source(topic=topic, endpoint=found.endpoint)
+    registry.check_free([f"{node_id}/{o}" for o in [*ports.outputs, "_stats"]], f"--id {node_id}")
     endpoint = ipc_endpoint("run", node_id, uuid.uuid4().hex[:8])
     spec = RunSpec(graph=f"run-{node_id}", node_id=node_id, node=args.node, params=_params(args.param),
                    binds=[endpoint], inputs=inputs)
@@ -597,6 +602,14 @@ def _seed(text: str) -> int:
     value = _whole(text, 0)
     if value >= 1 << 32:
         raise argparse.ArgumentTypeError(f"{text!r}: a seed is below 2**32")
+    return value
+
+
+def _rate_window(text: str) -> int:
+    """hz/bw -w N: 0 (off) or at least 2 messages (a rate needs two; -w 1 said 'no messages yet' for ever)."""
+    value = _whole(text, 0)
+    if value == 1:
+        raise argparse.ArgumentTypeError("'1': a rate needs at least 2 messages (0: average over --window seconds)")
     return value
 
 
@@ -1041,7 +1054,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--raw", action="store_true", help="echo: plain msgpack")
     p.add_argument("--all", action="store_true", help="list: include _stats topics")
     p.add_argument("--window", type=_seconds, default=5.0, help="hz/bw: seconds averaged")
-    p.add_argument("-w", "--window-msgs", type=_natural, default=0, metavar="N",
+    p.add_argument("-w", "--window-msgs", type=_rate_window, default=0, metavar="N",
                    help="hz/bw: average over the last N messages instead (like ros2 topic hz -w)")
     p.add_argument("--duration", type=_seconds, help="stop after S seconds")
     p.set_defaults(func=cmd_topic)

@@ -192,6 +192,8 @@ def rate_line(action: str, samples: list[tuple[float, int, int, int]]) -> str:
 def cmd_node(args: argparse.Namespace) -> int:
     from tether import registry
 
+    if args.action == "list" and args.id:          # 'tether node list counter' listed every node
+        raise ConfigError(f"tether node list takes no ID (got {args.id!r}); 'tether node info {args.id}' shows one")
     graphs = registry.running()
     if args.action == "list":
         for g in graphs:

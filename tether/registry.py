@@ -93,6 +93,20 @@ def topics() -> dict[str, TopicInfo]:
     return out
 
 
+def check_free(topics: Any, what: str) -> None:
+    """Raise :class:`TetherError` when a running graph already publishes one of ``topics``: a topic
+    has one publisher, and a second graph of the same name (left running in another terminal)
+    would leave every tool reading whichever the registry listed last."""
+    wanted = set(topics)
+    for entry in running():
+        taken = sorted(wanted & set(entry.get("topics", {})))
+        if taken:
+            more = f" and {len(taken) - 1} more" if len(taken) > 1 else ""
+            raise TetherError(f"{what}: {taken[0]}{more} {'are' if more else 'is'} already published by the "
+                              f"running graph {entry['name']!r} (pid {entry.get('pid', 0)}): stop it first, or use "
+                              "another name or id")
+
+
 def find_topic(topic: str) -> TopicInfo:
     found = topics()
     if topic not in found:

@@ -638,3 +638,28 @@ def test_a_topic_name_the_log_lacks_is_an_error_beside_a_good_one(tmp_path, caps
     log = _log(tmp_path / "a.mcap")
     assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--topics", "a/value", "a/valeu"]) == 2
     _one_error_line(capsys, "--topics: the log has no topic a/valeu (its topics: a/value)")
+
+
+def test_a_second_graph_on_the_same_topics_is_refused(capsys, runtime_env):
+    """The same launch file started twice (one left running in another terminal), or ``run --id``
+    of a running node: both registered, and every tool read whichever the registry listed last."""
+    from tether import registry
+
+    entry = registry.register({"name": "counter", "machine": "", "nodes": {},
+                               "topics": {"counter/value": {"type": "std.Float64", "endpoint": "ipc:///x"}}})
+    try:
+        assert main(["launch", str(REPO / "launch/counter.yaml"), "--duration", "1"]) == 2
+        _one_error_line(capsys, "graph 'counter': counter/value is already published by the running graph 'counter'")
+        assert main(["run", "nodes.std.demo:Counter", "--id", "counter", "--duration", "1"]) == 2
+        _one_error_line(capsys, "--id counter: counter/value is already published")
+    finally:
+        registry.unregister(entry)
+
+
+def test_node_list_with_an_id_and_a_one_message_rate_window_are_refused(capsys, runtime_env):
+    """``node list counter`` listed every node; ``topic hz -w 1`` said 'no messages yet' for ever."""
+    assert main(["node", "list", "counter"]) == 2
+    _one_error_line(capsys, "tether node list takes no ID")
+    with pytest.raises(SystemExit):
+        main(["topic", "hz", "a/b", "-w", "1"])
+    assert "a rate needs at least 2 messages" in capsys.readouterr().err
