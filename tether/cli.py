@@ -122,9 +122,17 @@ def cmd_check(args: argparse.Namespace) -> int:
             files += found
         else:
             files.append(item)
-    warned = 0
+    warned, failed = 0, 0
+    overrides, launch_args = parse_overrides(args.param), parse_launch_args(args.arg)
     for path in files:
-        launch = load_launch(path, parse_overrides(args.param), args=parse_launch_args(args.arg))
+        try:
+            launch = load_launch(path, overrides, args=launch_args)
+        except ConfigError as exc:            # one line per bad file: the others are still checked
+            if len(files) == 1:
+                raise
+            print(f"tether: error: {exc}", file=sys.stderr)
+            failed += 1
+            continue
         for warning in launch.warnings:
             print(f"tether: warning: {warning}", file=sys.stderr)
         warned += len(launch.warnings)
@@ -133,6 +141,9 @@ def cmd_check(args: argparse.Namespace) -> int:
         print(f"{path}: ok ({len(launch.nodes)} nodes, {len(launch.edges())} connections"
               + (f"; unconnected inputs: {', '.join(unconnected)}" if unconnected else "")
               + (f"; {len(launch.warnings)} warning(s)" if launch.warnings else "") + ")")
+    if failed:
+        print(f"tether: error: {failed} of {len(files)} files failed", file=sys.stderr)
+        return 2
     if warned and args.strict:
         print(f"tether: error: {warned} warning(s) with --strict", file=sys.stderr)
         return 1
@@ -912,6 +923,11 @@ def cmd_keys(args: argparse.Namespace) -> int:
         print(f"keystore {folder}: created keys for {', '.join(created) or 'no new machine'}")
         print("copy peers.json to every machine's keystore, and <machine>.key to that machine only (mode 0600)")
         return 0
+    if args.machines:                        # ignored: list shows every machine of the keystore
+        raise ConfigError("--machines applies to 'tether keys init' (list shows every machine)")
+    if not (folder / keystore.PEERS).exists():
+        raise ConfigError(f"no keystore for graph {args.graph!r} in {folder} ('tether keys init {args.graph} "
+                          "--machines A,B' creates one; --keys FOLDER names another)")
     peers = keystore.read_peers(folder)
     for machine, public in sorted(peers.items()):
         path = folder / f"{machine}.key"

@@ -663,3 +663,26 @@ def test_node_list_with_an_id_and_a_one_message_rate_window_are_refused(capsys, 
     with pytest.raises(SystemExit):
         main(["topic", "hz", "a/b", "-w", "1"])
     assert "a rate needs at least 2 messages" in capsys.readouterr().err
+
+
+def test_check_of_several_files_reports_every_bad_one(tmp_path, capsys):
+    """The first bad file stopped 'tether check launch/': the files after it were never checked."""
+    bad = tmp_path / "a_bad.yaml"
+    bad.write_text("name: x\nnodes:\n  - {id: a, node: 'nodes.std.demo:Nope'}\n")
+    worse = tmp_path / "b_worse.yaml"
+    worse.write_text("name: [\n")
+    good = tmp_path / "c_good.yaml"
+    good.write_text((REPO / "launch/counter.yaml").read_text())
+    assert main(["check", str(tmp_path)]) == 2
+    out, err = capsys.readouterr()
+    assert "a_bad.yaml" in err and "b_worse.yaml" in err and "c_good.yaml: ok" in out, (out, err)
+    assert err.strip().splitlines()[-1] == "tether: error: 2 of 3 files failed"
+
+
+def test_keys_list_of_a_graph_without_keystore_says_how_to_make_one(tmp_path, capsys):
+    """It said 'cannot read the allow-list .../peers.json: [Errno 2] No such file or directory: ...';
+    --machines with list was ignored."""
+    assert main(["keys", "list", "boat", "--keys", str(tmp_path / "none")]) == 2
+    _one_error_line(capsys, "no keystore for graph 'boat'", "'tether keys init boat --machines A,B' creates one")
+    assert main(["keys", "list", "boat", "--machines", "a", "--keys", str(tmp_path)]) == 2
+    _one_error_line(capsys, "--machines applies to 'tether keys init'")
