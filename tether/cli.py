@@ -93,6 +93,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
         if given:
             raise ConfigError(f"{', '.join(given)} without --record FILE: nothing would be recorded")
     launch = load_launch(args.file, parse_overrides(args.param), args=parse_launch_args(args.arg))
+    _check_output(args.record, args.file, flag="--record")     # the recorder would overwrite the launch file
     if args.keys and not launch.machines:     # ignored: a graph on one machine talks over ipc, without keys
         raise ConfigError(f"{args.file}: --keys {args.keys}: the file declares no machines (keys secure the "
                           "links between machines)")

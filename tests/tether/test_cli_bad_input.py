@@ -371,6 +371,17 @@ def test_a_record_file_that_cannot_be_written_is_refused_before_anything_starts(
     assert a_file.read_text() == "x" and list(tmp_path.iterdir()) == [a_file]    # nothing left behind
 
 
+
+def test_launch_record_into_its_own_launch_file_is_refused(tmp_path, capsys):
+    """``tether launch run.yaml --record run.yaml`` ran the graph and recorded over the launch file."""
+    launch = tmp_path / "run.yaml"
+    launch.write_text((REPO / "launch/counter.yaml").read_text())
+    before = launch.read_text()
+    assert main(["launch", str(launch), "--record", str(tmp_path / "." / "run.yaml"), "--duration", "1"]) == 2
+    _one_error_line(capsys, "is the input", "would destroy the input")
+    assert launch.read_text() == before
+
+
 @pytest.mark.parametrize("action", ["hz", "bw"])
 def test_topic_hz_and_bw_of_a_silent_topic_say_so_and_end_with_their_graph(action, monkeypatch, capsys):
     """Both printed 'no messages yet' each second for ever, also after the graph had stopped."""
