@@ -66,19 +66,27 @@ def _regular_input(path: str, what: str) -> None:
         raise ConfigError(f"{path}: {kind}, not {what}")
 
 
-def _check_output(output: str | None, *inputs: str, flag: str = "-o") -> None:
+def _check_output(output: str | None, *inputs: str, flag: str = "-o", log: bool = False) -> None:
     """Before any work: refuse an output that cannot be written (:func:`tether.paths.check_writable`:
     found at the end of the work otherwise), or that is one of the inputs (opening it for writing
-    would empty the input first)."""
+    would empty the input first). ``log``: the output is an MCAP log, and an existing file that is
+    not one (a launch file, an image: a mistyped -o) is not written over; an older log is."""
     if not output:
         return
     check_writable(output, flag)
-    if not Path(output).exists():
+    if not Path(output).is_file():
         return
     at = f"{flag} {output}" if flag else output
     for src in inputs:
         if Path(src).exists() and Path(output).samefile(src):
             raise ConfigError(f"{at} is the input {src}: writing it would destroy the input; give another output file")
+    if log and Path(output).stat().st_size:
+        from tether.logcheck import MAGIC
+
+        with open(output, "rb") as fh:
+            if not MAGIC.startswith(fh.read(len(MAGIC))):       # a shorter head: a log cut early
+                raise ConfigError(f"{at}: an existing file that is not an MCAP log; writing the log would destroy "
+                                  "it (remove it first, or give another name)")
 
 
 # -- launch / check / graph / run -------------------------------------------------------
@@ -93,7 +101,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
         if given:
             raise ConfigError(f"{', '.join(given)} without --record FILE: nothing would be recorded")
     launch = load_launch(args.file, parse_overrides(args.param), args=parse_launch_args(args.arg))
-    _check_output(args.record, args.file, flag="--record")     # the recorder would overwrite the launch file
+    _check_output(args.record, args.file, flag="--record", log=True)   # not over the launch file
     if args.keys and not launch.machines:     # ignored: a graph on one machine talks over ipc, without keys
         raise ConfigError(f"{args.file}: --keys {args.keys}: the file declares no machines (keys secure the "
                           "links between machines)")
@@ -223,7 +231,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     import fnmatch
 
-    _check_output(args.output)
+    _check_output(args.output, log=True)
     available = registry.topics()
     wanted = args.topics or [t for t in available if not t.endswith("/_stats")]
     missing = [t for t in wanted if t not in available]
@@ -269,7 +277,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             raise ConfigError("--into needs --record OUT (where the node's outputs go)")
         if args.loop:
             raise ConfigError("--loop does not apply to --into (a node is run once over the log)")
-        _check_output(args.record, args.file, flag="--record")
+        _check_output(args.record, args.file, flag="--record", log=True)
         progress = _Progress()
         n = replay_into(args.file, load_node_class(args.into), _pairs(args.map, "--map"), args.record,
                         params=_params(args.param), window=window, lockstep=args.lockstep,
@@ -402,7 +410,7 @@ def cmd_log(args: argparse.Namespace) -> int:
     if args.recover:
         if not args.output:
             raise ConfigError("tether log --recover IN needs -o OUT")
-        _check_output(args.output, args.file)
+        _check_output(args.output, args.file, log=True)
         written, damaged, lost = recover_log(args.file, args.output)
         print(f"recovered {written} messages from {args.file} into {args.output}; {len(damaged)} damaged chunk(s)"
               + (f", {lost} messages lost" if lost >= 0 else " (the source had no statistics: losses unknown)"))
@@ -472,7 +480,7 @@ def _log_cut_merge(args: argparse.Namespace) -> int:
         if twin is not None:
             raise ConfigError(f"{path} is given twice" + (f" (as {twin})" if twin != path else "")
                               + ": each message would be written twice")
-    _check_output(args.output, *args.more)
+    _check_output(args.output, *args.more, log=True)
     readers = [LogReader(path) for path in args.more]
     types: dict[str, str] = {}
     for reader in readers:
@@ -635,7 +643,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     run = importer(args.kind)
     _regular_input(args.file, "a log file")
-    _check_output(args.output, args.file)
+    _check_output(args.output, args.file, log=True)
     try:
         result = run(args.file, args.output, topic=args.topic, max_bytes=args.max_bytes, skip_bad=args.skip_bad)
     except OSError as exc:                  # unreadable input, unwritable output: one line, not a traceback
@@ -652,7 +660,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from tether.export import export_foxglove
     from tether.log import LogReader
 
-    _check_output(args.output, args.file)
+    _check_output(args.output, args.file, log=True)
     progress = _Progress()
     reader = LogReader(args.file)
     n = export_foxglove(reader, args.output, lambda k, total: progress(f"export {k}/{total} messages"))
@@ -859,7 +867,7 @@ def cmd_learn(args: argparse.Namespace) -> int:
         return 0
     if args.learn_cmd == "eval":
         _regular_input(args.checkpoint, "a checkpoint")
-        _check_output(args.record, args.checkpoint, flag="--record")
+        _check_output(args.record, args.checkpoint, flag="--record", log=True)
         agent = PPO.load(args.checkpoint)
         report = evaluate(agent, args.env, episodes=args.episodes, seed=args.seed, params=_learn_params(args.param),
                           record=args.record)

@@ -697,3 +697,19 @@ def test_keys_list_of_a_graph_without_keystore_says_how_to_make_one(tmp_path, ca
     _one_error_line(capsys, "no keystore for graph 'boat'", "'tether keys init boat --machines A,B' creates one")
     assert main(["keys", "list", "boat", "--machines", "a", "--keys", str(tmp_path)]) == 2
     _one_error_line(capsys, "--machines applies to 'tether keys init'")
+
+
+def test_a_log_output_never_writes_over_a_file_that_is_not_a_log(tmp_path, capsys):
+    """``-o`` naming an existing launch file or image by mistake (a shell completion one letter off)
+    emptied it: a log is written over an older log only."""
+    log = _log(tmp_path / "a.mcap")
+    notes = tmp_path / "notes.yaml"
+    notes.write_text("name: x\n")
+    for argv in (["log", "cut", str(log), "-o", str(notes)], ["export", "foxglove", str(log), "-o", str(notes)],
+                 ["log", "merge", str(log), "-o", str(notes)]):
+        assert main(argv) == 2, argv
+        _one_error_line(capsys, "notes.yaml: an existing file that is not an MCAP log")
+    assert notes.read_text() == "name: x\n"
+    older = _log(tmp_path / "older.mcap", n=3)
+    assert main(["log", "cut", str(log), "-o", str(older)]) == 0          # an older log: overwritten as before
+    assert sum(1 for _ in LogReader(older).messages()) == 20
