@@ -504,6 +504,13 @@ def _log_cut_merge(args: argparse.Namespace) -> int:
     return _damaged(readers, args) or _nothing_done(written, args, f"the {args.file} selected no message")
 
 
+def _name(text: str) -> str:
+    """A machine's name: not empty (--machine '' was taken as no --machine: every node started)."""
+    if not text:
+        raise argparse.ArgumentTypeError("'': give a machine name from the launch file")
+    return text
+
+
 def _path(text: str) -> str:
     """A file or folder named on the command line: not empty (Path('') is the current folder)."""
     if not text:
@@ -927,7 +934,9 @@ def cmd_keys(args: argparse.Namespace) -> int:
 
     folder = keystore.keystore_dir(args.graph, args.keys)
     if args.action == "init":
-        machines = [m for m in (args.machines or "").split(",") if m]
+        machines = (args.machines or "").split(",") if args.machines else []
+        if "" in machines or len(set(machines)) < len(machines):    # 'a,,b' and 'a,a' were taken as 'a,b', 'a'
+            raise ConfigError(f"--machines {args.machines!r}: give distinct names separated by single commas")
         created = keystore.init(folder, machines)
         print(f"keystore {folder}: created keys for {', '.join(created) or 'no new machine'}")
         print("copy peers.json to every machine's keystore, and <machine>.key to that machine only (mode 0600)")
@@ -1006,7 +1015,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record-max-size", type=_size, metavar="SIZE",
                    help="with --record: start a new file (RUN_1.mcap, ...) past SIZE, e.g. 500M")
     p.add_argument("--record-max-duration", type=_seconds, metavar="S", help="with --record: a new file every S seconds")
-    p.add_argument("--machine", help="start only this machine's nodes")
+    p.add_argument("--machine", type=_name, help="start only this machine's nodes")
     p.add_argument("--keys", type=_path, help="CurveZMQ keystore folder of the graph (default ~/.config/tether/keys/NAME/; "
                                "see 'tether keys')")
     p.set_defaults(func=cmd_launch)

@@ -88,6 +88,8 @@ def load_node_class(path: str) -> type[Node]:
         raise ConfigError(f"module {module_name!r} has no class {class_name!r}")
     if not (isinstance(cls, type) and issubclass(cls, Node)):
         raise ConfigError(f"{path} is not a tether Node")
+    if cls is Node:                 # it ran: no inputs, no outputs, nothing to do until stopped
+        raise ConfigError(f"{path} is the base class of nodes: give a node class (a subclass of it)")
     return cls
 
 

@@ -713,3 +713,17 @@ def test_a_log_output_never_writes_over_a_file_that_is_not_a_log(tmp_path, capsy
     older = _log(tmp_path / "older.mcap", n=3)
     assert main(["log", "cut", str(log), "-o", str(older)]) == 0          # an older log: overwritten as before
     assert sum(1 for _ in LogReader(older).messages()) == 20
+
+
+def test_empty_or_repeated_names_and_the_base_node_class_are_refused(tmp_path, capsys, runtime_env):
+    """``launch --machine ''`` started every node (as without --machine); ``keys init --machines a,,b``
+    and ``a,a`` were taken as 'a,b' and 'a'; ``run tether.node:Node`` ran a node with no ports until stopped."""
+    with pytest.raises(SystemExit):
+        main(["launch", str(REPO / "launch/counter.yaml"), "--machine", "", "--duration", "1"])
+    assert "give a machine name" in capsys.readouterr().err
+    for machines in ("a,,b", "a,a", ",a"):
+        assert main(["keys", "init", "g", "--machines", machines, "--keys", str(tmp_path / "k")]) == 2
+        _one_error_line(capsys, f"--machines {machines!r}: give distinct names")
+    assert not (tmp_path / "k").exists()
+    assert main(["run", "tether.node:Node", "--duration", "1"]) == 2
+    _one_error_line(capsys, "tether.node:Node is the base class of nodes")
