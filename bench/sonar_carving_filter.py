@@ -41,18 +41,31 @@ second stage learns from each training pass's out-of-fold first-stage probabilit
 without that pass; on new passes it reads the full first stage's), its threshold by the rule above over the
 training passes each left out of the second stage too (the first-stage probabilities of the others came from
 models that saw the left-out pass: a second-order leak, said here), then demo, --fresh and --fresh2 scored beside
-the first stage and the default cloud from the same pings. First run (2026-11-28, load ~1.3 on 2 cores): threshold
-0.82 (first stage 0.85); demo 95.0 % within 0.2 m / completeness 57.5 % (first stage 95.3 / 59.2, default 93.4 /
-49.9), best completeness at >= 90 % over a sweep on the demo itself 69.7 % (first stage 68.7 %); completeness up on
-3 of 6 --fresh and 6 of 8 --fresh2 passes, down on the demo, the two jacket passes and tripod_200_high; more than 2
-points less accurate than the default on jacket_eastward (83.1 % against 88.1 %) and on 2 of 8 --fresh2 passes
-(overhang_030, pipe_rack_250; the first stage: 2 of 8 too, others); 48 ms per cloud (median over the 15 passes;
-the context 34 ms of it on the demo's 10 270 voxels, through a dense padded copy of the grid, not optimised, and
-scikit-learn's trees): every 10th ping, +4.8 ms per ping averaged, past the 5 ms budget beside carving's 1.3-4.0.
-Not better on the held-out passes at the threshold the training chose, so not shipped: the node's filter is the
-first stage alone. Before this run three variants were tried on the same cached passes (with a 5 x 5 x 5 shell that
-also left out the voxel's 8 in-plane neighbours; the context alone without the evidence; the 3 x 3 x 3 block and
-column only): demo 94.4 / 59.0, 95.2 / 56.0 and 97.8 / 54.7 at their training-chosen thresholds (0.81, 0.82, 0.84).
+the first stage and the default cloud from the same pings. ``rivals``: the same with each voxel's arc rivals too
+(:class:`ArcRivalGrid`: the near-best voxels >= 0.25 m away on the arcs that voted for it -- a ghost competes with
+the surface on the same arcs --; the most probable one, how many are voted, how many >= 0.5, :func:`arc_rivals`).
+Run of 2026-11-28 (load ~1.0 on 2 cores; within 0.2 m % / completeness %, at each one's training-chosen threshold):
+
+    pass / threshold     default      first 0.85   second 0.82  rivals 0.81  best at >= 90 %, swept on the pass itself
+    demo                 93.4 / 49.9  95.3 / 59.2  95.0 / 57.5  94.7 / 59.6  first 68.7, second 69.7, rivals 69.96
+    --fresh completeness up on (vs first)          3 of 6       6 of 6       accuracy down (vs first) on 4 and 4 of 6
+    --fresh2 completeness up on (vs first)         7 of 8       8 of 8       accuracy down (vs first) on 3 and 4 of 8
+    > 2 points less accurate than the default: first 0 / 2 (fresh / fresh2: overhang_300_under, pipe_rack_160);
+    second 1 / 2 (jacket_eastward / overhang_030, pipe_rack_250); rivals 2 / 3 (jacket, jacket_eastward /
+    overhang_030, pipe_rack_250, pipe_rack_160)
+
+Training passes left out: median completeness 66.0 (first), 69.2 (second), 70.6 % (rivals) at 94.3 / 93.7 / 93.7 %
+within 0.2 m. Time: 41 ms (second) and 54 ms (rivals) per cloud, median over the 15 passes (context through a dense
+padded copy of the grid, not optimised, and scikit-learn's trees; the rivals also need the arcs' near-best voxels
+recorded at each vote): a cloud every 10th ping adds 4-5 ms per ping averaged, past the 5 ms budget beside carving's
+1.3-4.0. Neither meets the default-switch rule (demo completeness 57.5 / 59.6 % < 70 %; 2 and 3 --fresh2 passes
+more than 2 points below the default) nor is better on the held-out passes at the threshold the training chose
+(more completeness, less accuracy: the same trade further along, and the demo about even), so neither is shipped:
+the node's filter is the first stage alone. Before this run three variants were tried on the same passes (a 5 x 5 x 5
+shell that also left out the voxel's 8 in-plane neighbours; the context alone without the evidence; the 3 x 3 x 3
+block and column only: demo 94.4 / 59.0, 95.2 / 56.0, 97.8 / 54.7 at their training-chosen 0.81, 0.82, 0.84) and
+the first stage's evidence with the rivals but no neighbour context (0.86: 96.0 / 57.4, best at >= 90 % 70.6 %;
+jacket_eastward and overhang_300_under > 2 points below the default).
 
     python bench/sonar_carving_filter.py [--write] [--json]      # --write: nodes/sonar/carving_filter.json
     python bench/sonar_carving_filter.py --demo --fresh --fresh2 [--old-model M.json] [--json]
@@ -214,14 +227,15 @@ WORSE_BY = 0.02         # the threshold rule: a pass left out of training may lo
 MAY_LOSE = 0.10         # ... on at most this share of the training passes
 
 
-def carve_pass(scene_spec, t0: float, t1: float, seed: int):
+def carve_pass(scene_spec, t0: float, t1: float, seed: int, *, rivals: bool = False):
     """Render one pass (10 pings/s, 512 beams, 20 m, true poses) and carve it with ``keep="evidence"`` (which counts
-    what the features need; the counts it adds change neither the votes nor the scores the default cloud reads).
-    Returns the flushed grid, the structure's surface (3 cm samples) and the part of it the pass saw."""
+    what the features need; the counts it adds change neither the votes nor the scores the default cloud reads);
+    ``rivals``: with an :class:`ArcRivalGrid` (same carving and votes). Returns the flushed grid, the structure's
+    surface (3 cm samples) and the part of it the pass saw."""
     from sim.fls import PingSettings, load_scene, render_ping, sample_structures
 
     scene = load_scene(scene_spec)
-    grid = CarvingGrid(BOUNDS, CarvingParams(keep="evidence"), seafloor_z_m=scene.seafloor.z_m)
+    grid = (ArcRivalGrid if rivals else CarvingGrid)(BOUNDS, CarvingParams(keep="evidence"), seafloor_z_m=scene.seafloor.z_m)
     rng, hits = np.random.default_rng(seed), []
     for t in np.arange(t0, t1, 0.1):
         pose = scene.sonar_pose(float(t))
@@ -243,15 +257,15 @@ def voted(grid: CarvingGrid) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarr
     return rows, grid.candidate_points()[rows], ev, grid.default_keep(rows, max_sigma_m=DEFAULT_SIGMA_M)
 
 
-def run_pass(scene_spec, t0: float, t1: float, seed: int) -> dict:
+def run_pass(scene_spec, t0: float, t1: float, seed: int, *, rivals: bool = False) -> dict:
     """Carve one pass; every voted voxel off the seafloor with its features, its distance to the surface, whether
-    the default cloud keeps it, and the surface the pass saw."""
-    grid, surface, visible = carve_pass(scene_spec, t0, t1, seed)
+    the default cloud keeps it, and the surface the pass saw (``rivals``: and its arc rivals, ArcRivalGrid.pairs)."""
+    grid, surface, visible = carve_pass(scene_spec, t0, t1, seed, rivals=rivals)
     rows, pts, ev, default = voted(grid)
     on = surface_distances(pts, surface) <= 0.2
     return dict(x=carving_filter.feature_matrix(ev), points=pts, on=on, default=default,
                 default_acc=float(np.mean(on[default])) if default.any() else 1.0, surface=surface, visible=visible,
-                voxels=grid._cand[rows], shape=grid.shape)
+                voxels=grid._cand[rows], shape=grid.shape, pairs=grid.pairs() if rivals else None)
 
 
 def fresh_pass(scene_spec, t0: float, t1: float, seed: int, models: dict[str, dict]) -> dict:
@@ -365,6 +379,70 @@ def neighbour_context(voxels: np.ndarray, shape: tuple[int, int, int], p1: np.nd
     return np.column_stack(cols + [p1, p1 - col_max]).astype(np.float64)
 
 
+class ArcRivalGrid(CarvingGrid):
+    """A CarvingGrid that also records, for each arc that votes, its rivals: (winner, near-best voxel of the same arc
+    >= 0.25 m from the winner) pairs of flat voxel indices -- a ghost and the surface compete on the same arcs.
+    Carving and votes are CarvingGrid's own (the same _vote runs first)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._pairs: list[np.ndarray] = []
+
+    def _vote(self, arcs) -> None:
+        super()._vote(arcs)
+        p = self.params
+        if arcs.voxel.size == 0:
+            return
+        score = self._score(arcs.voxel)
+        starts = np.flatnonzero(np.r_[True, arcs.arc[1:] != arcs.arc[:-1]])
+        best = np.repeat(np.maximum.reduceat(score, starts), np.diff(np.r_[starts, arcs.arc.size]))
+        ok = best >= p.min_hits
+        win, near = np.flatnonzero((score >= best) & ok), np.flatnonzero((score >= p.near_best * best) & ok)
+        if win.size == 0:
+            return
+        lo = np.searchsorted(arcs.arc[near], arcs.arc[win], "left")
+        n = np.searchsorted(arcs.arc[near], arcs.arc[win], "right") - lo
+        w = np.repeat(win, n)
+        other = near[np.repeat(lo, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+        gap = self._centre[self._slot[arcs.voxel[w]]] - self._centre[self._slot[arcs.voxel[other]]]
+        far = np.sum(gap ** 2, axis=1) > 0.25 ** 2
+        self._pairs.append(np.stack([arcs.voxel[w[far]], arcs.voxel[other[far]]], axis=1))
+
+    def pairs(self) -> np.ndarray:
+        """(P, 2) distinct (winner, rival) flat voxel indices."""
+        return np.unique(np.concatenate(self._pairs), axis=0) if self._pairs else np.zeros((0, 2), np.int64)
+
+
+RIVAL_NAMES = ("rival_max", "rival_voted", "rival_above", "p1_minus_rival_max", "rivals")
+
+
+def arc_rivals(voxels: np.ndarray, pairs: np.ndarray, p1: np.ndarray) -> np.ndarray:
+    """For each voted voxel (flat ``voxels``, first-stage ``p1``), over its arc rivals (``pairs`` from
+    :meth:`ArcRivalGrid.pairs`) that are voted voxels: the most probable one's probability (0 without any), how many,
+    how many >= 0.5, ``p1`` less the most probable; and how many rivals it has, voted or not. (K, len(RIVAL_NAMES))."""
+    order = np.argsort(voxels)
+    sv = voxels[order]
+
+    def row(v: np.ndarray) -> np.ndarray:                 # the voted voxel's row, -1 if not voted
+        i = np.clip(np.searchsorted(sv, v), 0, max(len(sv) - 1, 0))
+        return np.where(sv[i] == v, order[i], -1) if len(sv) else np.full(len(v), -1)
+
+    w_all = row(pairs[:, 0])
+    w, n = w_all, row(pairs[:, 1])
+    ok = (w >= 0) & (n >= 0)
+    w, n = w[ok], n[ok]
+    most = np.zeros(len(voxels))
+    np.maximum.at(most, w, p1[n])
+    return np.column_stack([most, np.bincount(w, minlength=len(voxels)).astype(float),
+                            np.bincount(w, weights=(p1[n] >= 0.5).astype(float), minlength=len(voxels)),
+                            p1 - most, np.bincount(w_all[w_all >= 0], minlength=len(voxels)).astype(float)])
+
+
+def stack_x_rivals(d: dict, p1: np.ndarray) -> np.ndarray:
+    """:func:`stack_x` and then RIVAL_NAMES."""
+    return np.column_stack([stack_x(d, p1), arc_rivals(d["voxels"], d["pairs"], p1)])
+
+
 def stack_x(d: dict, p1: np.ndarray) -> np.ndarray:
     """A pass's second-stage matrix: MODEL_FEATURES then CONTEXT_NAMES (first-stage probabilities ``p1``)."""
     return np.column_stack([d["x"][:, COLS], neighbour_context(d["voxels"], d["shape"], p1)])
@@ -402,7 +480,7 @@ def stack(as_json: bool) -> None:
     data = {}
     for name, spec in {**TRAIN_ALL, **HELD_OUT, **FRESH, **FRESH2}.items():
         print(f"  carving {name}", file=sys.stderr, flush=True)
-        data[name] = run_pass(*spec)
+        data[name] = run_pass(*spec, rivals=True)
     train, ys = [data[n] for n in names], [data[n]["on"] for n in names]
     x1 = [d["x"][:, COLS] for d in train]
     oof1 = []                                    # each training pass by the first stage trained without it
@@ -410,47 +488,52 @@ def stack(as_json: bool) -> None:
         print(f"  first stage without {name}", file=sys.stderr, flush=True)
         oof1.append(fit_x(x1[:i] + x1[i + 1:], ys[:i] + ys[i + 1:]).predict_proba(x1[i])[:, 1])
     first = fit_x(x1, ys)
-    x2 = [stack_x(d, q) for d, q in zip(train, oof1)]     # the second stage learns from out-of-fold probabilities
-    oof2 = []
-    for i, name in enumerate(names):
-        print(f"  second stage without {name}", file=sys.stderr, flush=True)
-        oof2.append(fit_x(x2[:i] + x2[i + 1:], ys[:i] + ys[i + 1:]).predict_proba(x2[i])[:, 1])
-    second = fit_x(x2, ys)
-    t1, t2 = choose_threshold(train, oof1), choose_threshold(train, oof2)
-    out = {"threshold_first": t1, "threshold_second": t2, "features_second": list(STACK_FEATURES),
-           "training_left_out": {}, "sets": {}}
-    for n, d, q1, q2 in zip(names, train, oof1, oof2):
-        out["training_left_out"][n] = {"first": score(q1, d, t1), "second": score(q2, d, t2)}
-    print(f"thresholds (the filter's rule, on the training passes each left out): first stage {t1}, second {t2}")
-    for k in ("first", "second"):
+    t1 = choose_threshold(train, oof1)
+    stages = {"second": stack_x, "rivals": stack_x_rivals}     # the second stage; the same with the arc rivals
+    models, thresholds, oof = {}, {"first": t1}, {"first": oof1}
+    for k, make_x in stages.items():
+        x2 = [make_x(d, q) for d, q in zip(train, oof1)]    # the second stage learns from out-of-fold probabilities
+        oof[k] = []
+        for i, name in enumerate(names):
+            print(f"  {k}: second stage without {name}", file=sys.stderr, flush=True)
+            oof[k].append(fit_x(x2[:i] + x2[i + 1:], ys[:i] + ys[i + 1:]).predict_proba(x2[i])[:, 1])
+        models[k], thresholds[k] = fit_x(x2, ys), choose_threshold(train, oof[k])
+    keys = ["first", *stages]
+    out = {"thresholds": thresholds, "features_second": list(STACK_FEATURES),
+           "features_rivals": list(STACK_FEATURES + RIVAL_NAMES), "training_left_out": {}, "sets": {}}
+    for i, n in enumerate(names):
+        out["training_left_out"][n] = {k: score(oof[k][i], train[i], thresholds[k]) for k in keys}
+    print(f"thresholds (the filter's rule, on the training passes each left out): {thresholds}")
+    for k in keys:
         r = [v[k] for v in out["training_left_out"].values()]
-        print(f"  training passes left out, {k} stage: median {100 * np.median([m['acc_frac_0p2'] for m in r]):.1f} % "
+        print(f"  training passes left out, {k}: median {100 * np.median([m['acc_frac_0p2'] for m in r]):.1f} % "
               f"within 0.2 m, completeness {100 * np.median([m['completeness_0p2'] for m in r]):.1f} %")
-    print(f"{'pass':>20} {'default':>12} {'first':>12} {'second':>12}   at >= 90 %: {'first':>12} {'second':>12}")
-    timing = []
+    print(f"{'pass':>20} " + " ".join(f"{k:>11}" for k in ["default", *keys]) + "   at >= 90 %: "
+          + " ".join(f"{k:>11}" for k in keys))
+    timing = {k: [] for k in stages}
     for set_name, passes in (("demo", HELD_OUT), ("fresh", FRESH), ("fresh2", FRESH2)):
         res = out["sets"][set_name] = {}
         for n in passes:
             d = data[n]
-            p1 = first.predict_proba(d["x"][:, COLS])[:, 1]
-            t = time.perf_counter()
-            p2 = second.predict_proba(stack_x(d, p1))[:, 1]
-            timing.append((time.perf_counter() - t) * 1e3)
+            p = {"first": first.predict_proba(d["x"][:, COLS])[:, 1]}
+            for k, make_x in stages.items():
+                t = time.perf_counter()
+                p[k] = models[k].predict_proba(make_x(d, p["first"]))[:, 1]
+                timing[k].append((time.perf_counter() - t) * 1e3)
             r = res[n] = {"default": cloud_metrics(d["points"][d["default"]], d["surface"], d["visible"]),
-                          "first": score(p1, d, t1), "second": score(p2, d, t2),
-                          "first_at_acc90": completeness_at_acc90(d, p1), "second_at_acc90": completeness_at_acc90(d, p2)}
+                          **{k: score(p[k], d, thresholds[k]) for k in keys},
+                          **{k + "_at_acc90": completeness_at_acc90(d, p[k]) for k in keys}}
             print(f"{n:>20} " + " ".join(f"{100 * r[k]['acc_frac_0p2']:5.1f}/{100 * r[k]['completeness_0p2']:5.1f}"
-                                         for k in ("default", "first", "second"))
-                  + "   " + " ".join(f"{100 * r[k][0]:5.1f}@{r[k][1]}" for k in ("first_at_acc90", "second_at_acc90")))
-    out["second_stage_ms_per_cloud_median"] = float(np.median(timing))
-    print(f"second stage (context + scikit-learn's trees): median {np.median(timing):.1f} ms per cloud over "
-          f"{len(timing)} passes (a cloud every 10th ping: a tenth of that per ping)")
+                                         for k in ["default", *keys])
+                  + "   " + " ".join(f"{100 * r[k + '_at_acc90'][0]:5.1f}@{r[k + '_at_acc90'][1]}" for k in keys))
+    out["ms_per_cloud_median"] = {k: float(np.median(v)) for k, v in timing.items()}
+    print(f"second stages (context, rivals + scikit-learn's trees): median ms per cloud over the "
+          f"{len(timing['second'])} passes {out['ms_per_cloud_median']} (a cloud every 10th ping: a tenth per ping)")
     for set_name, res in out["sets"].items():
         worse = {k: [n for n, r in res.items() if r[k]["acc_frac_0p2"] < r["default"]["acc_frac_0p2"] - WORSE_BY]
-                 for k in ("first", "second")}
+                 for k in keys}
         out["sets"][set_name] = {"passes": res, "below_default_by_2": worse}
-        print(f"{set_name}: more than 2 points less accurate than the default: first {worse['first'] or 'none'}, "
-              f"second {worse['second'] or 'none'}")
+        print(f"{set_name}: more than 2 points less accurate than the default: {worse}")
     if as_json:
         print(json.dumps(out))
 

@@ -1,7 +1,7 @@
 """bench/sonar_carving_filter's second stage (``--stack``, measured, not shipped): the context it reads off the first
 stage's probabilities -- an isolated confident voxel among doubtful neighbours looks isolated, a voxel inside a
 confident surface looks surrounded, the most probable voxel up or down its column is its competitor, and nothing wraps
-round the grid's faces."""
+round the grid's faces; a voxel's arc rivals are the voted voxels its voting arcs also found near-best."""
 from __future__ import annotations
 
 import sys
@@ -52,3 +52,17 @@ def test_nothing_wraps_round_the_grid_s_faces() -> None:
     c = _context(cells)
     for name in ("b3_n", "b5_n", "col_n", "b5_max", "col_max"):
         assert np.all(c[name] == 0), name
+
+
+def test_a_voxel_s_arc_rivals_are_the_voted_voxels_its_arcs_also_found_near_best() -> None:
+    from sonar_carving_filter import RIVAL_NAMES, arc_rivals
+
+    voxels = np.array([10, 20, 30, 40])                      # voted voxels (flat indices), first-stage probabilities:
+    p1 = np.array([0.6, 0.9, 0.3, 0.8])
+    pairs = np.array([[10, 20], [10, 30], [10, 99],          # 10's arcs also found 20, 30 and 99 (99 not voted)
+                      [40, 30]])                             # 40 has one doubtful rival; 20 and 30 none
+    r = {name: arc_rivals(voxels, pairs, p1)[:, i] for i, name in enumerate(RIVAL_NAMES)}
+    assert np.allclose(r["rival_max"], [0.9, 0.0, 0.0, 0.3])
+    assert np.array_equal(r["rival_voted"], [2, 0, 0, 1]) and np.array_equal(r["rivals"], [3, 0, 0, 1])
+    assert np.array_equal(r["rival_above"], [1, 0, 0, 0])
+    assert np.allclose(r["p1_minus_rival_max"], [0.6 - 0.9, 0.9, 0.3, 0.8 - 0.3])
