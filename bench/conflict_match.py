@@ -125,12 +125,9 @@ def plot(prices: list[float], sets: dict, learnt: float, step_cost: float, filen
         ax.set_title(title, fontsize=10)
         ax.legend(fontsize=7)
     fig.suptitle("planner in the loop vs the recorded walkers it replaces (biwi_eth, biwi_hotel, uni_examples)")
-    out = ROOT / "out" / filename
-    out.parent.mkdir(exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    from figures import save_figure
+
+    return save_figure(fig, ROOT / "out" / filename, dpi=110)
 
 
 def heldout(name: str, n: int, prices: dict[str, float], window_s: float, seed: int, tmp: Path,

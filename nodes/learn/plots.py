@@ -16,6 +16,15 @@ def _plt():
     return plt
 
 
+def _save(fig, path: str | Path) -> None:
+    """Lay out, write (the folder made if missing) and close a figure."""
+    plt = _plt()
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def plot_curves(curves: Mapping[str, tuple[Sequence[float], Sequence[float]]], path: str | Path, *,
                 xlabel: str = "step", ylabel: str = "loss", title: str = "", logy: bool = False) -> None:
     """One line per ``name -> (x, y)``."""
@@ -30,10 +39,7 @@ def plot_curves(curves: Mapping[str, tuple[Sequence[float], Sequence[float]]], p
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def image_grid(images: np.ndarray, path: str | Path, *, cols: int = 8, titles: Sequence[str] | None = None,
@@ -56,10 +62,7 @@ def image_grid(images: np.ndarray, path: str | Path, *, cols: int = 8, titles: S
     if rows_label is not None:
         for r, label in enumerate(rows_label[:rows]):
             axes[r, 0].text(-0.1, 0.5, label, transform=axes[r, 0].transAxes, ha="right", va="center", fontsize=7)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def draw_episodes(episodes: Mapping[int, tuple[np.ndarray, np.ndarray]], finals: Mapping[int, Mapping[str, float]],
@@ -90,7 +93,4 @@ def draw_episodes(episodes: Mapping[int, tuple[np.ndarray, np.ndarray]], finals:
     bx.legend(fontsize=8)
     for a in (ax, bx):
         a.grid(alpha=0.3)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    _save(fig, path)
