@@ -279,13 +279,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
             raise ConfigError("--loop does not apply to --into (a node is run once over the log)")
         _check_output(args.record, args.file, flag="--record", log=True)
         progress = _Progress()
-        n = replay_into(args.file, load_node_class(args.into), _pairs(args.map, "--map"), args.record,
+        reader = LogReader(args.file)
+        n = replay_into(reader, load_node_class(args.into), _pairs(args.map, "--map"), args.record,
                         params=_params(args.param), window=window, lockstep=args.lockstep,
                         progress=lambda k, total: progress(f"replay {k}/{total} messages"))
         progress.done()
         print(f"fed {n} messages into {args.into}; outputs in {args.record}")
-        return _nothing_done(n, args, f"no message of {args.file} reached {args.into}: check --map, --topics, "
-                                      "--start/--end")
+        return _damaged([reader], args, f"{args.into} was fed and {args.record} written") or _nothing_done(
+            n, args, f"no message of {args.file} reached {args.into}: check --map, --topics, --start/--end")
     return _replay_publish(args, window, LogReader(args.file), play)
 
 
@@ -321,18 +322,36 @@ def _nothing_done(count: int, args: argparse.Namespace, why: str) -> int:
     return 1
 
 
-def _damaged(readers: Sequence[Any], args: argparse.Namespace) -> int:
+def _damaged(readers: Sequence[Any], args: argparse.Namespace, done: str = "") -> int:
     """An output written from damaged inputs lacks their messages: one error line and exit 1, unless --skip-bad.
-    Read after the readers' last pass (their ``damaged`` chunks and ``truncated_at``)."""
+    Read after the readers' last pass (their ``damaged`` chunks and ``truncated_at``); ``done`` says what
+    went without them (default: ``-o OUT was written``)."""
     damage = [f"{r.path}: " + ", ".join(
         ([f"{len(r.damaged)} damaged chunk(s)"] if r.damaged else [])
         + ([f"unreadable from byte {r.truncated_at}"] if r.truncated_at >= 0 else []))
         for r in readers if r.damaged or r.truncated_at >= 0]
     if not damage or args.skip_bad:
         return 0
-    print(f"tether: error: {'; '.join(damage)}: {args.output} was written without their messages "
+    print(f"tether: error: {'; '.join(damage)}: {done or f'{args.output} was written'} without their messages "
           "(--skip-bad to accept)", file=sys.stderr)
     return 1
+
+
+class _PassDamage:
+    """The damage a replay met: a reader's ``damaged``/``truncated_at`` describe its last pass only,
+    and with --loop the last pass may have been stopped before the damaged chunk."""
+
+    def __init__(self, reader: Any) -> None:
+        self.reader = reader
+        self.full: Any = None
+
+    def keep(self) -> None:
+        """After each complete pass (every pass of a window meets the same chunks)."""
+        r = self.reader
+        self.full = argparse.Namespace(path=r.path, damaged=list(r.damaged), truncated_at=r.truncated_at)
+
+    def worst(self) -> Any:
+        return self.full if self.full is not None else self.reader
 
 
 def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: Any) -> int:
@@ -374,14 +393,15 @@ def _replay_publish(args: argparse.Namespace, window: Any, reader: Any, play: An
             shown = (k - 1) % total + 1 if args.loop and total else k
             progress(f"replay {lap}{shown}/{total}  t={(rec.log_time_ns - info.start_ns) / 1e9:7.2f} s")
 
-        n = play(reader, sock, window, stop, show)
+        damage = _PassDamage(reader)
+        n = play(reader, sock, window, stop, show, on_pass=damage.keep)
     finally:
         registry.unregister(entry)
         sock.close(linger=1000)
         Path(endpoint[len("ipc://"):]).unlink(missing_ok=True)      # ZeroMQ leaves the file behind
     progress.done()
     print(f"replayed {n} messages from {args.file}")
-    return _nothing_done(n, args, f"nothing replayed from {args.file}: its topics are {sorted(info.topics)}, "
+    return _damaged([damage.worst()], args, "replayed") or _nothing_done(n, args, f"nothing replayed from {args.file}: its topics are {sorted(info.topics)}, "
                                   f"{(info.end_ns - info.start_ns) / 1e9:.1f} s long")
 
 
@@ -1077,6 +1097,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--map", action="append", metavar="INPUT=TOPIC", help="with --into: feed INPUT from TOPIC")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="with --into: a Config parameter")
     p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was replayed")
+    p.add_argument("--skip-bad", action="store_true",
+                   help="skip damaged chunks of the log and exit 0 (without it, the rest is replayed and the exit is 1)")
     p.add_argument("--record", metavar="OUT", type=_path, help="with --into: where the node's outputs go")
     p.add_argument("--lockstep", action="store_true", help="with --into: deterministic, as fast as the node goes")
     p.set_defaults(func=cmd_replay)

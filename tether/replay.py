@@ -77,8 +77,11 @@ def records(reader: LogReader, window: Window) -> Iterator[LogRecord]:
     yield from reader.messages(topics, start_ns=start, end_ns=end)
 
 
-def paced(reader: LogReader, window: Window, stop: threading.Event) -> Iterator[LogRecord]:
-    """Records at their log-time spacing divided by ``rate`` (0 = no waiting), looping if asked."""
+def paced(reader: LogReader, window: Window, stop: threading.Event,
+          on_pass: Callable[[], None] | None = None) -> Iterator[LogRecord]:
+    """Records at their log-time spacing divided by ``rate`` (0 = no waiting), looping if asked.
+
+    ``on_pass`` is called after each complete pass (the reader's ``damaged`` then tells that pass's damage)."""
     while not stop.is_set():
         t_log0: int | None = None
         t_wall0 = time.monotonic()
@@ -95,15 +98,18 @@ def paced(reader: LogReader, window: Window, stop: threading.Event) -> Iterator[
             if stop.is_set():
                 return
             yield rec
+        if on_pass is not None:
+            on_pass()
         if not window.loop or not any_record:
             return
 
 
 def play(reader: LogReader, sock: zmq.Socket, window: Window, stop: threading.Event,
-         progress: Callable[[int, LogRecord], None] | None = None) -> int:
+         progress: Callable[[int, LogRecord], None] | None = None, *,
+         on_pass: Callable[[], None] | None = None) -> int:
     """Publish records on ``sock`` under their original topics; returns how many were sent."""
     sent = 0
-    for rec in paced(reader, window, stop):
+    for rec in paced(reader, window, stop, on_pass):
         # A log body has its arrays inline; every tether decoder reads that form too.
         sock.send_multipart([rec.topic.encode(), rec.data])
         sent += 1
@@ -166,16 +172,17 @@ class Player(Node):
 
 
 # -- one node on a log --------------------------------------------------------------------
-def replay_into(log_path: str | Path, node_cls: type[Node], mapping: Mapping[str, str], out_path: str | Path, *,
+def replay_into(log_path: str | Path | LogReader, node_cls: type[Node], mapping: Mapping[str, str], out_path: str | Path, *,
                 params: Mapping[str, Any] | None = None, window: Window | None = None, lockstep: bool = True,
                 node_id: str | None = None, progress: Callable[[int, int], None] | None = None) -> int:
     """Run ``node_cls`` on the log's ``mapping`` ({input: topic}); record its outputs to ``out_path``.
 
     Returns the number of messages fed. Lockstep runs in-process on the log's clock
-    (deterministic); otherwise the node runs on real sockets fed at ``window.rate``.
+    (deterministic); otherwise the node runs on real sockets fed at ``window.rate``. Given an
+    open reader, its ``damaged`` and ``truncated_at`` then tell what the node was not fed.
     """
     window = window or Window()
-    reader = LogReader(log_path)
+    reader = log_path if isinstance(log_path, LogReader) else LogReader(log_path)
     info = reader.info()
     try:
         config = node_cls.make_config(params)

@@ -564,6 +564,28 @@ def test_exporting_a_damaged_log_is_not_success_without_skip_bad(tmp_path, capsy
     assert main(["export", "foxglove", str(cut), "-o", out, "--skip-bad"]) == 0
 
 
+def test_replaying_a_damaged_log_is_not_success_without_skip_bad(tmp_path, capsys, runtime_env):
+    """``tether replay`` of a damaged or cut-short log logged 'skipping damaged chunk', replayed the rest
+    and exited 0 (export and log merge exit 1); --into too. The readable messages are still replayed."""
+    flipped, cut = _damaged(tmp_path)
+    readable = sum(1 for _ in LogReader(flipped).messages())
+    assert 0 < readable < 300
+    assert main(["replay", str(flipped), "--rate", "0", "--delay", "0"]) == 1
+    out, err = capsys.readouterr()
+    assert f"replayed {readable} messages" in out and "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("tether: error: ") and "flipped.mcap: 3 damaged chunk(s): replayed without" in last
+    assert main(["replay", str(cut), "--rate", "0", "--delay", "0"]) == 1
+    _one_error_line(capsys, "cut.mcap: unreadable from byte ", "(--skip-bad to accept)")
+    assert main(["replay", str(flipped), "--rate", "0", "--delay", "0", "--skip-bad"]) == 0
+    assert main(["replay", str(tmp_path / "good.mcap"), "--rate", "0", "--delay", "0"]) == 0
+    into = ["--into", "nodes.std.demo:Scale", "--map", "value=a/value", "--lockstep"]
+    assert main(["replay", str(flipped), *into, "--record", str(tmp_path / "o.mcap")]) == 1
+    _one_error_line(capsys, "3 damaged chunk(s): nodes.std.demo:Scale was fed and ", "o.mcap written without")
+    assert sum(1 for _ in LogReader(tmp_path / "o.mcap").messages()) == readable
+    assert main(["replay", str(flipped), *into, "--record", str(tmp_path / "o2.mcap"), "--skip-bad"]) == 0
+
+
 def test_options_that_were_silently_ignored_are_errors(tmp_path, capsys, runtime_env):
     """Each of these ran (or listed) as if the option had not been given, with exit 0."""
     log = _log(tmp_path / "a.mcap")
