@@ -1,6 +1,7 @@
 """Social navigation: IRL planner vs DWA vs the human reference, on the paper's scenarios and replayed real crowds.
 
     python bench/social_nav.py [--quick] [--json] [--weights nodes/nav/weights/default.json] [--scenes ...] [--live]
+                               [--starts 6] [--guard on|shadow] [--param NODE.KEY=VALUE ...]
 
 Closed loop, in-process, deterministic (virtual time, 15 Hz camera): the simulator
 (sim.crowd) renders 640x480 RGB-D; the IRL method runs the nodes of
@@ -50,6 +51,16 @@ velocities (central differences) in the reference's frame, as ``points``; ``guar
 replayed by a real-crowd scenario) the same for every recorded walker of that set among the others; the
 ``*_without_companions`` keys leave out, at each tick, the people walking with the walker (within 2 m, velocity
 within 0.5 m/s: a robot walks with nobody).
+``--guard shadow`` (issue 18 section 1: does the learned cost, not the guard, keep people at a distance?) also runs
+every scenario and start again with the guard in shadow (:func:`run_robot`): each guard is fed every input as before
+and counts the ticks it would have braked (by rule, as ``guard_frac`` / ``guard_why``), but the planner's command
+drives the simulated robot -- IRL's and DWA's (DWA's own scoring keeps its obstacle clearance; both get the flow
+node's prediction as with the guard). ``unguarded`` holds the start spread of those episodes
+(:func:`unguarded_summary`: per scenario and planner the contacts, walk-ins, closest min / median, time / human and
+the would-brake share, ``unguarded.per_scenario``); the headline keys ``unguarded_*`` (:func:`unguarded_headline`)
+sit beside the guarded ones, which do not change; ``out/social_nav_unguarded.png`` plots the closest approach per
+scenario and start, guarded and unguarded. The shadow exists only here: no launch file runs a planner without its
+guard.
 Writes ``out/social_nav.png`` (trajectories) and prints a table; ``--json`` prints one
 object with the metrics per scenario and method, ``pipeline_hz`` and ``plan_ms_100x100``.
 """
@@ -82,7 +93,7 @@ from nodes.nav.demos import PLANNER_PARAMS, FeaturePipeline  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
 from sim.crowd import CrowdWorld  # noqa: E402
 from sim.crowd_scenes import load_scene  # noqa: E402
-from social_nav_episode import GUARD_RULES, Episode, ahead_kind, metrics  # noqa: E402
+from social_nav_episode import GUARD_RULES, TOUCH_M, Episode, ahead_kind, metrics  # noqa: E402
 from social_nav_humans import DT, SCENES, clear_start_s, human_reference  # noqa: E402
 from tether.testing import Harness  # noqa: E402
 
@@ -170,7 +181,9 @@ def guarded(stack, outputs, cmd: Twist2D) -> tuple[float, float]:
     predicted) on the commanded path within the stop distance; 'stop_few_predicted' fewer predicted points;
     'hold' the release time after a stop; 'slowed' the braking-distance cap. 'planner_kept_blocked_path' counts
     the braked ticks (of any rule) while the planner was keeping a path it had itself flagged as passing people
-    (its ``replan_margin_m``)."""
+    (its ``replan_margin_m``). The planner's own command is kept as ``stack.asked``: with the guard in shadow
+    (:func:`run_robot`) it drives the robot and the counts are the ticks the guard would have braked."""
+    stack.asked = (cmd.vx_mps, cmd.wz_radps)       # what the planner asked (drives the robot with --guard shadow)
     safe = [o.msg for o in outputs if o.output == "cmd"]
     if safe:
         stack.safe = (safe[-1].vx_mps, safe[-1].wz_radps)
@@ -267,8 +280,19 @@ def node_params(overrides: list[str]) -> dict[str, dict]:
     return out
 
 
+#: ``--guard``: 'on' the guard's command drives the robot (the launch files); 'shadow' the planner's does, the guard
+#: fed every input as before and its braking only counted (bench only: no launch file runs without its guard)
+GUARD_MODES = ("on", "shadow")
+
+
 def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[str, dict] | None = None,
-              shift_s: float = 0.0) -> Episode:
+              shift_s: float = 0.0, *, guard: str = "on") -> Episode:
+    """One episode of ``stack_cls`` (IrlStack, DwaStack) in ``make_world()`` after the crowd walked ``shift_s``, until
+    the goal or ``max_s`` (s). ``guard`` (:data:`GUARD_MODES`): 'shadow' drives the simulated robot with the planner's
+    command (``stack.asked``, see :func:`guarded`) while the guard still sees everything and counts the ticks it
+    would have braked (the episode's ``guard_ticks``, ``guard_why``)."""
+    if guard not in GUARD_MODES:
+        raise ValueError(f"guard mode {guard!r} unknown: use one of {', '.join(GUARD_MODES)}")
     world = make_world()
     if shift_s > 0:
         world.advance_crowd(shift_s)
@@ -285,6 +309,8 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
             break
         braked = getattr(stack, "guard_ticks", 0)
         v, w = stack.step(world, t, ms)
+        if guard == "shadow":
+            v, w = stack.asked
         if getattr(stack, "guard_ticks", 0) > braked:        # who was ahead (ground truth): guard_why ahead_*
             kind = "ahead_" + ahead_kind(world.pose, p.xy_m, p.vel_mps)
             stack.guard_why[kind] = stack.guard_why.get(kind, 0) + 1
@@ -295,7 +321,7 @@ def run_robot(make_world, stack_cls, weights: str, max_s: float, params: dict[st
                    ticks=getattr(stack, "ticks", 0), start_shift_s=shift_s,
                    guard_ticks_other=getattr(stack, "guard_ticks_other", None),
                    planner_why=dict(getattr(stack, "planner_why", {})) if stack.name == "irl" else None,
-                   replans=getattr(stack, "replans", None))
+                   replans=getattr(stack, "replans", None), guard=guard)
 
 
 # -- report -----------------------------------------------------------------------------------------
@@ -464,16 +490,23 @@ def tradeoff_plot(report: dict, filename: str = "social_nav_tradeoff.png") -> Pa
 SPREAD_KEYS = ("closest_m", "time_s", "robot_contacts_strict", "contacts_strict_moving", "guard_frac", "collisions_robot",
                "heading_reversals", "replans", "stopped_at_closest")
 CONTACT_KEYS = ("robot_contacts_strict", "contacts_strict_moving", "collisions_robot")
+#: also kept per episode with the guard in shadow: every contact, to count the pedestrians' walk-ins
+WALK_IN_KEYS = ("contacts_strict", "collisions_pedestrian")
 
 
-def start_spread(cases: dict, shifts: dict, runs: dict, args: argparse.Namespace, starts: int, step_s: float = 0.4) -> dict:
+def start_spread(cases: dict, shifts: dict, runs: dict, args: argparse.Namespace, starts: int, step_s: float = 0.4, *,
+                 guard: str = "on") -> dict:
     """The same scenarios started ``step_s``, 2 ``step_s``, ... later (the crowd walks that much longer first):
     a closed loop in a crowd is chaotic, and one episode per scenario can land on either side of a goal.
 
     Per scenario and planner, each metric over the ``starts`` episodes (the bench's own first, ``scenarios``), and
     the summary over them (:func:`spread_summary`). With more than 3 starts, ``starts3`` is the same summary over the
-    first 3 starts of the same run (the rule before 6 starts became the default)."""
+    first 3 starts of the same run (the rule before 6 starts became the default). ``guard`` 'shadow' runs every
+    start again (the first too) with the planners' commands driving the robot (:func:`run_robot`) and summarises
+    with :func:`unguarded_summary`."""
     out: dict = {"starts": starts, "step_s": step_s, "scenarios": {}}
+    shadow = guard == "shadow"
+    keys = SPREAD_KEYS + (WALK_IN_KEYS if shadow else ())
     for name, scene in cases.items():
         make = (lambda s=scene: CrowdWorld(s, camera=sim_camera()))
         rows: dict[str, dict[str, list]] = {}
@@ -482,19 +515,106 @@ def start_spread(cases: dict, shifts: dict, runs: dict, args: argparse.Namespace
             rows.setdefault("human", {}).setdefault("time_s", []).append(metrics(human)["time_s"])
             got = {}
             for stack in (IrlStack, DwaStack):
-                ep = runs[name][stack.name] if k == 0 else run_robot(make, stack, args.weights, scene.duration_s,
-                                                                     node_params(args.param), shifts[name] + k * step_s)
+                ep = (runs[name][stack.name] if k == 0 and not shadow else
+                      run_robot(make, stack, args.weights, scene.duration_s, node_params(args.param),
+                                shifts[name] + k * step_s, guard=guard))
                 m = got[stack.name] = metrics(ep)
-                for key in SPREAD_KEYS:
+                for key in keys:
                     rows.setdefault(stack.name, {}).setdefault(key, []).append(m.get(key))
-            print(f"{name} start +{k * step_s:.1f} s: irl {got['irl']['time_s']} s (human {rows['human']['time_s'][-1]} s), "
-                  f"closest {got['irl']['closest_m']} m, guard {got['irl']['guard_frac']}; dwa {got['dwa']['closest_m']} m",
-                  file=sys.stderr, flush=True)   # progress, also with --json
+            print(f"{'unguarded ' if shadow else ''}{name} start +{k * step_s:.1f} s: irl {got['irl']['time_s']} s "
+                  f"(human {rows['human']['time_s'][-1]} s), closest {got['irl']['closest_m']} m, guard "
+                  f"{'would brake ' if shadow else ''}{got['irl']['guard_frac']}, strict robot contacts "
+                  f"{got['irl']['robot_contacts_strict']}; dwa {got['dwa']['closest_m']} m, "
+                  f"{got['dwa']['robot_contacts_strict']}", file=sys.stderr, flush=True)   # progress, also with --json
         out["scenarios"][name] = rows
-    out.update(spread_summary(out["scenarios"], starts))
+    summarise = unguarded_summary if shadow else spread_summary
+    out.update(summarise(out["scenarios"], starts))
     if starts > 3:
-        out["starts3"] = spread_summary(out["scenarios"], 3)
+        out["starts3"] = summarise(out["scenarios"], 3)
     return out
+
+
+def unguarded_summary(scenarios: dict, starts: int) -> dict:
+    """:func:`spread_summary` of episodes run with the guard in shadow (IRL's closest against DWA's, both unguarded),
+    with per scenario and planner also the closest approach's median (``closest_median_m``, m), the pedestrians'
+    walk-ins (``walk_ins_strict``: contacts at touching distance the robot did not close; ``walk_ins``: at 0.65 m),
+    the median time / human time (``time_ratio_median``; not arrived = infinitely late) and the guard share renamed
+    ``guard_frac_would`` (min / median / max: the ticks it would have braked); ``closest_ge_dwa_scenarios``: the
+    scenarios where IRL's median closest approach is >= DWA's."""
+    out = spread_summary(scenarios, starts)
+    ge = 0
+    for name, rows in scenarios.items():
+        human = rows["human"]["time_s"][:starts]
+        for m in ("irl", "dwa"):
+            r = {k: v[:starts] for k, v in rows[m].items()}
+            per = out["per_scenario"][name][m]
+            per["guard_frac_would"] = per.pop("guard_frac")
+            per["closest_median_m"] = _median(r["closest_m"])
+            per["walk_ins_strict"] = sum(int(a or 0) - int(b or 0) for a, b in zip(r["contacts_strict"],
+                                                                                   r["robot_contacts_strict"]))
+            per["walk_ins"] = sum(int(v or 0) for v in r["collisions_pedestrian"])
+            ratios = [t / h if t and h else float("inf") for t, h in zip(r["time_s"], human)]
+            per["time_ratio_median"] = round(float(np.median(ratios)), 3) if ratios else None
+        irl, dwa = out["per_scenario"][name]["irl"]["closest_median_m"], out["per_scenario"][name]["dwa"]["closest_median_m"]
+        ge += int(irl is not None and (dwa is None or irl >= dwa))
+    out["closest_ge_dwa_scenarios"] = ge
+    for m in ("irl", "dwa"):
+        out[m].update({key: sum(out["per_scenario"][n][m][key] for n in scenarios) for key in ("walk_ins_strict", "walk_ins")})
+    out["guard_frac_would_median"] = out.pop("guard_frac_median")
+    out["guard_frac_would_worst_median"] = out.pop("guard_frac_worst_median")
+    return out
+
+
+def unguarded_headline(spread: dict) -> dict:
+    """The ``unguarded_`` headline keys of a shadow-guard start spread (:func:`unguarded_summary`), IRL's, DWA's
+    beside: robot-caused contacts (strict, touching; and at 0.65 m) and walk-ins summed over every episode,
+    episodes where IRL's closest approach is >= DWA's (``unguarded_closest_ge_dwa_count`` of
+    ``unguarded_episodes``), scenarios on time by the median, and the share of ticks the guard would have braked
+    (``unguarded_guard_frac_would``: the largest per-scenario median; ``_median``: their median)."""
+    ok, n = (int(x) for x in spread["closest_ge_dwa"].split("/"))
+    would = [v for v in spread["guard_frac_would_median"].values() if v == v]
+    dwa_would = [spread["per_scenario"][s]["dwa"]["guard_frac_would"]["median"] for s in spread["per_scenario"]]
+    return {"unguarded_robot_contacts_strict": spread["irl"]["robot_contacts_strict"],
+            "unguarded_robot_contacts": spread["irl"]["collisions_robot"],
+            "unguarded_walk_ins_strict": spread["irl"]["walk_ins_strict"],
+            "unguarded_closest_ge_dwa_count": ok, "unguarded_episodes": n,
+            "unguarded_closest_ge_dwa_or_walk_in": spread["closest_ge_dwa_or_walk_in"],
+            "unguarded_closest_ge_dwa_scenarios": spread["closest_ge_dwa_scenarios"],
+            "unguarded_closest_median_m": spread["closest_median_m"],
+            "unguarded_time_ok_count": spread["time_ok_count"],
+            "unguarded_guard_frac_would": _worst(would), "unguarded_guard_frac_would_median": _median(would, 4),
+            "unguarded_dwa": {"robot_contacts_strict": spread["dwa"]["robot_contacts_strict"],
+                              "robot_contacts": spread["dwa"]["collisions_robot"],
+                              "walk_ins_strict": spread["dwa"]["walk_ins_strict"],
+                              "guard_frac_would": _worst(dwa_would), "guard_frac_would_median": _median(dwa_would, 4)}}
+
+
+def closest_plot(series: dict[str, dict[str, list]], filename: str = "social_nav_unguarded.png") -> Path:
+    """Closest approach per scenario (m, centres): one dot per start and a bar at the median, per series
+    (label -> scenario -> closest per start, e.g. 'IRL guarded', 'IRL unguarded', 'DWA unguarded')."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(next(iter(series.values())))
+    fig, ax = plt.subplots(figsize=(10, 4.8))
+    width = 0.8 / len(series)
+    colours = ["tab:blue", "tab:cyan", "tab:red", "tab:orange", "tab:purple"]
+    for j, (label, per) in enumerate(series.items()):
+        for i, name in enumerate(names):
+            v = [c for c in per.get(name, []) if c is not None]
+            x = i - 0.4 + (j + 0.5) * width
+            ax.plot([x] * len(v), v, "o", ms=4, alpha=0.7, color=colours[j % len(colours)],
+                    label=label if i == 0 else None)
+            if v:
+                ax.plot([x - width * 0.4, x + width * 0.4], [np.median(v)] * 2, "-", lw=3, color=colours[j % len(colours)])
+    ax.axhline(TOUCH_M, color="k", ls=":", lw=1, label=f"bodies touch ({TOUCH_M} m)")
+    ax.axhline(0.65, color="0.5", ls="--", lw=1, label="contact radius 0.65 m")
+    ax.set_xticks(range(len(names)), names)
+    ax.set_ylabel("closest approach to a pedestrian (m, centres)")
+    ax.set_title("social_nav: closest approach per start (dots) and median (bar), guard on vs in shadow")
+    ax.legend(fontsize=8, loc="upper right")
+    return _save(fig, filename)
 
 
 def spread_summary(scenarios: dict, starts: int) -> dict:
@@ -617,7 +737,12 @@ def main() -> None:
                          "1: the single episode only)")
     ap.add_argument("--param", action="append", default=[],
                     help="node parameter override NODE.KEY=VALUE (planner, guard, dwa; live: any launch node)")
+    ap.add_argument("--guard", choices=GUARD_MODES, default="on",
+                    help="shadow: also run every scenario and start with the planners' commands driving the robot, "
+                         "the guard only counting what it would brake ('unguarded' in the JSON; not with --live)")
     args = ap.parse_args()
+    if args.live and args.guard != "on":
+        raise SystemExit("social_nav: --guard shadow runs in-process only; drop --live (a launch file keeps its guard)")
     logging.basicConfig(level=logging.ERROR)
     names = args.scenes or (QUICK if args.quick else SCENES)
     cases = {name: load_scene(name) for name in names}
@@ -648,6 +773,17 @@ def main() -> None:
            "resolution": "640x480", "plot": str(png.relative_to(ROOT))}
     if args.starts > 1:
         out["start_spread"] = start_spread(cases, shifts, runs, args, args.starts)
+    if args.guard == "shadow":
+        out["unguarded"] = start_spread(cases, shifts, runs, args, args.starts, guard="shadow")
+        out.update(unguarded_headline(out["unguarded"]))
+        guarded_rows = (out["start_spread"]["scenarios"] if "start_spread" in out else
+                        {n: {m: {"closest_m": [r[m]["closest_m"]]} for m in ("irl", "dwa")} for n, r in report.items()})
+        rows = out["unguarded"]["scenarios"]
+        out["unguarded_plot"] = str(closest_plot({
+            "IRL guarded": {n: r["irl"]["closest_m"] for n, r in guarded_rows.items()},
+            "IRL unguarded": {n: r["irl"]["closest_m"] for n, r in rows.items()},
+            "DWA unguarded": {n: r["dwa"]["closest_m"] for n, r in rows.items()},
+            "DWA guarded": {n: r["dwa"]["closest_m"] for n, r in guarded_rows.items()}}).relative_to(ROOT))
     if args.json:
         print(json.dumps(out))
         return
@@ -669,6 +805,8 @@ def main() -> None:
         print(f"IRL on time (median time / human <= 1.15) in {sp['time_ok_count']} of {len(sp['time_ratio_median'])} "
               f"scenarios ({sp['time_ok_episodes']} episodes): {sp['time_ratio_median']}; guard share medians "
               f"{sp['guard_frac_median']} (worst {sp['guard_frac_worst_median']})")
+    if "unguarded" in out:
+        print("guard in shadow: " + ", ".join(f"{k} {v}" for k, v in out.items() if k.startswith("unguarded_")))
 
 
 if __name__ == "__main__":

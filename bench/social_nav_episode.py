@@ -34,6 +34,8 @@ class Episode:
     guard_ticks_other: int | None = None     # ticks the other-rule shadow guard would have braked (social_nav.shadow_guarded)
     planner_why: dict[str, int] | None = None   # IRL planner: ticks its speed profile waited / slowed (planner_paced)
     replans: int | None = None           # IRL planner: local plans it adopted (a re-plan event, not 'path kept')
+    guard: str = "on"                    # 'on': the guard's command drove the robot; 'shadow': the planner's did, the
+                                         # guard only counted (guard_ticks: the ticks it would have braked)
 
 
 #: who was ahead when the guard braked (``guard_why`` keys ``ahead_*``): the nearest pedestrian centre in front of the
@@ -95,6 +97,8 @@ def metrics(ep: Episode, radius_m: float = 0.65) -> dict:
             "stopped_at_closest": stopped_at_closest,
             "heading_reversals": heading_reversals(ep.yaw_rate[:end]),
             "start_shift_s": round(ep.start_shift_s, 2)}
+    if ep.guard != "on":
+        m["guard"] = ep.guard           # 'shadow': guard_frac / guard_why are what it would have braked
     if ep.guard_ticks_other is not None and ep.ticks:
         m["guard_frac_other_rule"] = round(ep.guard_ticks_other / ep.ticks, 4)
     if ep.replans is not None:

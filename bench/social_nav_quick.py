@@ -1,7 +1,7 @@
 """Social navigation, IRL planner only: the quick loop for tuning the planner (no DWA episodes, no human reference runs).
 
     python bench/social_nav_quick.py [--scenes hallway ...] [--starts 6] [--param planner.KEY=VALUE ...]
-                                     [--against out/bench/social_nav.json] [--json]
+                                     [--against out/bench/social_nav.json] [--guard on|shadow] [--conflict 0.09] [--json]
 
 Runs the IRL stack of bench/social_nav.py (same scenes, same clear-start shifts, the same start times 0.4 s apart)
 and prints, per episode and per scenario, what ``start_spread`` reports for IRL: closest approach (m), time (s),
@@ -11,6 +11,13 @@ human reference do not depend on the planner's settings: ``--against`` takes the
 (``start_spread.scenarios``; same starts), so closest >= DWA and time / human come out as in the full bench. A full
 ``bench/social_nav.py --starts 6`` run is still what a change is judged on; hallway's DWA episodes (60 s each, it
 never arrives) are most of that run's time, and this skips them.
+
+``--guard shadow``: the planner's command drives the robot, the guard only counts the ticks it would have braked
+(bench/social_nav.py's shadow; ``guard_frac`` is then that share); each episode also gives the robot's contacts at
+0.65 m (``robot_contacts``) and the pedestrians' walk-ins (``walk_ins_strict`` at touching distance, ``walk_ins`` at
+0.65 m). ``--conflict PRICE`` runs a copy of the weights file with its conflict weight replaced (the grid cost's
+price of a predicted-conflict cell and the speed profile's, :func:`weights_with_conflict`): 0.09 is the price
+BIRL learns from walkers (default.json ``conflict_weight.learnt``), the shipped 4.0 is set by hand.
 """
 from __future__ import annotations
 
@@ -18,6 +25,7 @@ import argparse
 import json
 import logging
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +37,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from sim.crowd import CrowdWorld  # noqa: E402
 from sim.crowd_scenes import load_scene  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
-from social_nav import IrlStack, node_params, run_robot  # noqa: E402
+from social_nav import GUARD_MODES, IrlStack, node_params, run_robot  # noqa: E402
 from social_nav_episode import metrics  # noqa: E402
 from social_nav_humans import SCENES, clear_start_s  # noqa: E402
 
@@ -38,7 +46,24 @@ def episode_row(m: dict) -> dict:
     """The IRL metrics this loop reports of one episode (``metrics`` of bench/social_nav_episode.py)."""
     return {"closest_m": m["closest_m"], "time_s": m["time_s"], "guard_frac": m["guard_frac"],
             "kept_blocked": m["guard_why"].get("planner_kept_blocked_path", 0.0),
-            "robot_contacts_strict": m["robot_contacts_strict"], "planner_wait_frac": m.get("planner_wait_frac")}
+            "robot_contacts_strict": m["robot_contacts_strict"], "planner_wait_frac": m.get("planner_wait_frac"),
+            "robot_contacts": m["collisions_robot"], "walk_ins_strict": m["contacts_strict"] - m["robot_contacts_strict"],
+            "walk_ins": m["collisions_pedestrian"]}
+
+
+def weights_with_conflict(weights: str, price: float, folder: Path) -> str:
+    """A copy of the weights file ``weights`` in ``folder`` with its 'conflict' weight set to ``price``: the grid
+    cost's price of a predicted-conflict cell and, through it, the planner's speed profile (its ``conflict_price``
+    reads the file). The other weights and the step cost are the file's."""
+    if price < 0:
+        raise ValueError(f"conflict price {price} < 0: give the price of a conflict cell (>= 0; shipped 4.0, learnt 0.09)")
+    doc = json.loads(Path(weights).read_text(encoding="utf-8"))
+    if "conflict" not in doc["names"]:
+        raise ValueError(f"{weights} has no 'conflict' weight to set; use a weights file with the 13 crowd features")
+    doc["weights"][doc["names"].index("conflict")] = float(price)
+    out = folder / f"weights_conflict_{price:g}.json"
+    out.write_text(json.dumps(doc), encoding="utf-8")
+    return str(out)
 
 
 def summary(rows: list[dict], against: dict | None) -> dict:
@@ -50,6 +75,8 @@ def summary(rows: list[dict], against: dict | None) -> dict:
            "robot_contacts_strict": int(sum(r["robot_contacts_strict"] for r in rows)),
            "closest_min_m": min(r["closest_m"] for r in rows),
            "closest_median_m": float(np.median([r["closest_m"] for r in rows]))}
+    if "walk_ins_strict" in rows[0]:
+        out.update({k: int(sum(r[k] or 0 for r in rows)) for k in ("robot_contacts", "walk_ins_strict", "walk_ins")})
     if against is not None:
         dwa, human = against["dwa"]["closest_m"], against["human"]["time_s"]
         ok = [r["closest_m"] >= d for r, d in zip(rows, dwa) if d is not None]
@@ -66,6 +93,11 @@ def main() -> None:
     ap.add_argument("--weights", default="", help="weights file for the IRL cost ('' = shipped default)")
     ap.add_argument("--param", action="append", default=[], help="node parameter override NODE.KEY=VALUE")
     ap.add_argument("--against", default="", help="a full social_nav.py --json run: DWA and human from its start_spread")
+    ap.add_argument("--guard", choices=GUARD_MODES, default="on",
+                    help="shadow: the planner's command drives the robot, the guard only counts what it would brake")
+    ap.add_argument("--conflict", type=float, default=None,
+                    help="the weights file's conflict price replaced by this (grid cost and speed profile; "
+                         "learnt from walkers: 0.09)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     if args.starts < 1:
@@ -73,20 +105,24 @@ def main() -> None:
     logging.basicConfig(level=logging.ERROR)
     spread = json.loads(Path(args.against).read_text())["start_spread"]["scenarios"] if args.against else {}
     weights = args.weights or str(ROOT / "nodes" / "nav" / "weights" / "default.json")
+    tmp = tempfile.TemporaryDirectory()
+    if args.conflict is not None:
+        weights = weights_with_conflict(weights, args.conflict, Path(tmp.name))
     params = node_params(args.param)
-    out = {"params": args.param, "scenarios": {}}
+    out = {"params": args.param, "guard": args.guard, "conflict": args.conflict, "scenarios": {}}
     for name in args.scenes or SCENES:
         scene = load_scene(name)
         shift = clear_start_s(scene)
         rows = []
         for k in range(args.starts):
             ep = run_robot(lambda s=scene: CrowdWorld(s, camera=sim_camera()), IrlStack, weights, scene.duration_s,
-                           params, shift + 0.4 * k)
+                           params, shift + 0.4 * k, guard=args.guard)
             rows.append(episode_row(metrics(ep)))
             print(f"{name} start +{0.4 * k:.1f} s: {rows[-1]}", file=sys.stderr, flush=True)
         out["scenarios"][name] = {"episodes": rows, **summary(rows, spread.get(name))}
         if not args.json:
             print(name, {k: v for k, v in out["scenarios"][name].items() if k != "episodes"}, flush=True)
+    tmp.cleanup()
     if args.json:
         print(json.dumps(out))
 
