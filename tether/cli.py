@@ -9,6 +9,7 @@ import sys
 import threading
 import time
 import uuid
+from glob import escape as glob_escape
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -66,17 +67,26 @@ def _regular_input(path: str, what: str) -> None:
         raise ConfigError(f"{path}: {kind}, not {what}")
 
 
-def _check_output(output: str | None, *inputs: str, flag: str = "-o", log: bool = False) -> None:
+def _check_output(output: str | None, *inputs: str, flag: str = "-o", log: bool = False,
+                  overwrite: bool = False, split: bool = False) -> None:
     """Before any work: refuse an output that cannot be written (:func:`tether.paths.check_writable`:
     found at the end of the work otherwise), or that is one of the inputs (opening it for writing
-    would empty the input first). ``log``: the output is an MCAP log, and an existing file that is
-    not one (a launch file, an image: a mistyped -o) is not written over; an older log is."""
+    would empty the input first). ``log``: the output is an MCAP log; an existing file that is not
+    one (a launch file, an image: a mistyped -o) is never written over, an existing log only with
+    ``overwrite`` (--overwrite; as ``ros2 bag record`` refuses an existing output). ``split``: the
+    recording may go on into ``OUT_1.mcap``, ``OUT_2.mcap``, ...: an existing one is refused too."""
     if not output:
         return
     check_writable(output, flag)
+    at = f"{flag} {output}" if flag else output
+    if log and split and not overwrite:
+        path = Path(output)
+        old = sorted(path.parent.glob(f"{glob_escape(path.stem)}_[0-9]*{glob_escape(path.suffix)}"))
+        if old:
+            raise ConfigError(f"{at}: the recording would go on into {old[0].name}, which exists (an older "
+                              "recording's part); --overwrite to replace it, or give another name")
     if not Path(output).is_file():
         return
-    at = f"{flag} {output}" if flag else output
     for src in inputs:
         if Path(src).exists() and Path(output).samefile(src):
             raise ConfigError(f"{at} is the input {src}: writing it would destroy the input; give another output file")
@@ -87,6 +97,18 @@ def _check_output(output: str | None, *inputs: str, flag: str = "-o", log: bool 
             if not MAGIC.startswith(fh.read(len(MAGIC))):       # a shorter head: a log cut early
                 raise ConfigError(f"{at}: an existing file that is not an MCAP log; writing the log would destroy "
                                   "it (remove it first, or give another name)")
+        if not overwrite:
+            raise ConfigError(f"{at}: a log exists there ({Path(output).stat().st_size / 1e6:.1f} MB); "
+                              f"--overwrite to replace it, or give a new name (e.g. {_fresh_name(output)})")
+
+
+def _fresh_name(output: str) -> str:
+    """``run.mcap`` -> ``run-2.mcap`` (or the first of -3, -4, ... that does not exist)."""
+    path = Path(output)
+    k = 2
+    while path.with_name(f"{path.stem}-{k}{path.suffix}").exists():
+        k += 1
+    return str(path.with_name(f"{path.stem}-{k}{path.suffix}"))
 
 
 # -- launch / check / graph / run -------------------------------------------------------
@@ -101,7 +123,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
         if given:
             raise ConfigError(f"{', '.join(given)} without --record FILE: nothing would be recorded")
     launch = load_launch(args.file, parse_overrides(args.param), args=parse_launch_args(args.arg))
-    _check_output(args.record, args.file, flag="--record", log=True)   # not over the launch file
+    _check_output(args.record, args.file, flag="--record", log=True, overwrite=args.overwrite,   # not over the launch file
+                  split=bool(args.record_max_size or args.record_max_duration))
     if args.keys and not launch.machines:     # ignored: a graph on one machine talks over ipc, without keys
         raise ConfigError(f"{args.file}: --keys {args.keys}: the file declares no machines (keys secure the "
                           "links between machines)")
@@ -231,7 +254,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     import fnmatch
 
-    _check_output(args.output, log=True)
+    _check_output(args.output, log=True, overwrite=args.overwrite, split=bool(args.max_size or args.max_duration))
     available = registry.topics()
     wanted = args.topics or [t for t in available if not t.endswith("/_stats")]
     missing = [t for t in wanted if t not in available]
@@ -277,7 +300,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             raise ConfigError("--into needs --record OUT (where the node's outputs go)")
         if args.loop:
             raise ConfigError("--loop does not apply to --into (a node is run once over the log)")
-        _check_output(args.record, args.file, flag="--record", log=True)
+        _check_output(args.record, args.file, flag="--record", log=True, overwrite=args.overwrite)
         progress = _Progress()
         reader = LogReader(args.file)
         n = replay_into(reader, load_node_class(args.into), _pairs(args.map, "--map"), args.record,
@@ -430,7 +453,7 @@ def cmd_log(args: argparse.Namespace) -> int:
     if args.recover:
         if not args.output:
             raise ConfigError("tether log --recover IN needs -o OUT")
-        _check_output(args.output, args.file, log=True)
+        _check_output(args.output, args.file, log=True, overwrite=args.overwrite)
         written, damaged, lost = recover_log(args.file, args.output)
         print(f"recovered {written} messages from {args.file} into {args.output}; {len(damaged)} damaged chunk(s)"
               + (f", {lost} messages lost" if lost >= 0 else " (the source had no statistics: losses unknown)"))
@@ -500,7 +523,7 @@ def _log_cut_merge(args: argparse.Namespace) -> int:
         if twin is not None:
             raise ConfigError(f"{path} is given twice" + (f" (as {twin})" if twin != path else "")
                               + ": each message would be written twice")
-    _check_output(args.output, *args.more, log=True)
+    _check_output(args.output, *args.more, log=True, overwrite=args.overwrite)
     readers = [LogReader(path) for path in args.more]
     types: dict[str, str] = {}
     for reader in readers:
@@ -670,7 +693,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     run = importer(args.kind)
     _regular_input(args.file, "a log file")
-    _check_output(args.output, args.file, log=True)
+    _check_output(args.output, args.file, log=True, overwrite=args.overwrite)
     try:
         result = run(args.file, args.output, topic=args.topic, max_bytes=args.max_bytes, skip_bad=args.skip_bad)
     except OSError as exc:                  # unreadable input, unwritable output: one line, not a traceback
@@ -687,7 +710,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from tether.export import export_foxglove
     from tether.log import LogReader
 
-    _check_output(args.output, args.file, log=True)
+    _check_output(args.output, args.file, log=True, overwrite=args.overwrite)
     progress = _Progress()
     reader = LogReader(args.file)
     n = export_foxglove(reader, args.output, lambda k, total: progress(f"export {k}/{total} messages"))
@@ -894,7 +917,7 @@ def cmd_learn(args: argparse.Namespace) -> int:
         return 0
     if args.learn_cmd == "eval":
         _regular_input(args.checkpoint, "a checkpoint")
-        _check_output(args.record, args.checkpoint, flag="--record", log=True)
+        _check_output(args.record, args.checkpoint, flag="--record", log=True, overwrite=args.overwrite)
         agent = PPO.load(args.checkpoint)
         report = evaluate(agent, args.env, episodes=args.episodes, seed=args.seed, params=_learn_params(args.param),
                           record=args.record)
@@ -1035,6 +1058,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record-max-size", type=_size, metavar="SIZE",
                    help="with --record: start a new file (RUN_1.mcap, ...) past SIZE, e.g. 500M")
     p.add_argument("--record-max-duration", type=_seconds, metavar="S", help="with --record: a new file every S seconds")
+    p.add_argument("--overwrite", action="store_true", help="replace --record FILE (and its FILE_1.mcap, ... parts) when it is an existing log (refused without it)")
     p.add_argument("--machine", type=_name, help="start only this machine's nodes")
     p.add_argument("--keys", type=_path, help="CurveZMQ keystore folder of the graph (default ~/.config/tether/keys/NAME/; "
                                "see 'tether keys')")
@@ -1080,6 +1104,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="not topics matching these globs (repeatable)")
     p.add_argument("--max-size", type=_size, metavar="SIZE", help="start a new file (OUT_1.mcap, ...) past SIZE, e.g. 500M")
     p.add_argument("--max-duration", type=_seconds, metavar="S", help="start a new file every S seconds")
+    p.add_argument("--overwrite", action="store_true", help="replace -o OUT (and its OUT_1.mcap, ... parts) when it is an existing log (refused without it)")
     p.set_defaults(func=cmd_record)
 
     p = sub.add_parser("replay", help="publish a log, or run a node on it (--into)")
@@ -1101,6 +1126,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip damaged chunks of the log and exit 0 (without it, the rest is replayed and the exit is 1)")
     p.add_argument("--record", metavar="OUT", type=_path, help="with --into: where the node's outputs go")
     p.add_argument("--lockstep", action="store_true", help="with --into: deterministic, as fast as the node goes")
+    p.add_argument("--overwrite", action="store_true", help="replace --record OUT when it is an existing log (refused without it)")
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("topic", help="list / echo / hz / bw")
@@ -1137,6 +1163,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with cut or merge: skip damaged chunks of an input and exit 0 (without it, what is "
                         "readable is written and the exit is 1)")
     p.add_argument("--allow-empty", action="store_true", help="with cut or merge: exit 0 even when no message is written")
+    p.add_argument("--overwrite", action="store_true", help="replace -o OUT when it is an existing log (refused without it)")
     p.set_defaults(func=cmd_log)
 
     p = sub.add_parser("import", help="convert a foreign log (oculus, candump, ...) to a tether log")
@@ -1150,6 +1177,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skip-bad", action="store_true",
                    help="skip bad records (counted; the first 20 logged) and import the rest; "
                         "without it the first bad record stops the import with one line naming it")
+    p.add_argument("--overwrite", action="store_true", help="replace -o OUT when it is an existing log (refused without it)")
     p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("export", help="export a log for other tools")
@@ -1159,6 +1187,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-empty", action="store_true", help="exit 0 even when nothing was exported")
     p.add_argument("--skip-bad", action="store_true",
                    help="skip damaged chunks of the log and exit 0 (without it, the rest is exported and the exit is 1)")
+    p.add_argument("--overwrite", action="store_true", help="replace -o OUT when it is an existing log (refused without it)")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("foxglove", help="serve the running graphs live to Foxglove (WebSocket)")
@@ -1224,6 +1253,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--episodes", type=_positive_int, default=100, help="episodes, run side by side")
     q.add_argument("--seed", type=_seed, default=10_000, help="first seed (episode i: seed + i)")
     q.add_argument("--record", metavar="FILE", type=_path, help="record the episodes to an MCAP log (tether learn replay FILE)")
+    q.add_argument("--overwrite", action="store_true", help="replace --record FILE when it is an existing log (refused without it)")
     q = learn.add_parser("export", help="strip optimiser state and history: a policy to deploy")
     q.add_argument("checkpoint", type=_path, help="a checkpoint of tether learn train")
     q.add_argument("out", type=_path, help="where the policy goes")

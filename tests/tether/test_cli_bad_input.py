@@ -318,7 +318,7 @@ def test_exporting_nothing_is_not_success(tmp_path, capsys):
     cut.write_bytes(_log(tmp_path / "a.mcap").read_bytes()[:8])
     assert main(["export", "foxglove", str(cut), "-o", str(tmp_path / "e.mcap")]) == 1
     assert "nothing exported from" in capsys.readouterr().err
-    assert main(["export", "foxglove", str(cut), "-o", str(tmp_path / "e.mcap"), "--allow-empty"]) == 0
+    assert main(["export", "foxglove", str(cut), "-o", str(tmp_path / "e.mcap"), "--allow-empty", "--overwrite"]) == 0
 
 
 # -- second pass (helper-64) -------------------------------------------------------------------
@@ -448,11 +448,11 @@ def test_merging_or_cutting_a_damaged_log_is_not_success_without_skip_bad(tmp_pa
                     "m.mcap was written without their messages (--skip-bad to accept)")
     written = sum(1 for _ in LogReader(out).messages())
     assert 0 < written < 600                            # what was readable is kept
-    assert main(["log", "merge", str(flipped), str(cut), "-o", out, "--skip-bad"]) == 0
-    assert main(["log", "cut", str(flipped), "-o", out]) == 1
+    assert main(["log", "merge", str(flipped), str(cut), "-o", out, "--skip-bad", "--overwrite"]) == 0
+    assert main(["log", "cut", str(flipped), "-o", out, "--overwrite"]) == 1
     _one_error_line(capsys, "flipped.mcap: 3 damaged chunk(s)")
-    assert main(["log", "cut", str(flipped), "-o", out, "--end", "100", "--skip-bad"]) == 0
-    assert main(["log", "merge", str(tmp_path / "good.mcap"), "-o", out]) == 0
+    assert main(["log", "cut", str(flipped), "-o", out, "--end", "100", "--skip-bad", "--overwrite"]) == 0
+    assert main(["log", "merge", str(tmp_path / "good.mcap"), "-o", out, "--overwrite"]) == 0
 
 
 def test_a_fifo_given_as_a_launch_file_is_refused_not_waited_on(tmp_path, capsys):
@@ -561,7 +561,7 @@ def test_exporting_a_damaged_log_is_not_success_without_skip_bad(tmp_path, capsy
     out = str(tmp_path / "e.mcap")
     assert main(["export", "foxglove", str(flipped), "-o", out]) == 1
     _one_error_line(capsys, "flipped.mcap: 3 damaged chunk(s)", "(--skip-bad to accept)")
-    assert main(["export", "foxglove", str(cut), "-o", out, "--skip-bad"]) == 0
+    assert main(["export", "foxglove", str(cut), "-o", out, "--skip-bad", "--overwrite"]) == 0
 
 
 def test_replaying_a_damaged_log_is_not_success_without_skip_bad(tmp_path, capsys, runtime_env):
@@ -626,7 +626,8 @@ def test_the_allow_empty_that_log_cut_points_to_exists(tmp_path, capsys):
     log = _log(tmp_path / "a.mcap")
     assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--start", "100"]) == 1
     assert "--allow-empty to accept" in capsys.readouterr().err
-    assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--start", "100", "--allow-empty"]) == 0
+    assert main(["log", "cut", str(log), "-o", str(tmp_path / "c.mcap"), "--start", "100", "--allow-empty",
+                 "--overwrite"]) == 0
 
 
 @pytest.mark.parametrize("argv", [
@@ -723,7 +724,7 @@ def test_keys_list_of_a_graph_without_keystore_says_how_to_make_one(tmp_path, ca
 
 def test_a_log_output_never_writes_over_a_file_that_is_not_a_log(tmp_path, capsys):
     """``-o`` naming an existing launch file or image by mistake (a shell completion one letter off)
-    emptied it: a log is written over an older log only."""
+    emptied it: a log is written over an older log only (and that only with --overwrite, helper-67)."""
     log = _log(tmp_path / "a.mcap")
     notes = tmp_path / "notes.yaml"
     notes.write_text("name: x\n")
@@ -733,8 +734,11 @@ def test_a_log_output_never_writes_over_a_file_that_is_not_a_log(tmp_path, capsy
         _one_error_line(capsys, "notes.yaml: an existing file that is not an MCAP log")
     assert notes.read_text() == "name: x\n"
     older = _log(tmp_path / "older.mcap", n=3)
-    assert main(["log", "cut", str(log), "-o", str(older)]) == 0          # an older log: overwritten as before
+    assert main(["log", "cut", str(log), "-o", str(older), "--overwrite"]) == 0   # an older log, when asked
     assert sum(1 for _ in LogReader(older).messages()) == 20
+    for argv in (["log", "cut", str(log), "-o", str(notes), "--overwrite"],):     # --overwrite is for logs only
+        assert main(argv) == 2, argv
+        _one_error_line(capsys, "notes.yaml: an existing file that is not an MCAP log")
 
 
 def test_empty_or_repeated_names_and_the_base_node_class_are_refused(tmp_path, capsys, runtime_env):
@@ -749,3 +753,47 @@ def test_empty_or_repeated_names_and_the_base_node_class_are_refused(tmp_path, c
     assert not (tmp_path / "k").exists()
     assert main(["run", "tether.node:Node", "--duration", "1"]) == 2
     _one_error_line(capsys, "tether.node:Node is the base class of nodes")
+
+
+def _verbs_writing(log: Path, out: str, tmp_path: Path) -> list[list[str]]:
+    can = tmp_path / "c.log"
+    can.write_text("(1.000000) can0 123#00\n")
+    into = ["--into", "nodes.std.demo:Scale", "--map", "value=a/value", "--lockstep"]
+    return [["log", "cut", str(log), "-o", out], ["log", "merge", str(log), "-o", out],
+            ["log", str(log), "--recover", "-o", out], ["export", "foxglove", str(log), "-o", out],
+            ["import", "candump", str(can), "-o", out], ["replay", str(log), *into, "--record", out],
+            ["record", "a/value", "-o", out, "--duration", "1"],
+            ["launch", str(REPO / "launch/counter.yaml"), "--duration", "1", "--record", out]]
+
+
+def test_an_existing_log_is_not_overwritten_without_overwrite(tmp_path, capsys, runtime_env):
+    """Every verb writing a log (-o, --record) wrote over an existing log without a word (a second
+    'launch --record run.mcap' lost the first run); ros2 bag record refuses an existing output. Now
+    one line proposing a new name, unless --overwrite; the older log is untouched."""
+    log = _log(tmp_path / "a.mcap")
+    older = _log(tmp_path / "run.mcap", n=3)
+    before = older.read_bytes()
+    (tmp_path / "run-2.mcap").write_bytes(b"")
+    for argv in _verbs_writing(log, str(older), tmp_path):
+        assert main(argv) == 2, argv
+        _one_error_line(capsys, "run.mcap: a log exists there", "--overwrite to replace it", "run-3.mcap")
+        assert older.read_bytes() == before, argv
+    for argv in _verbs_writing(log, str(older), tmp_path)[:6]:
+        assert main([*argv, "--overwrite"]) == 0, argv
+        assert older.read_bytes() != before, argv
+        older.write_bytes(before)
+    empty = tmp_path / "empty.mcap"                 # nothing to lose: mktemp's file is taken
+    empty.write_bytes(b"")
+    assert main(["log", "cut", str(log), "-o", str(empty)]) == 0
+
+
+def test_a_split_recording_does_not_run_into_an_older_part(tmp_path, capsys, runtime_env):
+    """With --max-size / --record-max-size the recording goes on into OUT_1.mcap, OUT_2.mcap, ...:
+    an older recording's parts were written over silently."""
+    _log(tmp_path / "run_1.mcap", n=3)
+    for argv in (["record", "a/value", "-o", str(tmp_path / "run.mcap"), "--max-size", "1M", "--duration", "1"],
+                 ["launch", str(REPO / "launch/counter.yaml"), "--duration", "1", "--record",
+                  str(tmp_path / "run.mcap"), "--record-max-duration", "10"]):
+        assert main(argv) == 2, argv
+        _one_error_line(capsys, "run.mcap: the recording would go on into run_1.mcap, which exists")
+    assert not (tmp_path / "run.mcap").exists()

@@ -185,7 +185,7 @@ def test_launch_records_only_the_selected_topics(tmp_path: Path, runtime_env: di
     assert res.returncode == 0, res.stderr
     assert set(LogReader(log).info().topics) == {"counter/value"}
     assert "[record]" in res.stdout and "recorded" in res.stdout        # the recorder is its own process
-    bad = tether("launch", "launch/counter.yaml", "--duration", "1", "--record", str(log),
+    bad = tether("launch", "launch/counter.yaml", "--duration", "1", "--record", str(log), "--overwrite",
                  "--record-topics", "nothing/*", env=runtime_env)
     assert bad.returncode == 2 and "no topic matches" in bad.stderr
 
