@@ -766,11 +766,24 @@ def cmd_verify(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+#: the widest robust kernel slam optimize takes, in Mahalanobis units (gnc: its gate, a squared
+#: error): 1e308 overflowed width**2 (Cauchy stopped at the start with a NaN cost, exit 0)
+MAX_KERNEL_WIDTH = {"huber": 1e6, "cauchy": 1e6, "gnc": 1e12}
+
+
 def cmd_slam_optimize(args: argparse.Namespace) -> int:
     from nodes.slam.graph_io import read_graph, write_graph
     from nodes.slam.pose_graph import GraphError, check_graph, chi2, optimize
 
     _check_output(args.output, args.file)
+    if args.kernel_width is not None:
+        if not args.robust:                   # it was ignored: plain least squares
+            raise ConfigError("--kernel-width applies to a --robust kernel (huber, cauchy or gnc)")
+        most = MAX_KERNEL_WIDTH[args.robust]
+        if args.kernel_width > most:          # width**2 overflowed: a numpy warning and a NaN cost, exit 0
+            raise ConfigError(f"--kernel-width {args.kernel_width:g}: a {args.robust} "
+                              + ("chi2 gate" if args.robust == "gnc" else "width") + f" is at most {most:g} "
+                              "(a kernel wider than every error is plain least squares: leave out --robust)")
     try:
         graph = read_graph(args.file)
         found = check_graph(graph)
@@ -1271,7 +1284,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: given when every vertex has a pose, else odometry)")
     q.add_argument("--method", choices=("lm", "gn"), default="lm", help="Levenberg-Marquardt or Gauss-Newton")
     q.add_argument("--robust", choices=("huber", "cauchy", "gnc"), help="robust kernel, or gnc to reject false loop closures")
-    q.add_argument("--kernel-width", type=_positive, help="kernel width (Mahalanobis units; for gnc the chi2 gate)")
+    q.add_argument("--kernel-width", type=_positive, help="with --robust: kernel width (Mahalanobis units, at most 1e6; for gnc the chi2 gate, at most 1e12)")
     q.add_argument("--anchor", type=int, help="vertex id held fixed (default: FIX lines, else the first vertex)")
     q.add_argument("--max-iterations", type=_positive_int, default=100, help="stop after N iterations")
     q.add_argument("--rel-tol", type=_at_least_zero, default=1e-10, help="stop when a step lowers chi2 by less than this fraction")

@@ -797,3 +797,21 @@ def test_a_split_recording_does_not_run_into_an_older_part(tmp_path, capsys, run
         assert main(argv) == 2, argv
         _one_error_line(capsys, "run.mcap: the recording would go on into run_1.mcap, which exists")
     assert not (tmp_path / "run.mcap").exists()
+
+
+@pytest.mark.parametrize("robust, width", [("huber", "1e308"), ("cauchy", "1e308"), ("cauchy", "1e160"),
+                                           ("huber", "2e6"), ("gnc", "1e308"), (None, "3")])
+def test_a_kernel_width_past_float_range_or_without_a_kernel_is_one_line(tmp_path, capsys, robust, width):
+    """``slam optimize --robust cauchy --kernel-width 1e308`` squared the width to inf: a numpy
+    RuntimeWarning, a NaN cost, 'no step lowers the cost' and exit 0; without --robust the width
+    was ignored. The optimiser is never called."""
+    import nodes.slam.pose_graph as pose_graph
+
+    graph = tmp_path / "g.g2o"
+    graph.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pose_graph, "optimize", lambda *a, **k: pytest.fail("optimised"))
+        argv = ["slam", "optimize", str(graph), "--kernel-width", width] + (["--robust", robust] if robust else [])
+        assert main(argv) == 2
+    _one_error_line(capsys, "--kernel-width")
+    assert main(["slam", "optimize", str(graph), "--robust", robust or "huber", "--kernel-width", "1e6"]) == 0
