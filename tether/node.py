@@ -1,6 +1,7 @@
 """The node base class: declarations plus ``on_<input>`` handlers; the runtime does the rest.
 
-A node declares a ``Config`` (msgspec Struct, validated at launch), ``inputs`` (message
+A node declares a ``Config`` (msgspec Struct, validated at launch: field types, ``Meta``
+bounds such as :data:`NonNegativeInt`, ``__post_init__``), ``inputs`` (message
 type, or :class:`Input` with a queue policy), ``outputs`` and ``timers``. Handlers
 ``on_<input>(msg)`` return outputs as ``{"name": msg}`` (or a list of ``(name, msg)``
 pairs, or ``None``). Source nodes (drivers, simulators) may instead override
@@ -18,7 +19,7 @@ import math
 import re
 import threading
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Iterable, Mapping
+from typing import Annotated, Any, Callable, ClassVar, Iterable, Mapping
 
 import msgspec
 import numpy as np
@@ -28,6 +29,15 @@ from tether.message import Message
 
 
 MAX_TIMER_HZ = 10_000.0        # a timer faster than this is a typo (or an attack), not a design
+
+# Bounds of Config fields (msgspec ``Meta``): checked by :meth:`Node.make_config`, so ``tether run
+# --param``, launch files and ``tether check`` refuse a value outside its meaning in one line
+# ("count=-1: expected `int` >= 0"). Others: ``Annotated[float, msgspec.Meta(ge=0, le=1)]``.
+# Like every msgspec constraint they are not checked when a Config is built in Python.
+NonNegativeInt = Annotated[int, msgspec.Meta(ge=0)]
+PositiveInt = Annotated[int, msgspec.Meta(gt=0)]
+NonNegativeFloat = Annotated[float, msgspec.Meta(ge=0)]
+PositiveFloat = Annotated[float, msgspec.Meta(gt=0)]
 
 
 class Tick(Message, tag="std.Tick"):
@@ -149,8 +159,12 @@ class Node:
         try:
             config = msgspec.convert(params, cls.Config, strict=False)
         except msgspec.ValidationError as exc:
-            found = re.search(r"at `\$\.([A-Za-z0-9_]+)", str(exc))
-            raise ConfigError(f"{name}: {exc}", key=found.group(1) if found else "") from None
+            found = re.fullmatch(r"(.*) - at `\$\.([A-Za-z0-9_]+)(.*)`", str(exc), re.S)
+            if found is None or found.group(2) not in params:
+                raise ConfigError(f"{name}: {exc}", key=found.group(2) if found else "") from None
+            why, key, inner = found.groups()       # "count=-1: expected `int` >= 0" (msgspec: "Expected ... - at `$.count`")
+            where = f" (at {key}{inner})" if inner else ""
+            raise ConfigError(f"{name}: {key}={params[key]!r}: {why[:1].lower()}{why[1:]}{where}"[:300], key=key) from None
         for key in params:       # again once converted: the text 'nan' or 'inf' (--param x=nan) becomes a float
             where = _non_finite(msgspec.to_builtins(getattr(config, key)))
             if where is not None:

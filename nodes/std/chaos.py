@@ -17,7 +17,7 @@ import numpy as np
 
 from msgs.sensor import Image
 from msgs.std import Float64
-from tether import Input, Node, Tick
+from tether import Input, Node, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt, Tick
 from tether.message import Message, message_type
 from tether.node import Ports
 
@@ -36,7 +36,7 @@ class QuietSink(Node):
 
 class TypedSinkConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     types: list[str] = []          # message tags; one input per tag, named by input_name(tag)
-    depth: int = 1000
+    depth: PositiveInt = 1000
 
 
 def input_name(tag: str) -> str:
@@ -66,7 +66,7 @@ class TypedSink(Node):
 
 
 class SlowSinkConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    delay_ms: float = 100.0
+    delay_ms: NonNegativeFloat = 100.0
 
 
 class SlowSink(Node):
@@ -81,10 +81,10 @@ class SlowSink(Node):
 
 
 class RawFuzzerConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    rate_hz: float = 200.0
-    seed: int = 0
+    rate_hz: PositiveFloat = 200.0
+    seed: NonNegativeInt = 0
     result_path: str = ""          # JSON {case: count}, rewritten every second and at the end
-    oversize_bytes: int = 0        # > 0: also send frames of this many bytes (past a receiver's limit)
+    oversize_bytes: NonNegativeInt = 0   # > 0: also send frames of this many bytes (past a receiver's limit)
 
 
 def _head(tag: str, *, seq: int = 1, stamp_ns: int = 1, **fields: Any) -> dict[str, Any]:
@@ -203,7 +203,7 @@ class RawFuzzer(Node):
 
 
 class CrasherConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    after_s: float = 0.1
+    after_s: NonNegativeFloat = 0.1
     hang: bool = False          # instead of exiting, block the handler forever: a node that cannot stop when asked
 
 

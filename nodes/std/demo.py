@@ -4,13 +4,13 @@ from __future__ import annotations
 import msgspec
 
 from msgs.std import Float64
-from tether import Node, Tick
+from tether import Node, NonNegativeInt, Tick
 
 
 class CounterConfig(msgspec.Struct, frozen=True, kw_only=True):
-    rate_hz: float = 10.0
+    rate_hz: float = 10.0       # bounded by its timer: (0, MAX_TIMER_HZ]
     start: float = 0.0
-    count: int = 0              # > 0: stop after this many (a stream whose total is known); 0: forever
+    count: NonNegativeInt = 0   # > 0: stop after this many (a stream whose total is known); 0: forever
 
 
 class Counter(Node):

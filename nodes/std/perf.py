@@ -14,13 +14,13 @@ import numpy as np
 
 from msgs.sensor import Image
 from msgs.std import Bytes
-from tether import Input, Node
+from tether import Input, Node, NonNegativeFloat, NonNegativeInt, PositiveInt
 
 
 class PingConfig(msgspec.Struct, frozen=True, kw_only=True):
-    count: int = 2000
-    warmup: int = 200
-    payload_bytes: int = 64
+    count: PositiveInt = 2000
+    warmup: NonNegativeInt = 200
+    payload_bytes: NonNegativeInt = 64
     result_path: str = ""
 
 
@@ -71,11 +71,11 @@ class Echo(Node):
 
 
 class BlobConfig(msgspec.Struct, frozen=True, kw_only=True):
-    count: int = 2000
-    rows: int = 512
-    cols: int = 2048
+    count: PositiveInt = 2000
+    rows: PositiveInt = 512
+    cols: PositiveInt = 2048
     result_path: str = ""
-    rate_hz: float = 0.0      # 0: as fast as the socket takes them
+    rate_hz: NonNegativeFloat = 0.0     # 0: as fast as the socket takes them
     loan: bool = False        # write each image into a loaned (shared-memory) array: no copy at publish
 
 

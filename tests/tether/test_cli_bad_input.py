@@ -815,3 +815,51 @@ def test_a_kernel_width_past_float_range_or_without_a_kernel_is_one_line(tmp_pat
         assert main(argv) == 2
     _one_error_line(capsys, "--kernel-width")
     assert main(["slam", "optimize", str(graph), "--robust", robust or "huber", "--kernel-width", "1e6"]) == 0
+
+
+# -- Config values outside their meaning -------------------------------------------------------
+def test_a_config_value_outside_its_bounds_is_one_line_for_run_launch_and_check(tmp_path, capsys, runtime_env):
+    """``tether run Counter --param count=-1`` ran (a count below 0 meant 'for ever'), and so did a launch
+    file's ``count: -3`` (check said ok); RawFuzzer rate_hz=0 divided by zero in its loop. Config fields carry msgspec ``Meta`` bounds (tether.NonNegativeInt,
+    ...), checked by Node.make_config, reported in one line naming the field and the value."""
+    assert main(["run", "nodes.std.demo:Counter", "--param", "count=-1", "--duration", "1"]) == 2
+    _one_error_line(capsys, "nodes.std.demo:Counter params: count=-1: expected `int` >= 0")
+    assert main(["run", "nodes.std.chaos:RawFuzzer", "--param", "rate_hz=0", "--duration", "1"]) == 2
+    _one_error_line(capsys, "rate_hz=0: expected `float` > 0")
+    graph = tmp_path / "g.yaml"
+    graph.write_text("name: g\nnodes:\n  - id: counter\n    node: nodes.std.demo:Counter\n"
+                     "    params: {rate_hz: 5, count: -3}\n")
+    for verb in (["check"], ["launch", "--duration", "1"]):
+        assert main([*verb, str(graph)]) == 2
+        _one_error_line(capsys, "g.yaml:5", "count=-3: expected `int` >= 0")
+    assert main(["check", str(REPO / "launch/counter.yaml"), "--param", "counter.count=-1"]) == 2
+    _one_error_line(capsys, "--param", "count=-1: expected `int` >= 0")
+    assert main(["check", str(REPO / "launch/counter.yaml"), "--param", "counter.count=3"]) == 0
+
+
+def test_every_bounded_config_default_is_inside_its_bounds():
+    """The bounds are not checked on defaults (msgspec checks decoded values only): a default outside
+    its own bound would make the node refuse a launch file that merely restates it."""
+    import importlib
+    import inspect
+
+    import msgspec
+
+    from tether.node import Node
+
+    bounded = [p for p in sorted((REPO / "nodes").rglob("*.py"))
+               if any(name in p.read_text() for name in ("NonNegativeInt", "PositiveInt", "NonNegativeFloat",
+                                                           "PositiveFloat", "msgspec.Meta("))]
+    assert any(p.name == "demo.py" for p in bounded)
+    checked = 0
+    for path in bounded:
+        module = importlib.import_module(".".join(path.relative_to(REPO).with_suffix("").parts))
+        for cls in vars(module).values():
+            if inspect.isclass(cls) and issubclass(cls, Node) and cls.__module__ == module.__name__:
+                try:
+                    defaults = msgspec.to_builtins(cls.Config())
+                except TypeError:                # a required field: no defaults to check
+                    continue
+                assert cls.make_config(defaults) == cls.Config(), cls
+                checked += 1
+    assert checked >= 8
