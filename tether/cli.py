@@ -1148,7 +1148,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-n", "--count", type=_positive_int, help="echo: stop after N messages")
     p.add_argument("--raw", action="store_true", help="echo: plain msgpack")
     p.add_argument("--all", action="store_true", help="list: include _stats topics")
-    p.add_argument("--window", type=_seconds, default=5.0, help="hz/bw: seconds averaged")
+    p.add_argument("--window", type=_seconds, default=5.0,
+                   help="hz/bw: the last S seconds averaged (default 5; longer than the topic's period: a rate needs 2 messages)")
     p.add_argument("-w", "--window-msgs", type=_rate_window, default=0, metavar="N",
                    help="hz/bw: average over the last N messages instead (like ros2 topic hz -w)")
     p.add_argument("--duration", type=_seconds, help="stop after S seconds")

@@ -142,6 +142,7 @@ def _rate(args: argparse.Namespace) -> int:
     info, sock = subscribe(args.topic)
     silence = _Silence(args.topic, info)
     samples: list[tuple[float, int, int, int]] = []   # (receive time, stamp, seq, bytes)
+    received = 0
     t_end = time.monotonic() + args.duration if args.duration else None
     next_report = time.monotonic() + 1.0
     while t_end is None or time.monotonic() < t_end:
@@ -150,6 +151,7 @@ def _rate(args: argparse.Namespace) -> int:
             if frames[0].bytes == args.topic.encode():
                 h = head_decoder.decode(frames[1].buffer)
                 samples.append((time.monotonic(), h.stamp_ns, h.seq, sum(len(f.buffer) for f in frames)))
+                received += 1
                 silence.heard = True
         elif not silence.quiet():
             return 1
@@ -159,19 +161,25 @@ def _rate(args: argparse.Namespace) -> int:
             samples = [s for s in samples if now - s[0] <= args.window][-args.window_msgs:] if args.window_msgs \
                 else [s for s in samples if now - s[0] <= args.window]
             if silence.heard:
-                print(rate_line(args.action, samples), flush=True)
+                print(rate_line(args.action, samples, window_s=args.window, received=received), flush=True)
     return 0
 
 
-def rate_line(action: str, samples: list[tuple[float, int, int, int]]) -> str:
-    """One report line from (arrival s, stamp ns, seq, bytes) samples.
+def rate_line(action: str, samples: list[tuple[float, int, int, int]], *, window_s: float | None = None,
+              received: int = 0) -> str:
+    """One report line from (arrival s, stamp ns, seq, bytes) samples (those of the last ``window_s``
+    seconds; ``received``: how many came since the start).
 
     ``hz`` gives both rates, labelled: arrival (what ``ros2 topic hz`` shows: when messages
     reached this terminal, with the period's min / max / std) and stamps (what the publisher
     produced, from its stamps and seq, so a slow terminal never under-reports it).
     """
     if len(samples) < 2:
-        return "no messages yet"
+        if not received:
+            return "no messages yet"
+        # --window 0.001 on a 50 Hz topic said 'no messages yet' every second while messages came
+        return (f"{len(samples)} message(s) in the last {window_s:g} s of {received} received: a rate needs 2; "
+                "give a --window longer than the topic's period")
     (a0, s0, q0, _), (a1, s1, q1, _) = samples[0], samples[-1]
     published = q1 - q0
     span_s = (s1 - s0) / 1e9
@@ -186,7 +194,14 @@ def rate_line(action: str, samples: list[tuple[float, int, int, int]]) -> str:
         lost = f"; {published - seen} published but not seen here" if published > seen else ""
         return (f"rate (arrival) {arrival:9.2f} Hz  min {min(periods) * 1e3:.1f} ms max {max(periods) * 1e3:.1f} ms "
                 f"std {std * 1e3:.1f} ms  |  rate (stamps) {rate:9.2f} Hz  window {len(samples)} msgs{lost}")
-    return f"bw {rate * size / 1e6:9.2f} MB/s  mean {size / 1e3:.1f} kB x {rate:.2f} Hz"
+    # a 100-byte topic at 50 Hz read 'bw 0.00 MB/s  mean 0.1 kB': the unit follows the size
+    return f"bw {_bytes(rate * size, '/s', 9)}  mean {_bytes(size)} x {rate:.2f} Hz"
+
+
+def _bytes(n: float, per: str = "", width: int = 0) -> str:
+    """``5100.0`` -> ``'5.10 kB'``: B, kB or MB (decimal), two decimals."""
+    scale, unit = next(((s, u) for s, u in ((1e6, "MB"), (1e3, "kB")) if abs(n) >= s), (1.0, "B"))
+    return f"{n / scale:{width}.2f} {unit}{per}"
 
 
 def cmd_node(args: argparse.Namespace) -> int:

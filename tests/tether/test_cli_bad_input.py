@@ -863,3 +863,61 @@ def test_every_bounded_config_default_is_inside_its_bounds():
                 assert cls.make_config(defaults) == cls.Config(), cls
                 checked += 1
     assert checked >= 8
+
+
+class _Frame:
+    def __init__(self, data: bytes) -> None:
+        self.bytes, self.buffer = data, memoryview(data)
+
+
+class _FiftyHz:
+    """A SUB socket stand-in: a Float64 on a/value every 20 ms (poll waits for it)."""
+
+    def __init__(self) -> None:
+        import time
+
+        from tether.codec import Codec
+
+        self.codec, self.clock, self.seq = Codec(), time, 0
+        self.next = time.monotonic()
+
+    def poll(self, timeout_ms: int) -> bool:
+        wait = self.next - self.clock.monotonic()
+        if wait > timeout_ms / 1000:
+            self.clock.sleep(timeout_ms / 1000)
+            return False
+        self.clock.sleep(max(wait, 0.0))
+        return True
+
+    def recv_multipart(self, copy: bool = False) -> list[_Frame]:
+        self.seq += 1
+        self.next += 0.02
+        msg = Float64(data=1.0, seq=self.seq, stamp_ns=self.seq * 20_000_000)
+        return [_Frame(b"a/value"), *[_Frame(bytes(f)) for f in self.codec.encode(msg)]]
+
+
+@pytest.mark.parametrize("action", ["hz", "bw"])
+def test_a_rate_window_shorter_than_the_topic_period_says_so(action, monkeypatch, capsys):
+    """``topic bw a/value --window 0.001`` on a 50 Hz topic printed 'no messages yet' every second while
+    messages came (a 1 ms window never holds the 2 a rate needs); bw of 100-byte messages read
+    'bw 0.00 MB/s  mean 0.1 kB'."""
+    from tether import introspect
+    from tether.registry import TopicInfo
+
+    info = TopicInfo(topic="a/value", type_name="std.Float64", endpoint="ipc:///nonexistent/x", graph="g")
+    monkeypatch.setattr(introspect, "subscribe", lambda topic: (info, _FiftyHz()))
+    args = argparse.Namespace(action=action, topic="a/value", window=0.001, window_msgs=0, duration=1.3)
+    assert introspect._rate(args) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 and "no messages yet" not in lines[0]
+    assert all("in the last 0.001 s of " in line and "give a --window longer than the topic's period" in line
+               for line in lines), lines
+    args.window = 0.5
+    assert introspect._rate(args) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    want = "Hz  window 2" if action == "hz" else " kB/s  mean "     # 25 or 26 messages in 0.5 s
+    assert want in last and "rate needs" not in last, last
+    if action == "bw":
+        size = float(last.split("mean ")[1].split(" B x")[0])   # a Float64 is about 50 bytes on the wire
+        rate = float(last.split(" x ")[1].split(" Hz")[0])
+        assert 20 < size < 200 and 45 < rate < 55 and f"{size * rate / 1e3:9.2f} kB/s" in last
