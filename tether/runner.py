@@ -29,7 +29,7 @@ import msgspec
 
 from tether.errors import ConfigError
 from tether.node import Node
-from tether.runtime import NodeRuntime, RunSpec
+from tether.runtime import STOP_REPORT_TEXT, NodeRuntime, RunSpec
 
 LOG_FORMAT = "%(levelname)s %(name)s: %(message)s"
 PR_SET_PDEATHSIG = 1
@@ -125,6 +125,8 @@ def run_spec(spec: RunSpec, *, install_signals: bool = True) -> int:
         signal.signal(signal.SIGINT, on_signal)
         watch_parent(spec.parent_pid, runtime.stop)
     code = runtime.serve()
+    if spec.parent_pid:              # launched: one line the launcher takes, not prints (its stop count)
+        print(STOP_REPORT_TEXT + json.dumps(runtime.stop_report()), flush=True)
     # Terminate ZeroMQ before the interpreter tears objects down: zero-copy frames still queued
     # (within the linger time) must not outlive the buffers they point into.
     runtime.ctx.term()

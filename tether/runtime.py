@@ -42,6 +42,8 @@ READ_AHEAD = 16
 RETIRE_NS = 2_000_000_000                   # longest a replaced SUB socket keeps receiving beside its successor
 FINISH_IDLE_NS = 200_000_000       # a stopping node whose publishers are connected but silent this long is done
 FINISH_MAX_NS = 2_000_000_000      # longest a stopping node handles what still reaches its inputs
+#: a launched node's last output line: its :meth:`NodeRuntime.stop_report` (JSON), taken by the launcher
+STOP_REPORT_TEXT = "tether-stop-report "
 # Plain ints: pyzmq's flag enums cost an enum construction per operation on the hot path.
 _SNDMORE, _NOBLOCK, _RCVMORE, _EVENTS, _POLLIN = (int(zmq.SNDMORE), int(zmq.NOBLOCK), int(zmq.RCVMORE),
                                                    int(zmq.EVENTS), int(zmq.POLLIN))
@@ -897,6 +899,15 @@ class NodeRuntime(Context):
                 return
             elif self._read_ready(ready, 10, order):
                 heard = time.monotonic_ns()
+
+    def stop_report(self) -> dict[str, Any]:
+        """This node's last seq published per topic and last seq received per input, for the launcher
+        to count at the stop what was published but never reached its subscriber
+        (:func:`tether.supervisor.stop_losses`): a node of a cycle stops beside its peers, so what
+        one publishes while the other has just stopped is lost, and no later seq reveals the gap."""
+        return {"published": {self._topics[out].decode(): seq for out, seq in self._seq.items()},
+                "received": {name: [st.topic, st.last_seq] for name, st in self.inputs.items()
+                             if name not in self.timers}}
 
     def _read_ready(self, ready: list[tuple[zmq.Socket, int]], timeout_ms: int, order: itertools.count) -> bool:
         """Queue what the sockets of ``ready`` hold, waiting up to ``timeout_ms`` for some; whether any did."""

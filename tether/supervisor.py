@@ -29,7 +29,7 @@ from tether.launch import TIMER_RE, LaunchFile, plan
 from tether.paths import check_writable
 from tether.record import READY_TEXT
 from tether.errors import ConfigError
-from tether.runtime import RunSpec
+from tether.runtime import STOP_REPORT_TEXT, RunSpec
 from tether.transport import sweep_stale_sockets
 
 log = logging.getLogger("tether.launch")
@@ -101,6 +101,26 @@ def stop_stages(launch: LaunchFile, ids: list[str] | None = None) -> list[list[s
     for v in wanted:
         out.setdefault(stage[group[v]], []).append(v)
     return [out[k] for k in sorted(out)]
+
+
+def stop_losses(reports: dict[str, dict]) -> dict[str, int]:
+    """Messages lost at a stop, per ``'TOPIC -> NODE.INPUT'``: the publisher's last seq minus the last
+    seq the subscriber received, from both nodes' stop reports (:meth:`NodeRuntime.stop_report`).
+
+    A gap between two received messages is counted by the subscriber (``dropped_seq_gap``); the
+    tail after its last one is not, and at a stop nothing later reveals it. Only edges between two
+    nodes that both reported (this machine's, not killed) and that carried a message are counted.
+    """
+    lost: dict[str, int] = {}
+    for node_id, report in reports.items():
+        for name, (topic, last) in report.get("received", {}).items():
+            publisher = reports.get(topic.partition("/")[0])
+            if publisher is None or not last:
+                continue
+            missing = publisher.get("published", {}).get(topic, 0) - last
+            if missing > 0:
+                lost[f"{topic} -> {node_id}.{name}"] = missing
+    return lost
 
 
 def _reachable(start: str, succs: dict[str, set[str]]) -> set[str]:
@@ -222,6 +242,7 @@ class Supervisor:
         self.recorder: subprocess.Popen | None = None
         self._recorder_ready = threading.Event()
         self.recorder_segments: list[str] = []
+        self.stop_reports: dict[str, dict] = {}      # node id -> its last NodeRuntime.stop_report()
         self.recorder_failures = 0
         self._registry_path: Path | None = None
         self._pumps: list[threading.Thread] = []
@@ -281,10 +302,17 @@ class Supervisor:
         self._register()
 
     def _pump(self, node_id: str, stream: IO[str], ready: threading.Event | None = None) -> None:
-        """Copy a child's output lines, prefixed with its id; ``ready`` is set at the recorder's :data:`READY_TEXT`."""
+        """Copy a child's output lines, prefixed with its id; ``ready`` is set at the recorder's :data:`READY_TEXT`.
+        A node's stop report (:data:`STOP_REPORT_TEXT`) is kept for :func:`stop_losses`, not printed."""
         for line in stream:
             if ready is not None and READY_TEXT in line:
                 ready.set()
+            if line.startswith(STOP_REPORT_TEXT):
+                try:
+                    self.stop_reports[node_id] = json.loads(line[len(STOP_REPORT_TEXT):])
+                except ValueError:
+                    pass                 # a cut line (a node killed while writing it): its edges go uncounted
+                continue
             with self._write_lock:
                 self.out.write(f"[{node_id}] {line}" if line.endswith("\n") else f"[{node_id}] {line}\n")
                 self.out.flush()
@@ -381,6 +409,12 @@ class Supervisor:
             drained = time.monotonic() + 2.0          # the nodes' last lines (and stacks) reach the output
             for pump in self._pumps:
                 pump.join(max(0.0, drained - time.monotonic()))
+            lost = stop_losses(self.stop_reports)
+            if lost:
+                log.warning("stop: %d message(s) published were never handled by their subscriber (in flight "
+                            "when both stopped, as on a cycle, or after a stop timeout): %s", sum(lost.values()),
+                            ", ".join(f"{edge} {n}" for edge, n in sorted(lost.items(), key=lambda e: -e[1])[:8])
+                            + (f", ... ({len(lost) - 8} more)" if len(lost) > 8 else ""))
             for child in self.children:
                 if child.proc is not None and child.proc.returncode not in (0, None, -signal.SIGTERM):
                     if not child.done:
