@@ -16,7 +16,7 @@ import numpy as np
 
 from msgs.control import TrajectoryPoint, VehicleState
 from msgs.std import Float64
-from tether import Input, Node
+from tether import Input, Node, NonNegativeFloat
 
 
 def tracking_errors(ref_t: np.ndarray, ref_pose: np.ndarray, t: np.ndarray, pose: np.ndarray
@@ -99,7 +99,7 @@ def plot_tracking(path: str, ref_pose: np.ndarray, pose: np.ndarray, t: np.ndarr
 
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     png: str = "out/tracking.png"       # '' = no plot
-    skip_s: float = 0.0                 # ignore the first seconds (start-up transient) in the summary
+    skip_s: NonNegativeFloat = 0.0      # ignore the first seconds (start-up transient) in the summary
     title: str = "trajectory tracking"
 
 

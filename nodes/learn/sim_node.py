@@ -15,7 +15,7 @@ import numpy as np
 
 from msgs.learn import EnvAction, EnvReset, EnvStep
 from nodes.learn.vec_sim import Batch, VecSim
-from tether import Node
+from tether import Node, NonNegativeInt, PositiveInt
 from tether.errors import ConfigError
 from tether.node import Input
 
@@ -25,8 +25,8 @@ SIM_PACKAGES = ("nodes.", "sim.")
 
 class Config(msgspec.Struct, frozen=True, kw_only=True):
     sim: str = "sim.car_env:ReachCar"
-    n_envs: int = 1
-    max_steps: int = 0            # 0: the scenario's default
+    n_envs: PositiveInt = 1
+    max_steps: NonNegativeInt = 0   # 0: the scenario's default
     params: dict[str, Any] = {}   # the scenario's own keyword arguments
 
 

@@ -21,7 +21,7 @@ from msgs.geometry import Pose3D
 from msgs.sensor import PointCloud
 from msgs.sonar import FanImage, IcpResult, SonarPing
 from nodes.sonar.evaluation import cloud_metrics, nearest, pose_error, save_cloud_png, save_fan_png
-from tether import Input, Node
+from tether import Input, Node, PositiveFloat
 
 
 WRONG_M, WRONG_DEG = 0.5, 5.0     # a trusted correction further off than this is a confident wrong pose
@@ -30,7 +30,7 @@ WRONG_M, WRONG_DEG = 0.5, 5.0     # a trusted correction further off than this i
 class Config(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     out_dir: str = "out/sonar"
     scene: str = "tripod"          # whose structures to draw under the cloud (sim.fls scene name or path)
-    model_spacing_m: float = 0.15
+    model_spacing_m: PositiveFloat = 0.15
     png: bool = True
 
 
