@@ -915,6 +915,9 @@ def cmd_learn(args: argparse.Namespace) -> int:
         _check_output(args.out)                  # with --resume, -o is read and written again: allowed
         if args.resume:
             _regular_input(args.out, "a checkpoint")
+        elif Path(args.out).is_file() and not args.overwrite:     # the first checkpoint replaced an older training
+            raise ConfigError(f"-o {args.out}: a checkpoint exists there; --resume to go on training it, --overwrite "
+                              f"to start over, or give a new name")
         config = _ppo_config(args.ppo)
         rollout = config.n_steps * args.n_envs     # PPO updates on whole rollouts: fewer steps train nothing
         if args.steps < rollout:
@@ -1259,6 +1262,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--seed", type=_seed, default=0, help="seed of the policy and of the first episodes")
     q.add_argument("--checkpoint-every", type=_positive, default=2e5, help="env steps between checkpoints")
     q.add_argument("--resume", action="store_true", help="continue from the checkpoint at -o when it exists")
+    q.add_argument("--overwrite", action="store_true", help="start over, replacing the checkpoint at -o (refused without "
+                                                             "it or --resume)")
     q.add_argument("-o", "--out", required=True, type=_path, help="checkpoint path (msgpack)")
     q = learn.add_parser("eval", help="one deterministic episode per seed; metrics at the episodes' end")
     q.add_argument("checkpoint", type=_path, help="a checkpoint of tether learn train (or export)")

@@ -921,3 +921,28 @@ def test_a_rate_window_shorter_than_the_topic_period_says_so(action, monkeypatch
         size = float(last.split("mean ")[1].split(" B x")[0])   # a Float64 is about 50 bytes on the wire
         rate = float(last.split(" x ")[1].split(" Hz")[0])
         assert 20 < size < 200 and 45 < rate < 55 and f"{size * rate / 1e3:9.2f} kB/s" in last
+
+
+def test_training_into_an_existing_checkpoint_needs_resume_or_overwrite(tmp_path, capsys, monkeypatch):
+    """``learn train -o p.ckpt`` without --resume started from scratch and its first checkpoint
+    replaced the older training (hours of it) without a word."""
+    pytest.importorskip("jax")
+    import nodes.learn.train as train_module
+
+    class Trained(Exception):
+        pass
+
+    def fake_train(*args, **kw):
+        raise Trained(kw["resume"])
+
+    monkeypatch.setattr(train_module, "train", fake_train)
+    ckpt = tmp_path / "p.ckpt"
+    ckpt.write_bytes(b"older training")
+    assert main(["learn", "train", "--steps", "1e6", "-o", str(ckpt)]) == 2
+    _one_error_line(capsys, "p.ckpt: a checkpoint exists there; --resume to go on training it, --overwrite")
+    for flag in ("--resume", "--overwrite"):
+        with pytest.raises(Trained, match=str(flag == "--resume")):
+            main(["learn", "train", "--steps", "1e6", "-o", str(ckpt), flag])
+    with pytest.raises(Trained):
+        main(["learn", "train", "--steps", "1e6", "-o", str(tmp_path / "new.ckpt")])
+    assert ckpt.read_bytes() == b"older training"
