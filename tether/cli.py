@@ -119,7 +119,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
     if not args.record:                  # they were ignored: the run went unrecorded
         given = [flag for flag, value in (("--record-topics", args.record_topics), ("--record-exclude",
                  args.record_exclude), ("--record-max-size", args.record_max_size),
-                 ("--record-max-duration", args.record_max_duration)) if value]
+                 ("--record-max-duration", args.record_max_duration), ("--overwrite", args.overwrite)) if value]
         if given:
             raise ConfigError(f"{', '.join(given)} without --record FILE: nothing would be recorded")
     launch = load_launch(args.file, parse_overrides(args.param), args=parse_launch_args(args.arg))
@@ -293,6 +293,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from tether.replay import Window, play, replay_into
 
     window = Window(args.start, args.end, args.topics, args.rate, args.loop)
+    ignored = [flag for flag, value in (("--record", args.record), ("--map", args.map), ("--param", args.param),
+                                        ("--lockstep", args.lockstep), ("--overwrite", args.overwrite)) if value]
+    if ignored and not args.into:        # they were ignored: the log was published, nothing recorded
+        raise ConfigError(f"{', '.join(ignored)} without --into MODULE:Class: they apply to a node run on the log")
     if args.into:
         from tether.runner import load_node_class
 
@@ -450,6 +454,8 @@ def cmd_log(args: argparse.Namespace) -> int:
         return _log_cut_merge(args)
     if args.more:
         raise ConfigError(f"tether log takes one log (or 'cut IN' / 'merge IN ...'), got {args.more}")
+    if args.overwrite and not args.output:
+        raise ConfigError("--overwrite without -o OUT (with --recover, cut or merge): nothing would be written")
     if args.recover:
         if not args.output:
             raise ConfigError("tether log --recover IN needs -o OUT")
@@ -932,6 +938,8 @@ def cmd_learn(args: argparse.Namespace) -> int:
         print(f"wrote {args.out} ({agent.steps_done} steps{short}) and {Path(args.out).with_suffix('.png')}")
         return 0
     if args.learn_cmd == "eval":
+        if args.overwrite and not args.record:
+            raise ConfigError("--overwrite without --record FILE: nothing would be written")
         _regular_input(args.checkpoint, "a checkpoint")
         _check_output(args.record, args.checkpoint, flag="--record", log=True, overwrite=args.overwrite)
         agent = PPO.load(args.checkpoint)

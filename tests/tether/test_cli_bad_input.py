@@ -946,3 +946,19 @@ def test_training_into_an_existing_checkpoint_needs_resume_or_overwrite(tmp_path
     with pytest.raises(Trained):
         main(["learn", "train", "--steps", "1e6", "-o", str(tmp_path / "new.ckpt")])
     assert ckpt.read_bytes() == b"older training"
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["replay", "LOG", "--record", "out.mcap"], "--record without --into"),      # published the log, recorded nothing
+    (["replay", "LOG", "--map", "value=a/value", "--lockstep"], "--map, --lockstep without --into"),
+    (["replay", "LOG", "--param", "gain=3"], "--param without --into"),
+    (["launch", str(REPO / "launch/counter.yaml"), "--overwrite", "--duration", "1"], "--overwrite without --record"),
+    (["log", "LOG", "--overwrite"], "--overwrite without -o OUT"),
+])
+def test_replay_options_of_into_and_overwrite_alone_are_errors(tmp_path, capsys, runtime_env, argv, needle):
+    """Each ran as if the option had not been given (replay --record OUT without --into published the
+    log and wrote no OUT), exit 0."""
+    log = str(_log(tmp_path / "a.mcap"))
+    assert main([log if a == "LOG" else a for a in argv]) == 2
+    _one_error_line(capsys, needle)
+    assert not (Path.cwd() / "out.mcap").exists()
