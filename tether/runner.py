@@ -126,7 +126,10 @@ def run_spec(spec: RunSpec, *, install_signals: bool = True) -> int:
         watch_parent(spec.parent_pid, runtime.stop)
     code = runtime.serve()
     if spec.parent_pid:              # launched: one line the launcher takes, not prints (its stop count)
-        print(STOP_REPORT_TEXT + json.dumps(runtime.stop_report()), flush=True)
+        try:
+            print(STOP_REPORT_TEXT + json.dumps(runtime.stop_report()), flush=True)
+        except (OSError, ValueError):    # the launcher is gone (a broken pipe, a closed stream): no one to tell
+            pass
     # Terminate ZeroMQ before the interpreter tears objects down: zero-copy frames still queued
     # (within the linger time) must not outlive the buffers they point into.
     runtime.ctx.term()
