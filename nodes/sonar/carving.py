@@ -451,8 +451,8 @@ class CarvingGrid:
         surface_p = None
         if p.keep == "evidence":
             surface_p = carving_filter.candidate_probability(self, rows, self._model)
-            keep = surface_p >= next(t for t in (min_surface_p, p.min_surface_p, self._model["threshold_p"])
-                                     if t is not None)
+            given = min_surface_p if min_surface_p is not None else p.min_surface_p   # None: the model's threshold
+            keep = carving_filter.select(surface_p, self._model, min_surface_p=given).keep
         else:
             keep = self.default_keep(rows)
         rows, pts = rows[keep], pts[keep]

@@ -27,7 +27,7 @@ lie within 0.2 m and they cover 59.2 % of the seen surface, against 93.4 % / 49.
 the 70 % completeness the issue asks. Hence an option, off by default.
 
 :func:`select` picks the voxels from their probabilities: one global threshold (``keep_rule="threshold"``, what
-``CarvingGrid.cloud`` does), or a threshold per cloud (``"calibrated"``, :func:`keep_calibrated`): the stored isotonic
+``CarvingGrid.cloud`` asks for), or a threshold per cloud (``"calibrated"``, :func:`keep_calibrated`): the stored isotonic
 map (:func:`calibrate`, fitted on the training passes' out-of-fold probabilities) turns each probability into an
 expected on-surface fraction, and voxels are kept in decreasing order while the kept set's mean stays >= the stored
 ``target_precision`` (0.905, chosen on the training passes left out). Measured, not used by the node: the model's
@@ -162,7 +162,6 @@ def export_model(classifier, path: str | Path, *, threshold_p: float, trained_on
                                           max_depth=max_depth, trained_on=trained_on, **notes, trees=trees)))
 
 
-
 # -- which voxels to keep: one global threshold, or a per-cloud one from calibrated probabilities -------------------
 KEEP_RULES = ("threshold", "calibrated")
 
@@ -244,6 +243,7 @@ def select(surface_p: np.ndarray, model: dict | None = None, *, keep_rule: str =
         return Kept(keep, None, None, "no voxels to keep" if p.size == 0 else f"no probability >= {t}: nothing kept")
     expected = float(np.mean(calibrate(p[keep], cal))) if cal is not None else None
     return Kept(keep, float(p[keep].min()), expected, "")
+
 
 # -- a carving grid's evidence ------------------------------------------------------------------------------------
 # These read the grid's candidate arrays (rows of CarvingGrid.candidate_points): hits, misses, darks, seen per voxel;
