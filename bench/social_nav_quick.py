@@ -16,7 +16,7 @@ never arrives) are most of that run's time, and this skips them.
 (bench/social_nav.py's shadow; ``guard_frac`` is then that share); each episode also gives the robot's contacts at
 0.65 m (``robot_contacts``) and the pedestrians' walk-ins (``walk_ins_strict`` at touching distance, ``walk_ins`` at
 0.65 m). ``--conflict PRICE`` runs a copy of the weights file with its conflict weight replaced (the grid cost's
-price of a predicted-conflict cell and the speed profile's, :func:`weights_with_conflict`): 0.09 is the price
+price of a predicted-conflict cell and the speed profile's, :func:`sim.irl_match.weights_with_price`): 0.09 is the price
 BIRL learns from walkers (default.json ``conflict_weight.learnt``), the shipped 4.0 is set by hand.
 """
 from __future__ import annotations
@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from sim.crowd import CrowdWorld  # noqa: E402
 from sim.crowd_scenes import load_scene  # noqa: E402
 from sim.irl_demos import sim_camera  # noqa: E402
+from sim.irl_match import weights_with_price  # noqa: E402
 from social_nav import GUARD_MODES, IrlStack, node_params, run_robot  # noqa: E402
 from social_nav_episode import metrics  # noqa: E402
 from social_nav_humans import SCENES, clear_start_s  # noqa: E402
@@ -49,21 +50,6 @@ def episode_row(m: dict) -> dict:
             "robot_contacts_strict": m["robot_contacts_strict"], "planner_wait_frac": m.get("planner_wait_frac"),
             "robot_contacts": m["collisions_robot"], "walk_ins_strict": m["contacts_strict"] - m["robot_contacts_strict"],
             "walk_ins": m["collisions_pedestrian"]}
-
-
-def weights_with_conflict(weights: str, price: float, folder: Path) -> str:
-    """A copy of the weights file ``weights`` in ``folder`` with its 'conflict' weight set to ``price``: the grid
-    cost's price of a predicted-conflict cell and, through it, the planner's speed profile (its ``conflict_price``
-    reads the file). The other weights and the step cost are the file's."""
-    if price < 0:
-        raise ValueError(f"conflict price {price} < 0: give the price of a conflict cell (>= 0; shipped 4.0, learnt 0.09)")
-    doc = json.loads(Path(weights).read_text(encoding="utf-8"))
-    if "conflict" not in doc["names"]:
-        raise ValueError(f"{weights} has no 'conflict' weight to set; use a weights file with the 13 crowd features")
-    doc["weights"][doc["names"].index("conflict")] = float(price)
-    out = folder / f"weights_conflict_{price:g}.json"
-    out.write_text(json.dumps(doc), encoding="utf-8")
-    return str(out)
 
 
 def summary(rows: list[dict], against: dict | None) -> dict:
@@ -107,7 +93,7 @@ def main() -> None:
     weights = args.weights or str(ROOT / "nodes" / "nav" / "weights" / "default.json")
     tmp = tempfile.TemporaryDirectory()
     if args.conflict is not None:
-        weights = weights_with_conflict(weights, args.conflict, Path(tmp.name))
+        weights = str(weights_with_price(weights, args.conflict, Path(tmp.name) / "weights_conflict.json"))
     params = node_params(args.param)
     out = {"params": args.param, "guard": args.guard, "conflict": args.conflict, "scenarios": {}}
     for name in args.scenes or SCENES:

@@ -119,12 +119,12 @@ def test_unguarded_summary_and_headline_count_walk_ins_apart():
 
 def test_conflict_price_copy_of_the_weights(tmp_path):
     import json
-    from social_nav_quick import weights_with_conflict
+    from sim.irl_match import weights_with_price     # what social_nav_quick --conflict runs on
     shipped = REPO / "nodes" / "nav" / "weights" / "default.json"
     doc = json.loads(shipped.read_text())
-    got = json.loads(Path(weights_with_conflict(str(shipped), 0.09, tmp_path)).read_text())
+    got = json.loads(Path(weights_with_price(str(shipped), 0.09, tmp_path / "w.json")).read_text())
     k = doc["names"].index("conflict")
     assert got["weights"][k] == 0.09 and doc["weights"][k] != 0.09
     assert got["weights"][:k] == doc["weights"][:k] and got["step_cost"] == doc["step_cost"]
     with pytest.raises(ValueError, match=">= 0"):
-        weights_with_conflict(str(shipped), -1.0, tmp_path)
+        weights_with_price(str(shipped), -1.0, tmp_path / "w.json")
