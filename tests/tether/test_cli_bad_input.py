@@ -321,7 +321,7 @@ def test_exporting_nothing_is_not_success(tmp_path, capsys):
     assert main(["export", "foxglove", str(cut), "-o", str(tmp_path / "e.mcap"), "--allow-empty", "--overwrite"]) == 0
 
 
-# -- second pass (helper-64) -------------------------------------------------------------------
+# -- second pass -------------------------------------------------------------------------------
 class Feedback(Node):
     """A node that takes its own output back (a loop meant as feedback: its timer starts it)."""
 
@@ -479,7 +479,7 @@ def test_a_fifo_given_as_a_launch_file_is_refused_not_waited_on(tmp_path, capsys
     _one_error_line(capsys, "pipe.yaml")
 
 
-# -- found by mutating every verb's arguments (helper-64) ---------------------------------------
+# -- found by mutating every verb's arguments ----------------------------------------------------
 def _within(argv: list[str], fifo: Path, seconds: float = 5.0) -> int:
     """main(argv) on a thread; a call still blocked on ``fifo`` after ``seconds`` fails the test
     (the FIFO is then opened for writing once, so the old code's blocked open returns)."""
@@ -724,7 +724,7 @@ def test_keys_list_of_a_graph_without_keystore_says_how_to_make_one(tmp_path, ca
 
 def test_a_log_output_never_writes_over_a_file_that_is_not_a_log(tmp_path, capsys):
     """``-o`` naming an existing launch file or image by mistake (a shell completion one letter off)
-    emptied it: a log is written over an older log only (and that only with --overwrite, helper-67)."""
+    emptied it: a log is written over an older log only (and that only with --overwrite)."""
     log = _log(tmp_path / "a.mcap")
     notes = tmp_path / "notes.yaml"
     notes.write_text("name: x\n")

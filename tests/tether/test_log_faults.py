@@ -147,7 +147,7 @@ def test_bit_flips_are_found_skipped_and_recovery_keeps_the_rest(tmp_path: Path,
     assert check_log(tmp_path / "clean.mcap").ok and not LogReader(tmp_path / "clean.mcap").recovered
     cli = tether("log", "--recover", str(path), "-o", str(tmp_path / "again.mcap"), env=runtime_env)
     assert cli.returncode == 0 and f"recovered {written} messages" in cli.stdout
-    replay = tether("replay", str(path), "--rate", "0", "--delay", "0", env=runtime_env)   # exit 1 since helper-67
+    replay = tether("replay", str(path), "--rate", "0", "--delay", "0", env=runtime_env)   # damaged: exit 1 unless --skip-bad
     assert replay.returncode == 1 and "skipping damaged chunk" in replay.stderr and "Traceback" not in replay.stderr
     assert f"replayed {len(values)} messages" in replay.stdout and "(--skip-bad to accept)" in replay.stderr
     replay = tether("replay", str(path), "--rate", "0", "--delay", "0", "--skip-bad", env=runtime_env)
