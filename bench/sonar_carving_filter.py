@@ -395,18 +395,14 @@ def fit_calibration(passes: list[dict], probs: list[np.ndarray]):
         np.concatenate(probs), np.concatenate([p["on"] for p in passes]), sample_weight=w)
 
 
-def as_map(iso) -> tuple[np.ndarray, np.ndarray]:
-    """A fitted IsotonicRegression as carving_filter's (p, on_frac) breakpoints."""
-    return np.asarray(iso.X_thresholds_, float), np.asarray(iso.y_thresholds_, float)
-
-
 def choose_target(passes: list[dict], held_out_probs: list[np.ndarray]) -> tuple[float, list]:
     """The lowest CAL_TARGETS target precision at which at most MAY_LOSE of the passes lose more than WORSE_BY of
     accuracy (within 0.2 m) against their default cloud (the threshold's rule), each pass scored by the model
     trained without it and calibrated on the others' out-of-fold probabilities (nested: the calibration never saw
     the pass; those probabilities came from models that did, a second-order leak). Returns it and, per pass, the
     calibration map used."""
-    maps = [as_map(fit_calibration(passes[:i] + passes[i + 1:], held_out_probs[:i] + held_out_probs[i + 1:]))
+    maps = [carving_filter.calibration_map(fit_calibration(passes[:i] + passes[i + 1:],
+                                                           held_out_probs[:i] + held_out_probs[i + 1:]))
             for i in range(len(passes))]
     for target in CAL_TARGETS:
         worse = 0
@@ -428,6 +424,7 @@ def reliability(on: np.ndarray, q: np.ndarray, keep_global: np.ndarray) -> dict:
     bins = {f"{lo:.2f}-{hi:.2f}": pair(s) for lo, hi in zip(RELIABILITY_BINS[:-1], RELIABILITY_BINS[1:])
             if (s := (q >= lo) & ((q < hi) | (hi == 1.0))).sum() >= 20}
     return {"all": pair(np.ones(len(q), bool)), "at_global_threshold": pair(keep_global), "bins": bins}
+
 
 # -- --stack: a second stage over the neighbours' first-stage probabilities (measured, not shipped) ---------------
 # offsets (di, dj, dk) in voxels: the 3 x 3 x 3 and 5 x 5 x 5 blocks (self left out), and the 3 x 3 column 0.2-1.0 m
@@ -653,7 +650,7 @@ def calibrated(as_json: bool) -> None:
         oof.append(probability(fit(train[:i] + train[i + 1:]), train[i]))
     threshold = choose_threshold(train, oof)
     target, maps = choose_target(train, oof)
-    clf, cal = fit(train), as_map(fit_calibration(train, oof))
+    clf, cal = fit(train), carving_filter.calibration_map(fit_calibration(train, oof))
     out = {"calibrated_target_precision": target, "calibrated_global_threshold_p": threshold,
            "calibrated_map": {"p": cal[0].tolist(), "on_frac": cal[1].tolist()}, "calibrated_training_left_out": {},
            "calibrated_sets": {}}

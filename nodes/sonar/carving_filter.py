@@ -148,8 +148,8 @@ def export_model(classifier, path: str | Path, *, threshold_p: float, trained_on
     to the observed on-surface fraction (stored as its breakpoints, for :func:`calibrate`); ``notes``: more JSON-able
     keys stored beside (how the threshold was chosen, ``target_precision``, ...)."""
     if calibration is not None:
-        notes["calibration"] = dict(p=np.asarray(calibration.X_thresholds_, float).tolist(),
-                                    on_frac=np.asarray(calibration.y_thresholds_, float).tolist())
+        p, on = calibration_map(calibration)
+        notes["calibration"] = dict(p=p.tolist(), on_frac=on.tolist())
     trees = []
     for (predictor,) in classifier._predictors:
         n = predictor.nodes
@@ -176,6 +176,11 @@ class Kept(NamedTuple):
     threshold_p: float | None
     expected_precision: float | None
     note: str
+
+
+def calibration_map(isotonic) -> tuple[np.ndarray, np.ndarray]:
+    """A fitted ``sklearn.isotonic.IsotonicRegression`` as the (p, on_frac) breakpoints :func:`calibrate` reads."""
+    return np.asarray(isotonic.X_thresholds_, float), np.asarray(isotonic.y_thresholds_, float)
 
 
 def calibrate(p: np.ndarray, calibration: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
